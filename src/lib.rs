@@ -1,0 +1,7 @@
+//! The hardware-free core of the base controller: everything that decides, as pure
+//! `no_std` code with time passed in. The chip shell only moves bytes between the
+//! peripherals and this crate.
+#![cfg_attr(not(test), no_std)]
+
+pub mod calibration;
+pub mod time;
