@@ -1,0 +1,124 @@
+//! Frames from the base controller to the robot PC (spec §4): encoded on the robot,
+//! decoded by test tools and the PC-side CLI.
+
+use super::command::{REGISTER_ERROR, REGISTER_READ_REQUEST, REGISTER_VALUE};
+use super::{FrameError, MAX_DATA_LEN, RawFrame, Status, id};
+
+/// One message to the robot PC.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Report {
+    /// 0x0EC: x forward, y to the right, since the last odometry reset.
+    Position { x_mm: i32, y_mm: i32 },
+    /// 0x0ED: positive clockwise, cumulative (not wrapped).
+    Heading { heading_mrad: i32 },
+    /// 0x0EB.
+    Battery { percent: u8, voltage_mv: u16 },
+    /// 0x0EA: the producer clamps negative weights to 0.
+    Weight { grams: u16 },
+    /// 0x004 `00 MSB LSB`: reply to a register read.
+    RegisterValue { value: u16 },
+    /// 0x004 `FF addr reason` (ext): the read was refused; `reason` is the register
+    /// module's rejection code.
+    RegisterReadError { address: u8, reason: u8 },
+    /// 0x0EE (ext).
+    Status(Status),
+}
+
+impl Report {
+    /// The exact DLC of each report is required: the base controller always sends it,
+    /// so anything else is a different device or a corrupt capture. `Ok(None)`: not a
+    /// report (unknown ID, or a register read request on 0x004).
+    pub fn decode(id: u16, data: &[u8]) -> Result<Option<Report>, FrameError> {
+        if !id::REPORTS.contains(&id) {
+            return Ok(None);
+        }
+        if data.len() > MAX_DATA_LEN {
+            return Err(FrameError::WrongLength);
+        }
+        let report = match id {
+            id::POSITION => {
+                let &[x0, x1, x2, x3, y0, y1, y2, y3] = data else {
+                    return Err(FrameError::WrongLength);
+                };
+                Report::Position {
+                    x_mm: i32::from_le_bytes([x0, x1, x2, x3]),
+                    y_mm: i32::from_le_bytes([y0, y1, y2, y3]),
+                }
+            }
+            id::HEADING => {
+                let &[h0, h1, h2, h3] = data else {
+                    return Err(FrameError::WrongLength);
+                };
+                Report::Heading {
+                    heading_mrad: i32::from_le_bytes([h0, h1, h2, h3]),
+                }
+            }
+            id::BATTERY => {
+                let &[percent, v0, v1] = data else {
+                    return Err(FrameError::WrongLength);
+                };
+                Report::Battery {
+                    percent,
+                    voltage_mv: u16::from_le_bytes([v0, v1]),
+                }
+            }
+            id::WEIGHT => {
+                let &[g0, g1] = data else {
+                    return Err(FrameError::WrongLength);
+                };
+                Report::Weight {
+                    grams: u16::from_le_bytes([g0, g1]),
+                }
+            }
+            id::REGISTER_READ => match *data {
+                [REGISTER_READ_REQUEST, ..] => return Ok(None),
+                [REGISTER_VALUE, msb, lsb] => Report::RegisterValue {
+                    value: u16::from_be_bytes([msb, lsb]),
+                },
+                [REGISTER_ERROR, address, reason] => Report::RegisterReadError { address, reason },
+                [] | [REGISTER_VALUE | REGISTER_ERROR, ..] => {
+                    return Err(FrameError::WrongLength);
+                }
+                _ => return Err(FrameError::UnknownSubcommand),
+            },
+            id::STATUS => {
+                let Ok(bytes) = <[u8; 8]>::try_from(data) else {
+                    return Err(FrameError::WrongLength);
+                };
+                Report::Status(Status::from_bytes(bytes)?)
+            }
+            _ => return Ok(None),
+        };
+        Ok(Some(report))
+    }
+
+    pub fn encode(&self) -> RawFrame {
+        match *self {
+            Report::Position { x_mm, y_mm } => {
+                let [x0, x1, x2, x3] = x_mm.to_le_bytes();
+                let [y0, y1, y2, y3] = y_mm.to_le_bytes();
+                RawFrame::from_array(id::POSITION, [x0, x1, x2, x3, y0, y1, y2, y3])
+            }
+            Report::Heading { heading_mrad } => {
+                RawFrame::from_array(id::HEADING, heading_mrad.to_le_bytes())
+            }
+            Report::Battery {
+                percent,
+                voltage_mv,
+            } => {
+                let [v0, v1] = voltage_mv.to_le_bytes();
+                RawFrame::from_array(id::BATTERY, [percent, v0, v1])
+            }
+            Report::Weight { grams } => RawFrame::from_array(id::WEIGHT, grams.to_le_bytes()),
+            Report::RegisterValue { value } => {
+                let [msb, lsb] = value.to_be_bytes();
+                RawFrame::from_array(id::REGISTER_READ, [REGISTER_VALUE, msb, lsb])
+            }
+            Report::RegisterReadError { address, reason } => {
+                RawFrame::from_array(id::REGISTER_READ, [REGISTER_ERROR, address, reason])
+            }
+            Report::Status(status) => RawFrame::from_array(id::STATUS, status.to_bytes()),
+        }
+    }
+}
