@@ -4,4 +4,6 @@
 #![cfg_attr(not(test), no_std)]
 
 pub mod calibration;
+pub mod kinematics;
+pub mod odometry;
 pub mod time;
