@@ -23,6 +23,10 @@
 //!   segments; the integrator is held to 1 mm. So a measured difference below the bound
 //!   proves the integrator's arithmetic error is below it too.
 //!
+//! Two trips: a wandering one (arcs of both directions and radii, spins, reversals,
+//! stops; the cumulative heading reaches thousands of radians) and one that heads away
+//! to end about 100 km from the origin.
+//!
 //! The drives' counters are i32 and wrap (100 km is about 4e10 counts, ten times the
 //! i32 range), the first counter value sits just below i32::MAX, and drive reconnects
 //! restart the counters and re-baseline the odometry on the way.
@@ -81,8 +85,32 @@ struct Segment {
     samples: i64,
 }
 
-fn next_segment(rng: &mut Rng) -> Segment {
+/// The kind of trip: wandering around (the heading grows to thousands of radians), or
+/// heading away (forward straights and gentle arcs, ending ~100 km from the origin).
+#[derive(Clone, Copy)]
+enum Trip {
+    Mixed,
+    Away,
+}
+
+/// `heading_rad` is where the robot points now, to steer the `Away` trip.
+fn next_segment(rng: &mut Rng, trip: Trip, heading_rad: f64) -> Segment {
     let speed = |rng: &mut Rng| rng.range(1_000, MAX_COUNTS_PER_SAMPLE);
+    if let Trip::Away = trip {
+        let v = rng.range(20_000, MAX_COUNTS_PER_SAMPLE);
+        // Gentle arcs that steer back towards heading 0 (a positive bend turns clockwise).
+        let bend = match rng.range(0, 2) {
+            0 => 0,
+            _ if heading_rad > 0.2 => -rng.range(1, 20),
+            _ if heading_rad < -0.2 => rng.range(1, 20),
+            _ => rng.range(-20, 20),
+        };
+        return Segment {
+            left: v + bend,
+            right: v - bend,
+            samples: rng.range(20, 1_200),
+        };
+    }
     let (left, right) = match rng.range(0, 9) {
         // Straight, forward or reversing.
         0..=2 => {
@@ -220,7 +248,7 @@ fn position_error(odo: &Odometry, reference: &Reference) -> f64 {
     libm::hypot(reference.x.minus(p.x_mm), reference.y.minus(p.y_mm))
 }
 
-fn drive_100_km(p: &OdometryParams, seed: u64) -> Outcome {
+fn drive_100_km(p: &OdometryParams, trip: Trip, seed: u64) -> Outcome {
     let mut rng = Rng(seed);
     let mut odo = Odometry::new();
     let mut reference = Reference::new(p);
@@ -246,7 +274,7 @@ fn drive_100_km(p: &OdometryParams, seed: u64) -> Outcome {
     };
     let mut travelled = 0.0;
     while travelled < TARGET_DISTANCE_MM {
-        let segment = next_segment(&mut rng);
+        let segment = next_segment(&mut rng, trip, reference.heading_rad());
         let step_left = (left_sign * segment.left) as i32;
         let step_right = segment.right as i32;
         for _ in 0..segment.samples {
@@ -293,9 +321,9 @@ fn drive_100_km(p: &OdometryParams, seed: u64) -> Outcome {
     outcome
 }
 
-fn run(name: &str, p: &OdometryParams, seed: u64) {
+fn run(name: &str, p: &OdometryParams, trip: Trip, seed: u64) {
     let started = std::time::Instant::now();
-    let o = drive_100_km(p, seed);
+    let o = drive_100_km(p, trip, seed);
     let elapsed = started.elapsed();
     println!(
         "{name}: {} segments, {} samples ({:.1} h at 20 Hz) in {elapsed:?}\n  \
@@ -325,7 +353,12 @@ fn run(name: &str, p: &OdometryParams, seed: u64) {
 
 #[test]
 fn hundred_km_of_mixed_motion_adds_less_than_one_mm_without_corrections() {
-    run("factors 1.0", &params(1.0, 1.0, 1.0, false), 0x5EED_0001);
+    run(
+        "factors 1.0",
+        &params(1.0, 1.0, 1.0, false),
+        Trip::Mixed,
+        0x5EED_0001,
+    );
 }
 
 #[test]
@@ -334,6 +367,19 @@ fn hundred_km_of_mixed_motion_adds_less_than_one_mm_with_manual_default_factors(
     run(
         "manual defaults, mirrored",
         &params(1.0071, 0.9938, 0.9894, true),
+        Trip::Mixed,
         0x5EED_0002,
+    );
+}
+
+#[test]
+fn hundred_km_away_from_the_origin_adds_less_than_one_mm() {
+    // Far from the origin an f64 ulp is ~1.5e-8 mm: without compensated sums the
+    // rounding of a million position updates would start to show here.
+    run(
+        "away from the origin, manual defaults",
+        &params(1.0071, 0.9938, 0.9894, false),
+        Trip::Away,
+        0x5EED_0003,
     );
 }
