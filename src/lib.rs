@@ -5,4 +5,6 @@
 
 pub mod calibration;
 pub mod can;
+pub mod kinematics;
+pub mod odometry;
 pub mod time;
