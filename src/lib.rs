@@ -4,4 +4,5 @@
 #![cfg_attr(not(test), no_std)]
 
 pub mod calibration;
+pub mod registers;
 pub mod time;
