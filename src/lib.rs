@@ -7,4 +7,5 @@ pub mod calibration;
 pub mod can;
 pub mod kinematics;
 pub mod odometry;
+pub mod registers;
 pub mod time;

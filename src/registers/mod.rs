@@ -1,0 +1,263 @@
+//! The parameter registers: their current values, validation of every write, and the
+//! rebuild from flash at boot. The CAN task reads and writes them (0x003/0x004), the
+//! calibrations write 16–20, the flash task persists what [`Registers::write`] reports.
+//!
+//! Every accepted state satisfies each register's range and these cross-register rules:
+//!
+//! - `batt_empty_mv < batt_full_mv` (the percentage divides by the difference);
+//! - `start_PC < shutdown_PC` (one hold time must come first);
+//! - `PS_rel_max_vel ≤ PS_abs_max_vel` (the boot speed level is one the remote may select);
+//! - `estop_decel × 300 ms ≥ max_motor_vel`: the e-stop circuit cuts motor power about
+//!   300 ms after the button, so the controlled stop must be able to finish before that.
+//!
+//! Changing a pair the "wrong" way round takes two writes in the right order (e.g.
+//! raise `estop_decel` before `max_motor_vel`).
+
+mod record;
+mod table;
+
+pub use record::{RECORD_LEN, RecordError, SCHEMA_VERSION, decode_record, encode_record, migrate};
+pub use table::{
+    ADDRESS_COUNT, Access, FW_VERSION, LAST_MANUAL_ADDRESS, MOTOR_DIR_INVERT_LEFT,
+    MOTOR_DIR_INVERT_RIGHT, REGMAP_VERSION, RESTORE_DEFAULTS_KEY, Reg, RegisterInfo, TABLE, info,
+};
+
+/// Why a register read or write was refused. The code goes on CAN (register-read error
+/// reply `004#FF addr code`, status frame); codes are stable and live in 0x10..=0x1F.
+#[repr(u8)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum RegisterError {
+    /// No register at this address (34–37 and 41–255).
+    UnknownAddress = 0x10,
+    /// The register is read-only (`fw_version`, `regmap_version`).
+    ReadOnly = 0x11,
+    /// The value is outside the register's range, or not a known key for `command`.
+    OutOfRange = 0x12,
+    /// The value is in range but would break a cross-register rule.
+    Inconsistent = 0x13,
+}
+
+impl RegisterError {
+    /// The stable wire code.
+    pub fn code(self) -> u8 {
+        self as u8
+    }
+}
+
+/// What an accepted write means for the flash.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum WriteOutcome {
+    /// The register took a new value: persist this one record.
+    Changed { address: u8, value: u16 },
+    /// The register already held this value: nothing to write.
+    Unchanged,
+    /// Every writable register is back at its default: persist every record of
+    /// [`Registers::iter`] (rewrite rather than erase, so the next boot finds a full
+    /// store and does not report a blank one).
+    DefaultsRestored,
+}
+
+/// What [`Registers::load`] made of the stored records.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct LoadReport {
+    /// Registers that now hold a stored value (the rest hold their defaults).
+    pub applied: u16,
+    /// Records skipped as damaged, unknown, out of range or inconsistent.
+    pub rejected: u16,
+    /// Records of a newer firmware's extension registers, skipped on purpose.
+    pub dropped: u16,
+    /// The store held no record at all.
+    pub blank: bool,
+}
+
+impl LoadReport {
+    /// Whether the status frame's flash fault bit should be set: the registers are not
+    /// (all) what was stored, because the store was blank or a record was rejected.
+    pub fn flash_fault(&self) -> bool {
+        self.blank || self.rejected > 0
+    }
+}
+
+/// Motor power is cut this long after the e-stop button; see the module doc.
+const ESTOP_POWER_CUT_MS: u32 = 300;
+
+/// A relation between registers that every accepted state satisfies.
+struct CrossRule {
+    /// The registers the rule reads; restoring them to their defaults satisfies it.
+    registers: [Reg; 2],
+    holds: fn(&Registers) -> bool,
+}
+
+const RULES: [CrossRule; 4] = [
+    CrossRule {
+        registers: [Reg::BattEmptyMv, Reg::BattFullMv],
+        holds: |r| r.get(Reg::BattEmptyMv) < r.get(Reg::BattFullMv),
+    },
+    CrossRule {
+        registers: [Reg::StartPc, Reg::ShutdownPc],
+        holds: |r| r.get(Reg::StartPc) < r.get(Reg::ShutdownPc),
+    },
+    CrossRule {
+        registers: [Reg::PsRelMaxVel, Reg::PsAbsMaxVel],
+        holds: |r| r.get(Reg::PsRelMaxVel) <= r.get(Reg::PsAbsMaxVel),
+    },
+    CrossRule {
+        registers: [Reg::EstopDecel, Reg::MaxMotorVel],
+        holds: |r| {
+            u32::from(r.get(Reg::EstopDecel)) * ESTOP_POWER_CUT_MS
+                >= u32::from(r.get(Reg::MaxMotorVel)) * 1000
+        },
+    },
+];
+
+/// The current value of every register, always inside its range and consistent.
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Registers {
+    /// Indexed by address; unassigned addresses and `command` stay 0.
+    values: [u16; ADDRESS_COUNT],
+}
+
+impl Default for Registers {
+    fn default() -> Self {
+        Self::defaults()
+    }
+}
+
+impl Registers {
+    /// The manual's defaults, and ours for the extensions.
+    pub fn defaults() -> Self {
+        let mut values = [0; ADDRESS_COUNT];
+        for info in &TABLE {
+            values[usize::from(info.address)] = info.default;
+        }
+        Self { values }
+    }
+
+    pub fn get(&self, reg: Reg) -> u16 {
+        self.values[usize::from(reg.address())]
+    }
+
+    /// A CAN register read. `command` reads 0.
+    pub fn read(&self, address: u8) -> Result<u16, RegisterError> {
+        let reg = Reg::from_address(address).ok_or(RegisterError::UnknownAddress)?;
+        Ok(self.get(reg))
+    }
+
+    /// A CAN register write, validated against the register's range and every
+    /// cross-register rule. A rejected write changes nothing.
+    pub fn write(&mut self, address: u8, value: u16) -> Result<WriteOutcome, RegisterError> {
+        let info = info(address).ok_or(RegisterError::UnknownAddress)?;
+        if info.access == Access::ReadOnly {
+            return Err(RegisterError::ReadOnly);
+        }
+        if !info.accepts(value) {
+            return Err(RegisterError::OutOfRange);
+        }
+        if info.access == Access::WriteOnly {
+            // `command`: its range admits only RESTORE_DEFAULTS_KEY.
+            *self = Self::defaults();
+            return Ok(WriteOutcome::DefaultsRestored);
+        }
+        let index = usize::from(address);
+        if self.values[index] == value {
+            return Ok(WriteOutcome::Unchanged);
+        }
+        let mut candidate = self.clone();
+        candidate.values[index] = value;
+        if !candidate.is_consistent() {
+            return Err(RegisterError::Inconsistent);
+        }
+        *self = candidate;
+        Ok(WriteOutcome::Changed { address, value })
+    }
+
+    /// `(address, value)` of every persistent (read-write) register, in address order:
+    /// what the flash task stores.
+    pub fn iter(&self) -> impl Iterator<Item = (u8, u16)> + '_ {
+        TABLE
+            .iter()
+            .filter(|info| info.access == Access::ReadWrite)
+            .map(|info| (info.address, self.values[usize::from(info.address)]))
+    }
+
+    /// Rebuilds the registers from stored records, in any order: starts from the
+    /// defaults and applies each record that decodes, migrates and passes its register's
+    /// range. The cross-register rules are checked once all records are in (a valid
+    /// store may hold a pair that no single write order from the defaults reaches);
+    /// a rule that still fails puts its registers back to their defaults.
+    pub fn load<'a>(records: impl IntoIterator<Item = &'a [u8]>) -> (Registers, LoadReport) {
+        let mut registers = Self::defaults();
+        let mut report = LoadReport {
+            blank: true,
+            ..LoadReport::default()
+        };
+        // Bit n set: register n holds a value from the store.
+        let mut from_store: u64 = 0;
+
+        for bytes in records {
+            report.blank = false;
+            match decode_record(bytes) {
+                Ok((address, value)) => match info(address) {
+                    Some(register)
+                        if register.access == Access::ReadWrite && register.accepts(value) =>
+                    {
+                        registers.values[usize::from(address)] = value;
+                        from_store |= 1 << address;
+                    }
+                    _ => report.rejected = report.rejected.saturating_add(1),
+                },
+                Err(RecordError::NewerSchema { .. }) => {
+                    report.dropped = report.dropped.saturating_add(1);
+                }
+                Err(_) => report.rejected = report.rejected.saturating_add(1),
+            }
+        }
+
+        // Restoring a rule's registers can only break a rule sharing one of them, so
+        // this settles within one pass per rule; defaults satisfy every rule.
+        for _ in 0..RULES.len() {
+            let mut settled = true;
+            for rule in &RULES {
+                if (rule.holds)(&registers) {
+                    continue;
+                }
+                settled = false;
+                for reg in rule.registers {
+                    registers.values[usize::from(reg.address())] = reg.info().default;
+                    let bit = 1u64 << reg.address();
+                    if from_store & bit != 0 {
+                        from_store &= !bit;
+                        report.rejected = report.rejected.saturating_add(1);
+                    }
+                }
+            }
+            if settled {
+                break;
+            }
+        }
+        if !registers.is_consistent() {
+            // Unreachable while the rules are pairs over registers that restore to
+            // consistent defaults; kept so that a future rule can never let a broken
+            // state through.
+            report.rejected = report
+                .rejected
+                .saturating_add(from_store.count_ones() as u16);
+            from_store = 0;
+            registers = Self::defaults();
+        }
+
+        report.applied = from_store.count_ones() as u16;
+        (registers, report)
+    }
+
+    fn is_consistent(&self) -> bool {
+        RULES.iter().all(|rule| (rule.holds)(self))
+    }
+}
+
+#[cfg(test)]
+mod tests;

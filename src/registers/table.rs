@@ -1,0 +1,331 @@
+//! The register map: every address, its name, unit, default, valid range and access.
+//! Addresses 0–23 are the manual's (§10) and never move; 24–33 and 38–40 are this
+//! firmware's extensions. `docs/registers.md` is this table in prose.
+
+/// Every register by its manual name, in CamelCase; the discriminant is the CAN address.
+///
+/// 34–37 are deliberately absent: they are kept free for the Bluetooth remote, and
+/// reading or writing them answers [`super::RegisterError::UnknownAddress`].
+#[repr(u8)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Reg {
+    /// `rad_r`, mm: right wheel radius.
+    RadR = 0,
+    /// `rad_l`, mm: left wheel radius.
+    RadL = 1,
+    /// `wheel_dist`, mm: distance between the wheels.
+    WheelDist = 2,
+    /// `CAN_accel`, (1/min)/s: acceleration under CAN control.
+    CanAccel = 3,
+    /// `Contr_acc_norm`, (1/min)/s: acceleration under remote control.
+    ContrAccNorm = 4,
+    /// `Contr_acc_high`, (1/min)/s: braking when the remote's dead-man is released.
+    ContrAccHigh = 5,
+    /// `max_motor_vel`, 1/min: motor speed limit.
+    MaxMotorVel = 6,
+    /// `PS_abs_max_vel`, mm/s: highest speed level the remote can select.
+    PsAbsMaxVel = 7,
+    /// `PS_rel_max_vel`, mm/s: the remote's speed level after boot.
+    PsRelMaxVel = 8,
+    /// `sec_lin_vel`, mm/s: linear limit while someone is in the safety zone.
+    SecLinVel = 9,
+    /// `sec_turn_vel`, mrad/s: rotation limit while someone is in the safety zone.
+    SecTurnVel = 10,
+    /// `disable_time`, ms: standstill time before the brakes close.
+    DisableTime = 11,
+    /// `volt_time`, ms: battery frame period.
+    VoltTime = 12,
+    /// `weight_time`, ms: weight frame period.
+    WeightTime = 13,
+    /// `PS_afk_time`, ms: the remote is switched off after this long without input.
+    PsAfkTime = 14,
+    /// `loop_end_delay`, ms: control and odometry period.
+    LoopEndDelay = 15,
+    /// `f_cw`, 1/10000: clockwise rotation correction.
+    FCw = 16,
+    /// `f_ccw`, 1/10000: counter-clockwise rotation correction.
+    FCcw = 17,
+    /// `f_lin`, 1/10000: linear correction.
+    FLin = 18,
+    /// `weight_offset`, raw: scale reading with nothing on it.
+    WeightOffset = 19,
+    /// `scale_value`, 1/100: raw counts per gram × 100.
+    ScaleValue = 20,
+    /// `heartbeat_time`, ms: the PC counts as off after this long without heartbeat.
+    HeartbeatTime = 21,
+    /// `start_PC`, ms: button hold time that switches the PC on.
+    StartPc = 22,
+    /// `shutdown_PC`, ms: button hold time that switches the PC off.
+    ShutdownPc = 23,
+    /// (ext) `gear_ratio`, 1/100: motor revolutions per wheel revolution × 100.
+    GearRatio = 24,
+    /// (ext) `enable_timeout`, ms: the CAN enable (0x2E4) lapses after this long.
+    EnableTimeout = 25,
+    /// (ext) `estop_decel`, (1/min)/s: deceleration of the emergency stop.
+    EstopDecel = 26,
+    /// (ext) `cmd_timeout`, ms: CAN velocity staleness timeout, 0 = off.
+    CmdTimeout = 27,
+    /// (ext) `motor_dir`, bit mask: [`MOTOR_DIR_INVERT_LEFT`], [`MOTOR_DIR_INVERT_RIGHT`].
+    MotorDir = 28,
+    /// (ext) `batt_empty_mv`, mV: battery voltage that reads 0 %.
+    BattEmptyMv = 29,
+    /// (ext) `batt_full_mv`, mV: battery voltage that reads 100 %.
+    BattFullMv = 30,
+    /// (ext) `status_time`, ms: status frame period, 0 = off.
+    StatusTime = 31,
+    /// (ext) `pc_boot_grace`, s: a PC just switched on counts as on this long.
+    PcBootGrace = 32,
+    /// (ext) `pc_switch_pulse`, ms: how long the PC power switch is closed.
+    PcSwitchPulse = 33,
+    /// (ext) `fw_version`, read-only: `(major << 8) | minor`.
+    FwVersion = 38,
+    /// (ext) `regmap_version`, read-only: version of this register map.
+    RegmapVersion = 39,
+    /// (ext) `command`, write-only, reads 0: [`RESTORE_DEFAULTS_KEY`] restores defaults.
+    Command = 40,
+}
+
+impl Reg {
+    /// Every register, in address order.
+    pub const ALL: [Reg; 37] = [
+        Reg::RadR,
+        Reg::RadL,
+        Reg::WheelDist,
+        Reg::CanAccel,
+        Reg::ContrAccNorm,
+        Reg::ContrAccHigh,
+        Reg::MaxMotorVel,
+        Reg::PsAbsMaxVel,
+        Reg::PsRelMaxVel,
+        Reg::SecLinVel,
+        Reg::SecTurnVel,
+        Reg::DisableTime,
+        Reg::VoltTime,
+        Reg::WeightTime,
+        Reg::PsAfkTime,
+        Reg::LoopEndDelay,
+        Reg::FCw,
+        Reg::FCcw,
+        Reg::FLin,
+        Reg::WeightOffset,
+        Reg::ScaleValue,
+        Reg::HeartbeatTime,
+        Reg::StartPc,
+        Reg::ShutdownPc,
+        Reg::GearRatio,
+        Reg::EnableTimeout,
+        Reg::EstopDecel,
+        Reg::CmdTimeout,
+        Reg::MotorDir,
+        Reg::BattEmptyMv,
+        Reg::BattFullMv,
+        Reg::StatusTime,
+        Reg::PcBootGrace,
+        Reg::PcSwitchPulse,
+        Reg::FwVersion,
+        Reg::RegmapVersion,
+        Reg::Command,
+    ];
+
+    /// The register at a CAN address, or `None` for an unassigned one.
+    pub const fn from_address(address: u8) -> Option<Reg> {
+        let mut i = 0;
+        while i < Reg::ALL.len() {
+            if Reg::ALL[i] as u8 == address {
+                return Some(Reg::ALL[i]);
+            }
+            i += 1;
+        }
+        None
+    }
+
+    pub const fn address(self) -> u8 {
+        self as u8
+    }
+
+    pub fn info(self) -> &'static RegisterInfo {
+        &TABLE[self.table_index()]
+    }
+
+    /// Position in [`TABLE`]: the address, less the four unassigned ones below it.
+    pub(super) const fn table_index(self) -> usize {
+        let address = self as usize;
+        if address < FIRST_UNASSIGNED as usize {
+            address
+        } else {
+            address - UNASSIGNED_COUNT
+        }
+    }
+}
+
+/// The highest address whose name, default and meaning the manual fixes. Records of
+/// these survive any schema change; everything above is ours and may be redefined.
+pub const LAST_MANUAL_ADDRESS: u8 = 23;
+/// First of the addresses kept free for the Bluetooth remote (34..=37).
+const FIRST_UNASSIGNED: u8 = 34;
+const UNASSIGNED_COUNT: usize = 4;
+/// One past the highest address; the size of an array indexed by address.
+pub const ADDRESS_COUNT: usize = 41;
+
+/// Writing this to [`Reg::Command`] restores every writable register to its default.
+/// A key rather than 1 so that a stray or mistyped write cannot wipe a calibration.
+pub const RESTORE_DEFAULTS_KEY: u16 = 0xDEF0;
+
+/// [`Reg::MotorDir`] bit: invert the left motor's direction.
+pub const MOTOR_DIR_INVERT_LEFT: u16 = 0b01;
+/// [`Reg::MotorDir`] bit: invert the right motor's direction.
+pub const MOTOR_DIR_INVERT_RIGHT: u16 = 0b10;
+
+/// Version of the register map ([`Reg::RegmapVersion`]). Bump it when an extension
+/// register is added, removed or changes meaning, so PC software can tell.
+pub const REGMAP_VERSION: u16 = 1;
+
+/// [`Reg::FwVersion`]: `(major << 8) | minor` of the crate version, fixed at compile time.
+pub const FW_VERSION: u16 = ((parse_version_part(env!("CARGO_PKG_VERSION_MAJOR")) as u16) << 8)
+    | parse_version_part(env!("CARGO_PKG_VERSION_MINOR")) as u16;
+
+/// Parses one decimal version component; a component that does not fit a byte stops
+/// the build (this runs only in const evaluation).
+const fn parse_version_part(digits: &str) -> u8 {
+    let bytes = digits.as_bytes();
+    assert!(!bytes.is_empty(), "empty version component");
+    let mut value: u16 = 0;
+    let mut i = 0;
+    while i < bytes.len() {
+        assert!(
+            bytes[i].is_ascii_digit(),
+            "version component is not a number"
+        );
+        value = value * 10 + (bytes[i] - b'0') as u16;
+        assert!(
+            value <= 255,
+            "version component does not fit the fw_version byte"
+        );
+        i += 1;
+    }
+    value as u8
+}
+
+/// Who may read and write a register over CAN.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Access {
+    /// Readable, writable, persisted in flash.
+    ReadWrite,
+    /// A value built into the firmware; writes are rejected, nothing is persisted.
+    ReadOnly,
+    /// A command: reads 0, a write triggers an action, nothing is persisted.
+    WriteOnly,
+}
+
+/// What one register is and which values it accepts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct RegisterInfo {
+    pub address: u8,
+    /// The manual's name (`rad_r`, `CAN_accel`), or ours for an extension.
+    pub name: &'static str,
+    pub unit: &'static str,
+    /// The value after a blank boot or a restore; for a read-only register its fixed
+    /// value; `command` reads 0.
+    pub default: u16,
+    /// Smallest accepted value (apart from 0 when `zero_is_off`).
+    pub min: u16,
+    /// Largest accepted value.
+    pub max: u16,
+    /// 0 is accepted too and switches the function off ("0 = off or min..=max").
+    pub zero_is_off: bool,
+    pub access: Access,
+    pub description: &'static str,
+    /// An extension of this firmware, not in the manual.
+    pub extension: bool,
+}
+
+impl RegisterInfo {
+    /// Whether a write of `value` passes this register's own range (cross-register
+    /// rules are checked separately).
+    pub const fn accepts(&self, value: u16) -> bool {
+        (self.zero_is_off && value == 0) || (value >= self.min && value <= self.max)
+    }
+}
+
+/// Builds a table row; `extension` follows from the address.
+const fn row(
+    reg: Reg,
+    name: &'static str,
+    unit: &'static str,
+    default: u16,
+    (min, max): (u16, u16),
+    access: Access,
+    description: &'static str,
+) -> RegisterInfo {
+    RegisterInfo {
+        address: reg as u8,
+        name,
+        unit,
+        default,
+        min,
+        max,
+        zero_is_off: false,
+        access,
+        description,
+        extension: reg as u8 > LAST_MANUAL_ADDRESS,
+    }
+}
+
+/// The same row, with 0 accepted as "off".
+const fn or_off(mut info: RegisterInfo) -> RegisterInfo {
+    info.zero_is_off = true;
+    info
+}
+
+use Access::{ReadOnly, ReadWrite, WriteOnly};
+
+/// Every register in address order (34–37 are not assigned). Why each range is what it
+/// is: `docs/registers.md`.
+#[rustfmt::skip]
+pub static TABLE: [RegisterInfo; 37] = [
+    row(Reg::RadR, "rad_r", "mm", 142, (10, 1000), ReadWrite, "right wheel radius"),
+    row(Reg::RadL, "rad_l", "mm", 142, (10, 1000), ReadWrite, "left wheel radius"),
+    row(Reg::WheelDist, "wheel_dist", "mm", 250, (50, 2000), ReadWrite, "distance between the wheels"),
+    row(Reg::CanAccel, "CAN_accel", "(1/min)/s", 700, (1, 30000), ReadWrite, "acceleration under CAN control"),
+    row(Reg::ContrAccNorm, "Contr_acc_norm", "(1/min)/s", 350, (1, 30000), ReadWrite, "acceleration under remote control"),
+    row(Reg::ContrAccHigh, "Contr_acc_high", "(1/min)/s", 500, (1, 30000), ReadWrite, "braking when the remote's enable (dead-man) is released"),
+    row(Reg::MaxMotorVel, "max_motor_vel", "1/min", 900, (1, 4000), ReadWrite, "motor speed limit"),
+    row(Reg::PsAbsMaxVel, "PS_abs_max_vel", "mm/s", 1200, (50, 5000), ReadWrite, "highest speed level the remote can select"),
+    row(Reg::PsRelMaxVel, "PS_rel_max_vel", "mm/s", 250, (50, 5000), ReadWrite, "remote's full-stick speed level after boot"),
+    row(Reg::SecLinVel, "sec_lin_vel", "mm/s", 200, (0, 1000), ReadWrite, "linear limit while someone is in the safety zone (0 = stand still)"),
+    row(Reg::SecTurnVel, "sec_turn_vel", "mrad/s", 100, (0, 1000), ReadWrite, "rotation limit while someone is in the safety zone (0 = stand still)"),
+    row(Reg::DisableTime, "disable_time", "ms", 300, (0, 10000), ReadWrite, "standstill time before the brakes close (0 = at once)"),
+    row(Reg::VoltTime, "volt_time", "ms", 5000, (100, 60000), ReadWrite, "battery frame period"),
+    row(Reg::WeightTime, "weight_time", "ms", 1000, (100, 60000), ReadWrite, "weight frame period"),
+    row(Reg::PsAfkTime, "PS_afk_time", "ms", 30000, (5000, 65535), ReadWrite, "remote switched off after this long without input"),
+    row(Reg::LoopEndDelay, "loop_end_delay", "ms", 50, (10, 1000), ReadWrite, "control/odometry period"),
+    row(Reg::FCw, "f_cw", "1/10000", 9938, (5000, 15000), ReadWrite, "clockwise rotation correction"),
+    row(Reg::FCcw, "f_ccw", "1/10000", 9894, (5000, 15000), ReadWrite, "counter-clockwise rotation correction"),
+    row(Reg::FLin, "f_lin", "1/10000", 10071, (5000, 15000), ReadWrite, "linear correction"),
+    row(Reg::WeightOffset, "weight_offset", "raw", 20490, (0, 65535), ReadWrite, "scale reading with nothing on it"),
+    row(Reg::ScaleValue, "scale_value", "1/100", 1900, (1, 65535), ReadWrite, "raw counts per gram × 100"),
+    row(Reg::HeartbeatTime, "heartbeat_time", "ms", 5000, (2000, 60000), ReadWrite, "PC counted off after this long without heartbeat"),
+    row(Reg::StartPc, "start_PC", "ms", 3000, (1000, 30000), ReadWrite, "button hold time to switch the PC on"),
+    row(Reg::ShutdownPc, "shutdown_PC", "ms", 8000, (1000, 30000), ReadWrite, "button hold time to switch the PC off"),
+    row(Reg::GearRatio, "gear_ratio", "1/100", 1000, (100, 10000), ReadWrite, "motor revolutions per wheel revolution × 100"),
+    row(Reg::EnableTimeout, "enable_timeout", "ms", 500, (50, 5000), ReadWrite, "CAN enable (0x2E4) lapses after this long"),
+    row(Reg::EstopDecel, "estop_decel", "(1/min)/s", 4500, (100, 30000), ReadWrite, "deceleration of the emergency stop"),
+    or_off(row(Reg::CmdTimeout, "cmd_timeout", "ms", 0, (50, 10000), ReadWrite, "CAN velocity counts as stale after this long (0 = off)")),
+    row(Reg::MotorDir, "motor_dir", "bit mask", 2, (0, 3), ReadWrite, "bit0 inverts the left motor, bit1 the right motor"),
+    row(Reg::BattEmptyMv, "batt_empty_mv", "mV", 21000, (5000, 60000), ReadWrite, "battery voltage shown as 0 %"),
+    row(Reg::BattFullMv, "batt_full_mv", "mV", 25500, (5000, 60000), ReadWrite, "battery voltage shown as 100 %"),
+    or_off(row(Reg::StatusTime, "status_time", "ms", 1000, (100, 60000), ReadWrite, "status frame period (0 = off)")),
+    row(Reg::PcBootGrace, "pc_boot_grace", "s", 120, (10, 600), ReadWrite, "a PC switched on counts as on this long before its first heartbeat"),
+    row(Reg::PcSwitchPulse, "pc_switch_pulse", "ms", 500, (50, 2000), ReadWrite, "how long the PC power switch is closed"),
+    row(Reg::FwVersion, "fw_version", "major.minor", FW_VERSION, (FW_VERSION, FW_VERSION), ReadOnly, "firmware version"),
+    row(Reg::RegmapVersion, "regmap_version", "", REGMAP_VERSION, (REGMAP_VERSION, REGMAP_VERSION), ReadOnly, "register map version"),
+    row(Reg::Command, "command", "key", 0, (RESTORE_DEFAULTS_KEY, RESTORE_DEFAULTS_KEY), WriteOnly, "0xDEF0 restores every writable register to its default"),
+];
+
+/// The description of the register at `address`, or `None` if it is not assigned.
+pub fn info(address: u8) -> Option<&'static RegisterInfo> {
+    Reg::from_address(address).map(Reg::info)
+}

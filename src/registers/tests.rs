@@ -1,0 +1,529 @@
+use super::record::encode_with_schema;
+use super::*;
+use proptest::prelude::*;
+
+/// The manual's register table (§10), copied by hand: address, name, default.
+const MANUAL: [(u8, &str, u16); 24] = [
+    (0, "rad_r", 142),
+    (1, "rad_l", 142),
+    (2, "wheel_dist", 250),
+    (3, "CAN_accel", 700),
+    (4, "Contr_acc_norm", 350),
+    (5, "Contr_acc_high", 500),
+    (6, "max_motor_vel", 900),
+    (7, "PS_abs_max_vel", 1200),
+    (8, "PS_rel_max_vel", 250),
+    (9, "sec_lin_vel", 200),
+    (10, "sec_turn_vel", 100),
+    (11, "disable_time", 300),
+    (12, "volt_time", 5000),
+    (13, "weight_time", 1000),
+    (14, "PS_afk_time", 30000),
+    (15, "loop_end_delay", 50),
+    (16, "f_cw", 9938),
+    (17, "f_ccw", 9894),
+    (18, "f_lin", 10071),
+    (19, "weight_offset", 20490),
+    (20, "scale_value", 1900),
+    (21, "heartbeat_time", 5000),
+    (22, "start_PC", 3000),
+    (23, "shutdown_PC", 8000),
+];
+
+/// The extensions as the lead fixed them: address, name, default, min, max, 0 = off.
+const EXTENSIONS: [(u8, &str, u16, u16, u16, bool); 10] = [
+    (24, "gear_ratio", 1000, 100, 10000, false),
+    (25, "enable_timeout", 500, 50, 5000, false),
+    (26, "estop_decel", 4500, 100, 30000, false),
+    (27, "cmd_timeout", 0, 50, 10000, true),
+    (28, "motor_dir", 2, 0, 3, false),
+    (29, "batt_empty_mv", 21000, 5000, 60000, false),
+    (30, "batt_full_mv", 25500, 5000, 60000, false),
+    (31, "status_time", 1000, 100, 60000, true),
+    (32, "pc_boot_grace", 120, 10, 600, false),
+    (33, "pc_switch_pulse", 500, 50, 2000, false),
+];
+
+fn persistent() -> impl Iterator<Item = &'static RegisterInfo> {
+    TABLE.iter().filter(|i| i.access == Access::ReadWrite)
+}
+
+fn assert_valid(registers: &Registers) {
+    for info in persistent() {
+        let value = registers.get(Reg::from_address(info.address).unwrap());
+        assert!(info.accepts(value), "{} = {value}", info.name);
+    }
+    assert!(registers.is_consistent(), "{registers:?}");
+}
+
+#[test]
+fn defaults_of_addresses_0_to_23_are_the_manuals() {
+    let registers = Registers::defaults();
+    for (address, name, default) in MANUAL {
+        let info = info(address).unwrap();
+        assert_eq!(info.name, name, "address {address}");
+        assert_eq!(info.default, default, "{name}");
+        assert_eq!(info.access, Access::ReadWrite, "{name}");
+        assert!(!info.extension, "{name}");
+        assert_eq!(registers.read(address), Ok(default), "{name}");
+    }
+}
+
+#[test]
+fn extension_registers_have_the_fixed_addresses_defaults_and_ranges() {
+    let registers = Registers::defaults();
+    for (address, name, default, min, max, zero_is_off) in EXTENSIONS {
+        let info = info(address).unwrap();
+        assert_eq!(
+            (
+                info.name,
+                info.default,
+                info.min,
+                info.max,
+                info.zero_is_off
+            ),
+            (name, default, min, max, zero_is_off)
+        );
+        assert!(info.extension, "{name}");
+        assert_eq!(registers.read(address), Ok(default), "{name}");
+    }
+}
+
+#[test]
+fn reg_enum_table_and_addresses_agree() {
+    assert_eq!(TABLE.len(), Reg::ALL.len());
+    for (info, reg) in TABLE.iter().zip(Reg::ALL) {
+        assert_eq!(info.address, reg as u8);
+        assert_eq!(reg.info().address, reg as u8);
+        assert_eq!(Reg::from_address(reg as u8), Some(reg));
+    }
+    assert!(Reg::ALL.windows(2).all(|w| w[0] < w[1]));
+    for address in (34..=37).chain(41..=u8::MAX) {
+        assert_eq!(Reg::from_address(address), None);
+        assert_eq!(info(address), None);
+    }
+}
+
+#[test]
+fn every_default_lies_in_its_range_and_defaults_keep_every_rule() {
+    assert_valid(&Registers::defaults());
+}
+
+#[test]
+fn version_registers_read_the_build_and_map_versions() {
+    let mut parts = env!("CARGO_PKG_VERSION").split('.');
+    let major: u16 = parts.next().unwrap().parse().unwrap();
+    let minor: u16 = parts.next().unwrap().parse().unwrap();
+    let registers = Registers::defaults();
+    assert_eq!(registers.read(38), Ok((major << 8) | minor));
+    assert_eq!(registers.read(39), Ok(1));
+}
+
+#[test]
+fn error_codes_are_stable() {
+    assert_eq!(RegisterError::UnknownAddress.code(), 0x10);
+    assert_eq!(RegisterError::ReadOnly.code(), 0x11);
+    assert_eq!(RegisterError::OutOfRange.code(), 0x12);
+    assert_eq!(RegisterError::Inconsistent.code(), 0x13);
+}
+
+#[test]
+fn bad_writes_are_rejected_and_change_nothing() {
+    use RegisterError::*;
+    let cases: &[(u8, u16, RegisterError)] = &[
+        (0, 0, OutOfRange),      // rad_r
+        (1, 0, OutOfRange),      // rad_l
+        (2, 0, OutOfRange),      // wheel_dist
+        (15, 0, OutOfRange),     // loop_end_delay
+        (20, 0, OutOfRange),     // scale_value
+        (18, 4999, OutOfRange),  // f_lin
+        (18, 15001, OutOfRange), // f_lin
+        (6, 0, OutOfRange),      // max_motor_vel
+        (6, 4001, OutOfRange),   // max_motor_vel
+        (27, 20, OutOfRange),    // cmd_timeout: neither off nor 50..=10000
+        (21, 1999, OutOfRange),  // heartbeat_time below the PC's 0.5 Hz period
+        (8, 49, OutOfRange),     // PS_rel_max_vel below the lowest speed level
+        (28, 4, OutOfRange),     // motor_dir has two bits
+        (40, 1, OutOfRange),     // command: not the restore key
+        (34, 1, UnknownAddress),
+        (37, 1, UnknownAddress),
+        (41, 1, UnknownAddress),
+        (255, 1, UnknownAddress),
+        (38, 0x0100, ReadOnly),
+        (39, 1, ReadOnly),
+        (29, 25500, Inconsistent), // batt_empty_mv = batt_full_mv
+        (29, 30000, Inconsistent), // batt_empty_mv > batt_full_mv
+        (30, 21000, Inconsistent), // batt_full_mv = batt_empty_mv
+        (22, 8000, Inconsistent),  // start_PC = shutdown_PC
+        (23, 2999, Inconsistent),  // shutdown_PC < start_PC
+        (8, 1201, Inconsistent),   // PS_rel_max_vel > PS_abs_max_vel
+        (7, 249, Inconsistent),    // PS_abs_max_vel < PS_rel_max_vel
+        (6, 1351, Inconsistent),   // 4500 (1/min)/s cannot stop 1351 1/min in 300 ms
+        (26, 2999, Inconsistent),  // nor can 2999 (1/min)/s stop 900 1/min
+    ];
+    for &(address, value, error) in cases {
+        let mut registers = Registers::defaults();
+        assert_eq!(
+            registers.write(address, value),
+            Err(error),
+            "{address} <- {value}"
+        );
+        assert_eq!(registers, Registers::defaults(), "{address} <- {value}");
+    }
+}
+
+#[test]
+fn range_and_rule_boundaries_are_accepted() {
+    let cases: &[(u8, u16)] = &[
+        (0, 10),
+        (0, 1000),
+        (2, 50),
+        (2, 2000),
+        (15, 10),
+        (18, 5000),
+        (18, 15000),
+        (6, 1),
+        (6, 1350), // 4500 (1/min)/s stops 1350 1/min in exactly 300 ms
+        (26, 3000),
+        (27, 50),
+        (27, 10000),
+        (31, 0),
+        (9, 0),
+        (10, 0),
+        (11, 0),
+        (21, 2000),
+        (20, 1),
+        (29, 25499),
+        (22, 7999),
+        (8, 1200),
+        (7, 250),
+    ];
+    for &(address, value) in cases {
+        let mut registers = Registers::defaults();
+        assert_eq!(
+            registers.write(address, value),
+            Ok(WriteOutcome::Changed { address, value }),
+            "{address} <- {value}"
+        );
+        assert_eq!(registers.read(address), Ok(value));
+    }
+    // cmd_timeout defaults to off; switching it on and off again.
+    let mut registers = Registers::defaults();
+    registers.write(27, 50).unwrap();
+    assert_eq!(
+        registers.write(27, 0),
+        Ok(WriteOutcome::Changed {
+            address: 27,
+            value: 0
+        })
+    );
+}
+
+#[test]
+fn pair_rules_can_be_moved_in_the_right_order() {
+    let mut registers = Registers::defaults();
+    assert_eq!(registers.write(6, 4000), Err(RegisterError::Inconsistent));
+    assert!(registers.write(26, 13334).is_ok());
+    assert!(registers.write(6, 4000).is_ok());
+    assert!(registers.write(30, 28000).is_ok());
+    assert!(registers.write(29, 26000).is_ok());
+    assert_valid(&registers);
+}
+
+#[test]
+fn same_value_is_unchanged_and_new_value_is_changed() {
+    let mut registers = Registers::defaults();
+    assert_eq!(registers.write(15, 50), Ok(WriteOutcome::Unchanged));
+    assert_eq!(
+        registers.write(15, 20),
+        Ok(WriteOutcome::Changed {
+            address: 15,
+            value: 20
+        })
+    );
+    assert_eq!(registers.get(Reg::LoopEndDelay), 20);
+    assert_eq!(registers.write(15, 20), Ok(WriteOutcome::Unchanged));
+}
+
+#[test]
+fn restore_key_brings_back_every_default() {
+    let mut registers = Registers::defaults();
+    registers.write(0, 150).unwrap();
+    registers.write(18, 10000).unwrap();
+    registers.write(28, 1).unwrap();
+    registers.write(27, 200).unwrap();
+    assert_ne!(registers, Registers::defaults());
+    assert_eq!(
+        registers.write(40, RESTORE_DEFAULTS_KEY),
+        Ok(WriteOutcome::DefaultsRestored)
+    );
+    assert_eq!(registers, Registers::defaults());
+}
+
+#[test]
+fn command_register_reads_zero() {
+    let mut registers = Registers::defaults();
+    assert_eq!(registers.read(40), Ok(0));
+    registers.write(40, 0xDEF0).unwrap();
+    assert_eq!(registers.read(40), Ok(0));
+}
+
+#[test]
+fn iter_lists_exactly_the_persistent_registers_with_current_values() {
+    let mut registers = Registers::defaults();
+    registers.write(19, 12345).unwrap();
+    let listed: Vec<(u8, u16)> = registers.iter().collect();
+    let addresses: Vec<u8> = listed.iter().map(|&(a, _)| a).collect();
+    assert_eq!(addresses, (0..=33).collect::<Vec<u8>>());
+    assert!(listed.contains(&(19, 12345)));
+    assert!(listed.contains(&(0, 142)));
+}
+
+fn store_of(registers: &Registers) -> Vec<[u8; RECORD_LEN]> {
+    registers
+        .iter()
+        .map(|(address, value)| encode_record(address, value))
+        .collect()
+}
+
+fn load_from(store: &[[u8; RECORD_LEN]]) -> (Registers, LoadReport) {
+    Registers::load(store.iter().map(|r| r.as_slice()))
+}
+
+#[test]
+fn blank_store_loads_defaults_and_raises_the_fault() {
+    let (registers, report) = Registers::load(core::iter::empty());
+    assert_eq!(registers, Registers::defaults());
+    assert_eq!(
+        report,
+        LoadReport {
+            applied: 0,
+            rejected: 0,
+            dropped: 0,
+            blank: true
+        }
+    );
+    assert!(report.flash_fault());
+}
+
+#[test]
+fn full_store_round_trips_without_fault() {
+    let mut written = Registers::defaults();
+    written.write(0, 150).unwrap();
+    written.write(16, 9950).unwrap();
+    written.write(28, 1).unwrap();
+    let (loaded, report) = load_from(&store_of(&written));
+    assert_eq!(loaded, written);
+    assert_eq!(report.applied, 34);
+    assert_eq!(report.rejected, 0);
+    assert!(!report.flash_fault());
+}
+
+#[test]
+fn corrupt_record_is_skipped_and_flagged() {
+    let mut written = Registers::defaults();
+    written.write(2, 300).unwrap();
+    written.write(3, 800).unwrap();
+    let mut store = store_of(&written);
+    store[2][3] ^= 0x01; // wheel_dist's value LSB
+    let (loaded, report) = load_from(&store);
+    assert_eq!(loaded.get(Reg::WheelDist), 250);
+    assert_eq!(loaded.get(Reg::CanAccel), 800);
+    assert_eq!(report.rejected, 1);
+    assert_eq!(report.applied, 33);
+    assert!(report.flash_fault());
+}
+
+#[test]
+fn zero_radius_with_valid_crc_is_skipped() {
+    let store = [encode_record(0, 0), encode_record(1, 150)];
+    let (loaded, report) = load_from(&store);
+    assert_eq!(loaded.get(Reg::RadR), 142);
+    assert_eq!(loaded.get(Reg::RadL), 150);
+    assert_eq!((report.applied, report.rejected), (1, 1));
+    assert!(report.flash_fault());
+}
+
+#[test]
+fn records_for_unassigned_or_read_only_addresses_are_rejected() {
+    let store = [
+        encode_record(34, 1),
+        encode_record(38, 0x0700),
+        encode_record(39, 9),
+        encode_record(40, RESTORE_DEFAULTS_KEY),
+        encode_record(200, 1),
+    ];
+    let (loaded, report) = load_from(&store);
+    assert_eq!(loaded, Registers::defaults());
+    assert_eq!(report.rejected, 5);
+}
+
+#[test]
+fn newer_schema_keeps_wheel_dist_and_drops_enable_timeout() {
+    let newer = SCHEMA_VERSION + 1;
+    let store = [
+        encode_with_schema(newer, 2, 300),
+        encode_with_schema(newer, 25, 1000),
+    ];
+    let (loaded, report) = load_from(&store);
+    assert_eq!(loaded.get(Reg::WheelDist), 300);
+    assert_eq!(loaded.get(Reg::EnableTimeout), 500);
+    assert_eq!(
+        report,
+        LoadReport {
+            applied: 1,
+            rejected: 0,
+            dropped: 1,
+            blank: false
+        }
+    );
+    assert!(!report.flash_fault());
+}
+
+#[test]
+fn newer_schema_values_are_still_range_checked() {
+    let (loaded, report) = load_from(&[encode_with_schema(SCHEMA_VERSION + 1, 0, 0)]);
+    assert_eq!(loaded.get(Reg::RadR), 142);
+    assert_eq!(report.rejected, 1);
+}
+
+#[test]
+fn stored_pairs_load_in_any_order() {
+    // Each pair is consistent, but no single write from the defaults reaches it.
+    let pairs = [
+        [encode_record(7, 200), encode_record(8, 150)],
+        [encode_record(29, 26000), encode_record(30, 28000)],
+        [encode_record(22, 9000), encode_record(23, 12000)],
+        [encode_record(6, 3000), encode_record(26, 10000)],
+    ];
+    for pair in pairs {
+        for store in [pair, [pair[1], pair[0]]] {
+            let (loaded, report) = load_from(&store);
+            assert_eq!((report.applied, report.rejected), (2, 0), "{store:?}");
+            for record in store {
+                let (address, value) = decode_record(&record).unwrap();
+                assert_eq!(loaded.read(address), Ok(value));
+            }
+        }
+    }
+}
+
+#[test]
+fn inconsistent_stored_pair_falls_back_to_defaults() {
+    // batt_full_mv below the default batt_empty_mv, and PS_rel above PS_abs.
+    let store = [
+        encode_record(30, 20000),
+        encode_record(7, 300),
+        encode_record(8, 400),
+        encode_record(0, 150),
+    ];
+    let (loaded, report) = load_from(&store);
+    let defaults = Registers::defaults();
+    for reg in [
+        Reg::BattEmptyMv,
+        Reg::BattFullMv,
+        Reg::PsAbsMaxVel,
+        Reg::PsRelMaxVel,
+    ] {
+        assert_eq!(loaded.get(reg), defaults.get(reg), "{reg:?}");
+    }
+    assert_eq!(loaded.get(Reg::RadR), 150);
+    assert_eq!((report.applied, report.rejected), (1, 3));
+    assert!(report.flash_fault());
+}
+
+#[test]
+fn later_record_for_an_address_wins() {
+    let store = [encode_record(15, 20), encode_record(15, 40)];
+    let (loaded, report) = load_from(&store);
+    assert_eq!(loaded.get(Reg::LoopEndDelay), 40);
+    assert_eq!(report.applied, 1);
+}
+
+/// Addresses around and beyond the map, with values near the interesting edges.
+fn write_op() -> impl Strategy<Value = (u8, u16)> {
+    let address = prop_oneof![8 => 0u8..=41, 1 => any::<u8>()];
+    let value = prop_oneof![
+        any::<u16>(),
+        0u16..=100,
+        (0usize..TABLE.len()).prop_flat_map(|i| {
+            let info = &TABLE[i];
+            prop_oneof![
+                Just(info.min),
+                Just(info.max),
+                info.min..=info.max,
+                Just(info.min.saturating_sub(1)),
+                Just(info.max.saturating_add(1)),
+            ]
+        }),
+    ];
+    (address, value)
+}
+
+proptest! {
+    #[test]
+    fn any_write_sequence_keeps_every_range_and_rule(ops in prop::collection::vec(write_op(), 0..200)) {
+        let mut registers = Registers::defaults();
+        for (address, value) in ops {
+            let before = registers.clone();
+            match registers.write(address, value) {
+                Ok(WriteOutcome::Changed { address: a, value: v }) => {
+                    prop_assert_eq!((a, v), (address, value));
+                    prop_assert_eq!(registers.read(address), Ok(value));
+                }
+                Ok(WriteOutcome::Unchanged) => prop_assert_eq!(&registers, &before),
+                Ok(WriteOutcome::DefaultsRestored) => prop_assert_eq!(&registers, &Registers::defaults()),
+                Err(_) => prop_assert_eq!(&registers, &before),
+            }
+            assert_valid(&registers);
+        }
+    }
+
+    #[test]
+    fn load_never_panics_on_arbitrary_bytes(store in prop::collection::vec(prop::collection::vec(any::<u8>(), 0..10), 0..50)) {
+        let (registers, report) = Registers::load(store.iter().map(|r| r.as_slice()));
+        assert_valid(&registers);
+        prop_assert_eq!(report.blank, store.is_empty());
+    }
+
+    #[test]
+    fn load_of_well_formed_records_with_any_content_stays_valid(
+        store in prop::collection::vec((0u8..=3, write_op()), 0..80)
+    ) {
+        let records: Vec<[u8; RECORD_LEN]> = store
+            .iter()
+            .map(|&(schema, (address, value))| encode_with_schema(schema, address, value))
+            .collect();
+        let (registers, report) = load_from(&records);
+        assert_valid(&registers);
+        prop_assert!(usize::from(report.applied) <= records.len());
+        prop_assert!(usize::from(report.rejected + report.dropped) <= records.len());
+    }
+}
+
+#[test]
+fn docs_table_matches_the_register_table() {
+    let docs = include_str!("../../docs/registers.md");
+    for info in persistent() {
+        let name = if info.extension {
+            format!("{} (ext)", info.name)
+        } else {
+            info.name.to_string()
+        };
+        let valid = if info.zero_is_off {
+            format!("off or {}..={}", info.min, info.max)
+        } else {
+            format!("{}..={}", info.min, info.max)
+        };
+        let row = format!(
+            "\n| {} | {} | {} | {} | {} | rw | ",
+            info.address, name, info.unit, info.default, valid
+        );
+        assert!(
+            docs.contains(&row),
+            "docs/registers.md lacks the row {row:?}"
+        );
+    }
+    let golden = encode_record(15, 50).map(|b| format!("{b:02X}")).join(" ");
+    assert!(docs.contains(&format!("record: {golden}")), "{golden}");
+}
