@@ -5,7 +5,9 @@
 
 pub mod calibration;
 pub mod can;
+pub mod feedback;
 pub mod kinematics;
 pub mod odometry;
 pub mod registers;
+pub mod supervisor;
 pub mod time;
