@@ -3,5 +3,9 @@
 //! peripherals and this crate.
 #![cfg_attr(not(test), no_std)]
 
+pub mod battery;
 pub mod calibration;
+pub mod debounce;
+pub mod power;
+pub mod scale;
 pub mod time;
