@@ -3,11 +3,15 @@
 //! peripherals and this crate.
 #![cfg_attr(not(test), no_std)]
 
+pub mod battery;
 pub mod calibration;
 pub mod can;
+pub mod debounce;
 pub mod feedback;
 pub mod kinematics;
 pub mod odometry;
+pub mod power;
 pub mod registers;
+pub mod scale;
 pub mod supervisor;
 pub mod time;

@@ -1,6 +1,9 @@
 //! Odometry calibration (0x008) and scale calibration (0x007): the steps a person
 //! walks through over CAN, turned into new register values.
 
+pub mod odometry;
+pub mod scale;
+
 /// One step of the odometry calibration, as sent in frame 0x008.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
