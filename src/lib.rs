@@ -6,6 +6,7 @@
 pub mod battery;
 pub mod calibration;
 pub mod can;
+pub mod controller;
 pub mod debounce;
 pub mod feedback;
 pub mod kinematics;

@@ -1,0 +1,580 @@
+//! The whole base controller as one pure state machine: CAN frames, inputs, drive
+//! feedback and sensor samples go in with the time; frames to send, wheel commands, the
+//! brake, the PC switch and register changes to persist come out. The async tasks only
+//! move these values between the peripherals and [`Controller::handle`].
+
+use heapless::Vec;
+
+use crate::battery::{self, BatteryFilter, BatteryParams};
+use crate::calibration::odometry::OdometryCalibration;
+use crate::calibration::scale::{ScaleCalibration, ScaleUpdate};
+use crate::can::{Command, FrameError, RawFrame, Report};
+use crate::can::{Faults, Status, StatusFlags};
+use crate::feedback::{FeedbackPeriods, FeedbackSchedule};
+use crate::kinematics::{self, KinematicsParams, MotorRpm, SafetyLimits, Twist, WheelCommand};
+use crate::odometry::{EncoderCounts, Odometry, OdometryParams};
+use crate::power::{PowerControl, PowerEvent, PowerParams, SwitchLevel};
+use crate::registers::{Reg, RegisterError, Registers, WriteOutcome};
+use crate::scale::{self, RawAverage};
+use crate::supervisor::{Event, Supervisor, SupervisorParams, Wheel};
+use crate::time::Instant;
+
+/// BLV R position counters: 0.01° of the motor shaft per count.
+pub const COUNTS_PER_MOTOR_REV: f64 = 36_000.0;
+
+/// A wheel whose measured motor speed is at most this is standing (r/min). The drives
+/// report whole r/min and hover around ±1 while holding zero speed.
+pub const AT_REST_RPM: i32 = 2;
+
+/// HX711 samples averaged for one weight value (at 10 Hz: the last second).
+pub const SCALE_AVERAGE_SAMPLES: usize = 10;
+
+/// Everything that can happen to the controller.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Input {
+    /// A standard-ID data frame from the bus (extended and RTR frames never get here).
+    CanFrame(RawFrame),
+    /// Debounced e-stop input (true = pressed).
+    Estop(bool),
+    /// Debounced safety-zone input (true = someone is in the zone).
+    SafetyZone(bool),
+    /// Debounced front button (true = held down).
+    Button(bool),
+    /// A decoded gamepad report.
+    Remote {
+        dead_man: bool,
+        twist: Twist,
+    },
+    /// The gamepad asks for an odometry reset (L2 + Options).
+    RemoteResetOdometry,
+    /// The gamepad link is gone.
+    RemoteLinkLost,
+    /// Whether a gamepad is bonded and whether it is connected, for the status frame.
+    RemoteLink {
+        bonded: bool,
+        connected: bool,
+    },
+    /// One cycle of drive feedback: raw position counters and measured motor speeds.
+    DriveFeedback {
+        counts: EncoderCounts,
+        rpm: MotorRpm,
+    },
+    /// The drive link finished setting up both drives.
+    DrivesReady,
+    DriveSilent(Wheel),
+    DriveAlarm {
+        wheel: Wheel,
+        code: u8,
+    },
+    /// A Modbus reply was garbled or missing.
+    ModbusError,
+    /// One raw HX711 reading; the controller averages the last few.
+    ScaleSample(i32),
+    /// The load cell did not answer.
+    ScaleMissing,
+    /// A battery voltage sample in mV (after the board's divider).
+    BatterySample {
+        voltage_mv: u16,
+    },
+    /// The CAN controller went bus-off or lost received frames.
+    CanBusFault,
+    /// The register store was blank or corrupt at boot, or a write failed.
+    FlashFault,
+    /// The last reset was caused by the watchdog.
+    WatchdogReset,
+    /// Time passed: timeouts and periodic frames are checked.
+    Tick,
+}
+
+/// Register changes the flash task must persist.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Persist {
+    /// (address, new value) of each changed register.
+    pub changed: Vec<(u8, u16), 4>,
+    /// Every register went back to its default.
+    pub defaults_restored: bool,
+}
+
+/// What one input asks the shell to do. Empty fields mean "nothing".
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Output {
+    /// Frames to transmit, in order.
+    pub frames: Vec<RawFrame, 8>,
+    /// A new command for both wheels: send it to the drives at once.
+    pub wheels: Option<WheelCommand>,
+    /// Excite (`true`, brakes released) or de-excite (`false`, brakes close) the drives.
+    pub excite: Option<bool>,
+    /// Set both drives up from scratch, then report [`Input::DrivesReady`].
+    pub setup_drives: bool,
+    /// Close or open the PC power switch.
+    pub pc_switch: Option<SwitchLevel>,
+    pub persist: Persist,
+}
+
+/// Counts and remembers rejected inputs for the status frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+struct Rejections {
+    count: u8,
+    last_code: u8,
+    last_subject: u8,
+}
+
+impl Rejections {
+    fn record(&mut self, code: u8, subject: u8) {
+        self.count = self.count.wrapping_add(1);
+        self.last_code = code;
+        self.last_subject = subject;
+    }
+}
+
+/// Latched faults the shell reports; the drive faults live in the supervisor.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+struct ShellFaults {
+    flash: bool,
+    scale: bool,
+    can_bus: bool,
+    watchdog_reset: bool,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+struct RemoteLink {
+    bonded: bool,
+    connected: bool,
+}
+
+pub struct Controller {
+    registers: Registers,
+    supervisor: Supervisor,
+    odometry: Odometry,
+    odometry_calibration: OdometryCalibration,
+    scale_calibration: ScaleCalibration,
+    power: PowerControl,
+    battery: BatteryFilter,
+    battery_mv: Option<u16>,
+    scale: RawAverage<SCALE_AVERAGE_SAMPLES>,
+    feedback: FeedbackSchedule,
+    /// The motor speeds last commanded; the next ramp starts from here.
+    commanded: MotorRpm,
+    rejections: Rejections,
+    faults: ShellFaults,
+    remote: RemoteLink,
+    modbus_errors: u8,
+}
+
+impl Controller {
+    /// A controller starting at `now` with the registers the flash task loaded.
+    pub fn new(now: Instant, registers: Registers) -> Self {
+        let power = PowerControl::new(power_params(&registers));
+        Self {
+            registers,
+            supervisor: Supervisor::new(),
+            odometry: Odometry::new(),
+            odometry_calibration: OdometryCalibration::new(),
+            scale_calibration: ScaleCalibration::new(),
+            power,
+            battery: BatteryFilter::default(),
+            battery_mv: None,
+            scale: RawAverage::new(),
+            feedback: FeedbackSchedule::new(now),
+            commanded: MotorRpm { left: 0, right: 0 },
+            rejections: Rejections::default(),
+            faults: ShellFaults::default(),
+            remote: RemoteLink::default(),
+            modbus_errors: 0,
+        }
+    }
+
+    pub fn registers(&self) -> &Registers {
+        &self.registers
+    }
+
+    pub fn supervisor(&self) -> &Supervisor {
+        &self.supervisor
+    }
+
+    pub fn odometry(&self) -> &Odometry {
+        &self.odometry
+    }
+
+    /// Handles one input at `now`. Periodic frames that are due go out with whatever
+    /// the input caused, so the shell may feed frames and ticks in any mix.
+    pub fn handle(&mut self, now: Instant, input: Input) -> Output {
+        let mut out = Output::default();
+        match input {
+            Input::CanFrame(frame) => self.can_frame(now, frame, &mut out),
+            Input::Estop(pressed) => self.supervise(now, Event::Estop { pressed }, &mut out),
+            Input::SafetyZone(occupied) => {
+                self.supervise(now, Event::SafetyZone { occupied }, &mut out)
+            }
+            Input::Button(pressed) => {
+                let event = if pressed {
+                    PowerEvent::ButtonPressed
+                } else {
+                    PowerEvent::ButtonReleased
+                };
+                self.power_event(now, event, &mut out);
+            }
+            Input::Remote { dead_man, twist } => {
+                self.supervise(now, Event::Remote { dead_man, twist }, &mut out)
+            }
+            Input::RemoteResetOdometry => self.odometry.reset(),
+            Input::RemoteLinkLost => {
+                self.remote.connected = false;
+                self.supervise(now, Event::RemoteLinkLost, &mut out);
+            }
+            Input::RemoteLink { bonded, connected } => {
+                self.remote = RemoteLink { bonded, connected }
+            }
+            Input::DriveFeedback { counts, rpm } => self.drive_feedback(now, counts, rpm, &mut out),
+            Input::DrivesReady => {
+                // The counters restarted with the drives' power: the next sample is a
+                // baseline, and the wheels were told nothing yet.
+                self.odometry.rebaseline();
+                self.commanded = MotorRpm { left: 0, right: 0 };
+                self.supervise(now, Event::DrivesReady, &mut out);
+            }
+            Input::DriveSilent(wheel) => self.supervise(now, Event::DriveSilent(wheel), &mut out),
+            Input::DriveAlarm { wheel, code } => {
+                self.supervise(now, Event::DriveAlarm { wheel, code }, &mut out)
+            }
+            Input::ModbusError => self.modbus_errors = self.modbus_errors.wrapping_add(1),
+            Input::ScaleSample(raw) => {
+                self.faults.scale = false;
+                self.scale.push(raw);
+            }
+            Input::ScaleMissing => self.faults.scale = true,
+            Input::BatterySample { voltage_mv } => {
+                self.battery_mv = Some(self.battery.update(now, voltage_mv));
+            }
+            Input::CanBusFault => self.faults.can_bus = true,
+            Input::FlashFault => self.faults.flash = true,
+            Input::WatchdogReset => self.faults.watchdog_reset = true,
+            Input::Tick => {
+                self.supervise(now, Event::Tick, &mut out);
+                self.power_event(now, PowerEvent::Tick, &mut out);
+            }
+        }
+        self.periodic_frames(now, &mut out);
+        out
+    }
+
+    /// The status frame as it would be sent now.
+    pub fn status(&self, now: Instant) -> Status {
+        let supervisor = &self.supervisor;
+        let drive = supervisor.faults();
+        Status {
+            mode: supervisor.mode(),
+            control: supervisor.control(),
+            flags: StatusFlags {
+                enable_fresh: supervisor.enable_fresh(now, &self.supervisor_params()),
+                pc_on: self.power.pc_on(now),
+                safety_zone: supervisor.safety_zone(),
+                remote_bonded: self.remote.bonded,
+                remote_connected: self.remote.connected,
+                remote_in_control: supervisor.remote_in_control(),
+                estop_pressed: supervisor.estop_pressed(),
+                brakes_applied: supervisor.brakes_applied(),
+            },
+            faults: Faults {
+                left_drive_silent: drive.left_silent,
+                left_drive_alarm: drive.left_alarm,
+                right_drive_silent: drive.right_silent,
+                right_drive_alarm: drive.right_alarm,
+                flash: self.faults.flash,
+                scale: self.faults.scale,
+                can_bus: self.faults.can_bus,
+                watchdog_reset: self.faults.watchdog_reset,
+            },
+            rejected_count: self.rejections.count,
+            last_rejection: self.rejections.last_code,
+            last_rejection_subject: self.rejections.last_subject,
+            drive_alarm: drive.last_alarm_code,
+            modbus_errors: self.modbus_errors,
+        }
+    }
+
+    fn can_frame(&mut self, now: Instant, frame: RawFrame, out: &mut Output) {
+        let command = match Command::decode(frame.id(), frame.data()) {
+            Ok(Some(command)) => command,
+            Ok(None) => return,
+            Err(error) => {
+                self.reject_frame(frame.id(), error);
+                return;
+            }
+        };
+        match command {
+            Command::Enable { refresh } => self.supervise(now, Event::CanEnable { refresh }, out),
+            Command::Velocity {
+                linear_mm_s,
+                rotation_mrad_s,
+            } => {
+                let twist = Twist {
+                    linear_mm_s: i32::from(linear_mm_s),
+                    rotation_mrad_s: i32::from(rotation_mrad_s),
+                };
+                self.supervise(now, Event::CanVelocity(twist), out);
+            }
+            Command::RegisterWrite { address, value } => {
+                self.write_register(address, value, out);
+            }
+            Command::RegisterRead { address } => {
+                let report = match self.registers.read(address) {
+                    Ok(value) => Report::RegisterValue { value },
+                    Err(error) => {
+                        self.rejections.record(error.code(), address);
+                        Report::RegisterReadError {
+                            address,
+                            reason: error.code(),
+                        }
+                    }
+                };
+                push_frame(out, report.encode());
+            }
+            Command::ResetOdometry => self.odometry.reset(),
+            Command::Heartbeat => self.power_event(now, PowerEvent::Heartbeat, out),
+            Command::ScaleCalibration(step) => {
+                let offset = self.registers.get(Reg::WeightOffset);
+                match self
+                    .scale_calibration
+                    .handle(step, self.scale.average(), offset)
+                {
+                    Ok(Some(ScaleUpdate::Offset(value))) => {
+                        self.write_register(Reg::WeightOffset as u8, value, out)
+                    }
+                    Ok(Some(ScaleUpdate::ScaleValue(value))) => {
+                        self.write_register(Reg::ScaleValue as u8, value, out)
+                    }
+                    Ok(None) => {}
+                    Err(error) => self
+                        .rejections
+                        .record(error.code(), frame_subject(frame.id())),
+                }
+            }
+            Command::OdometryCalibration(step) => match self.odometry_calibration.handle(step) {
+                Ok(Some(factors)) => {
+                    for (reg, value) in [
+                        (Reg::FCw, factors.f_cw),
+                        (Reg::FCcw, factors.f_ccw),
+                        (Reg::FLin, factors.f_lin),
+                    ] {
+                        if let Some(value) = value {
+                            self.write_register(reg as u8, value, out);
+                        }
+                    }
+                }
+                Ok(None) => {}
+                Err(error) => self
+                    .rejections
+                    .record(error.code(), frame_subject(frame.id())),
+            },
+        }
+    }
+
+    fn reject_frame(&mut self, id: u16, error: FrameError) {
+        self.rejections.record(error.code(), frame_subject(id));
+    }
+
+    /// Validates and applies a register write; a change is handed to the flash task and
+    /// takes effect at once, because every parameter struct is built from the registers
+    /// at the moment it is used.
+    fn write_register(&mut self, address: u8, value: u16, out: &mut Output) {
+        let outcome = self.registers.write(address, value);
+        if matches!(
+            outcome,
+            Ok(WriteOutcome::Changed { .. } | WriteOutcome::DefaultsRestored)
+        ) {
+            // The power state machine holds its parameters; everything else reads the
+            // registers when it needs them.
+            self.power.set_params(power_params(&self.registers));
+        }
+        match outcome {
+            Ok(WriteOutcome::Changed { address, value }) => {
+                // Four slots cover the largest batch (the three odometry factors).
+                let pushed = out.persist.changed.push((address, value));
+                debug_assert!(pushed.is_ok(), "more register changes than Persist holds");
+            }
+            Ok(WriteOutcome::Unchanged) => {}
+            Ok(WriteOutcome::DefaultsRestored) => out.persist.defaults_restored = true,
+            Err(error) => self.reject_register(address, error),
+        }
+    }
+
+    fn reject_register(&mut self, address: u8, error: RegisterError) {
+        self.rejections.record(error.code(), address);
+    }
+
+    fn drive_feedback(
+        &mut self,
+        now: Instant,
+        counts: EncoderCounts,
+        rpm: MotorRpm,
+        out: &mut Output,
+    ) {
+        if let Some(motion) = self.odometry.update(&self.odometry_params(), counts) {
+            self.odometry_calibration
+                .observe(motion.distance_mm, motion.rotation_mrad);
+        }
+        let at_rest = rpm.left.abs() <= AT_REST_RPM && rpm.right.abs() <= AT_REST_RPM;
+        self.supervise(now, Event::AtRest(at_rest), out);
+    }
+
+    fn supervise(&mut self, now: Instant, event: Event, out: &mut Output) {
+        let effects = self.supervisor.step(now, event, &self.supervisor_params());
+        if let Some(setpoint) = effects.setpoint {
+            let target = kinematics::motor_rpm(&self.kinematics_params(), setpoint.twist);
+            let command = kinematics::ramp(self.commanded, target, setpoint.accel_rpm_per_s);
+            self.commanded = target;
+            out.wheels = Some(command);
+        }
+        if effects.excite.is_some() {
+            out.excite = effects.excite;
+        }
+        out.setup_drives |= effects.setup_drives;
+    }
+
+    fn power_event(&mut self, now: Instant, event: PowerEvent, out: &mut Output) {
+        let power = self.power.handle(event, now);
+        if power.confirm {
+            self.supervise(now, Event::ConfirmPressed, out);
+        }
+        if power.switch.is_some() {
+            out.pc_switch = power.switch;
+        }
+    }
+
+    fn periodic_frames(&mut self, now: Instant, out: &mut Output) {
+        let periods = FeedbackPeriods {
+            odometry_ms: u32::from(self.registers.get(Reg::LoopEndDelay)),
+            battery_ms: u32::from(self.registers.get(Reg::VoltTime)),
+            weight_ms: u32::from(self.registers.get(Reg::WeightTime)),
+            status_ms: u32::from(self.registers.get(Reg::StatusTime)),
+        };
+        let due = self
+            .feedback
+            .poll(now, &periods, self.supervisor.in_emergency());
+        if due.odometry {
+            let pose = self.odometry.pose();
+            push_frame(
+                out,
+                Report::Position {
+                    x_mm: pose.x_mm,
+                    y_mm: pose.y_mm,
+                }
+                .encode(),
+            );
+            push_frame(
+                out,
+                Report::Heading {
+                    heading_mrad: pose.heading_mrad,
+                }
+                .encode(),
+            );
+        }
+        if due.battery
+            && let Some(voltage_mv) = self.battery_mv
+        {
+            let params = BatteryParams {
+                empty_mv: self.registers.get(Reg::BattEmptyMv),
+                full_mv: self.registers.get(Reg::BattFullMv),
+            };
+            let percent = battery::percent(voltage_mv, params);
+            push_frame(
+                out,
+                Report::Battery {
+                    percent,
+                    voltage_mv,
+                }
+                .encode(),
+            );
+        }
+        if due.weight
+            && let Some(raw) = self.scale.average()
+        {
+            let grams = scale::weight_grams(
+                raw,
+                self.registers.get(Reg::WeightOffset),
+                self.registers.get(Reg::ScaleValue),
+            );
+            push_frame(out, Report::Weight { grams }.encode());
+        }
+        if due.status {
+            push_frame(out, Report::Status(self.status(now)).encode());
+        }
+    }
+
+    fn supervisor_params(&self) -> SupervisorParams {
+        let r = &self.registers;
+        SupervisorParams {
+            enable_timeout_ms: u32::from(r.get(Reg::EnableTimeout)),
+            cmd_timeout_ms: u32::from(r.get(Reg::CmdTimeout)),
+            disable_time_ms: u32::from(r.get(Reg::DisableTime)),
+            can_accel: u32::from(r.get(Reg::CanAccel)),
+            remote_accel: u32::from(r.get(Reg::ContrAccNorm)),
+            remote_release_accel: u32::from(r.get(Reg::ContrAccHigh)),
+            estop_decel: u32::from(r.get(Reg::EstopDecel)),
+            safety_limits: SafetyLimits {
+                linear_mm_s: r.get(Reg::SecLinVel),
+                rotation_mrad_s: r.get(Reg::SecTurnVel),
+            },
+        }
+    }
+
+    fn kinematics_params(&self) -> KinematicsParams {
+        let r = &self.registers;
+        let motor_dir = r.get(Reg::MotorDir);
+        KinematicsParams {
+            left_radius_mm: f32::from(r.get(Reg::RadL)),
+            right_radius_mm: f32::from(r.get(Reg::RadR)),
+            wheel_distance_mm: f32::from(r.get(Reg::WheelDist)),
+            gear_ratio: f32::from(r.get(Reg::GearRatio)) / 100.0,
+            max_motor_rpm: f32::from(r.get(Reg::MaxMotorVel)),
+            invert_left: motor_dir & 0b01 != 0,
+            invert_right: motor_dir & 0b10 != 0,
+        }
+    }
+
+    fn odometry_params(&self) -> OdometryParams {
+        let r = &self.registers;
+        let motor_dir = r.get(Reg::MotorDir);
+        OdometryParams {
+            left_radius_mm: f64::from(r.get(Reg::RadL)),
+            right_radius_mm: f64::from(r.get(Reg::RadR)),
+            wheel_distance_mm: f64::from(r.get(Reg::WheelDist)),
+            gear_ratio: f64::from(r.get(Reg::GearRatio)) / 100.0,
+            counts_per_motor_rev: COUNTS_PER_MOTOR_REV,
+            invert_left: motor_dir & 0b01 != 0,
+            invert_right: motor_dir & 0b10 != 0,
+            f_lin: f64::from(r.get(Reg::FLin)) / 10_000.0,
+            f_cw: f64::from(r.get(Reg::FCw)) / 10_000.0,
+            f_ccw: f64::from(r.get(Reg::FCcw)) / 10_000.0,
+        }
+    }
+}
+
+fn power_params(r: &Registers) -> PowerParams {
+    PowerParams {
+        start_pc_ms: u32::from(r.get(Reg::StartPc)),
+        shutdown_pc_ms: u32::from(r.get(Reg::ShutdownPc)),
+        heartbeat_timeout_ms: u32::from(r.get(Reg::HeartbeatTime)),
+        boot_grace_ms: u32::from(r.get(Reg::PcBootGrace)) * 1000,
+        switch_pulse_ms: u32::from(r.get(Reg::PcSwitchPulse)),
+    }
+}
+
+/// The status frame's "subject" of a frame rejection: the low byte of the CAN ID.
+fn frame_subject(id: u16) -> u8 {
+    id.to_le_bytes()[0]
+}
+
+/// At most one register reply, two odometry frames, battery, weight and status go out
+/// per input: eight slots always suffice.
+fn push_frame(out: &mut Output, frame: RawFrame) {
+    let pushed = out.frames.push(frame);
+    debug_assert!(pushed.is_ok(), "more frames than Output holds");
+}
