@@ -330,8 +330,14 @@ impl Supervisor {
         self.remote.armed && self.remote.dead_man
     }
 
+    /// The drives are de-excited, or unpowered (e-stop until the drives are set up
+    /// again): either way their power-off brakes hold the base.
     pub fn brakes_applied(&self) -> bool {
         !self.excited
+            || matches!(
+                self.state,
+                State::Emergency | State::AwaitingConfirm | State::Recovering
+            )
     }
 
     pub fn faults(&self) -> DriveFaults {

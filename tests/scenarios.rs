@@ -1,0 +1,1134 @@
+//! Safety and behaviour scenarios as data: each row is (time in ms, input) → the checks
+//! on what that one input produced and on the state after it. The controller runs with
+//! the manual's default registers and gear_ratio 10, motor_dir 2 (right motor mirrored),
+//! so 500 mm/s is 336 motor r/min: +336 on the left drive, −336 on the right.
+
+use base_controller::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
+use base_controller::can::{Command, ControlSource, Mode, RawFrame, Report, id};
+use base_controller::controller::{Controller, Input, Output};
+use base_controller::kinematics::{MotorRpm, Twist};
+use base_controller::odometry::EncoderCounts;
+use base_controller::power::SwitchLevel;
+use base_controller::registers::{Reg, Registers};
+use base_controller::supervisor::Wheel;
+use base_controller::time::Instant;
+
+/// What one row expects.
+#[derive(Debug, Clone, Copy)]
+enum Check {
+    /// A wheel command with these motor r/min and per-wheel accelerations.
+    Wheels {
+        left: i32,
+        right: i32,
+        left_accel: u32,
+        right_accel: u32,
+    },
+    /// A zero-speed command whose accelerations are at most `accel` (the wheel with the
+    /// bigger change gets exactly `accel`).
+    Stop {
+        accel: u32,
+    },
+    NoWheels,
+    Excite(bool),
+    NoExcite,
+    SetupDrives,
+    NoSetupDrives,
+    Mode(Mode),
+    Control(ControlSource),
+    PcSwitch(SwitchLevel),
+    NoPcSwitch,
+    /// None of 0x0EA..0x0ED in this output.
+    NoFeedback,
+    /// This output carries the frame.
+    Sends(Report),
+    Persists(Reg, u16),
+    NothingPersisted,
+    Register(Reg, u16),
+    /// The status frame's last rejection code and subject.
+    Rejected {
+        code: u8,
+        subject: u8,
+    },
+    RejectedCount(u8),
+    Pose {
+        x_mm: i32,
+        y_mm: i32,
+        heading_mrad: i32,
+    },
+    PcOn(bool),
+}
+
+use Check::*;
+
+type Row<'a> = (u64, Input, &'a [Check]);
+
+fn can(command: Command) -> Input {
+    Input::CanFrame(command.encode())
+}
+
+fn raw(id: u16, data: &[u8]) -> Input {
+    Input::CanFrame(RawFrame::new(id, data).expect("test frame fits CAN"))
+}
+
+fn enable() -> Input {
+    can(Command::Enable { refresh: true })
+}
+
+fn velocity(linear_mm_s: i16, rotation_mrad_s: i16) -> Input {
+    can(Command::Velocity {
+        linear_mm_s,
+        rotation_mrad_s,
+    })
+}
+
+fn remote(dead_man: bool, linear_mm_s: i32, rotation_mrad_s: i32) -> Input {
+    Input::Remote {
+        dead_man,
+        twist: Twist {
+            linear_mm_s,
+            rotation_mrad_s,
+        },
+    }
+}
+
+/// Drive feedback with both wheels turning at `rpm` (as measured, any sign).
+fn moving(rpm: i32) -> Input {
+    Input::DriveFeedback {
+        counts: EncoderCounts { left: 0, right: 0 },
+        rpm: MotorRpm {
+            left: rpm,
+            right: -rpm,
+        },
+    }
+}
+
+fn counts(left: i32, right: i32) -> Input {
+    Input::DriveFeedback {
+        counts: EncoderCounts { left, right },
+        rpm: MotorRpm { left: 0, right: 0 },
+    }
+}
+
+fn odometry_calibration(step: OdometryCalibrationCommand) -> Input {
+    can(Command::OdometryCalibration(step))
+}
+
+fn scale_calibration(step: ScaleCalibrationCommand) -> Input {
+    can(Command::ScaleCalibration(step))
+}
+
+fn defaults() -> Registers {
+    Registers::defaults()
+}
+
+/// Defaults with all three odometry correction factors at 1.0, so poses are exact.
+fn uncorrected() -> Registers {
+    let mut registers = Registers::defaults();
+    for reg in [Reg::FCw, Reg::FCcw, Reg::FLin] {
+        registers
+            .write(reg.address(), 10_000)
+            .expect("1.0 is a valid factor");
+    }
+    registers
+}
+
+fn is_feedback(frame: &RawFrame) -> bool {
+    matches!(
+        frame.id(),
+        id::WEIGHT | id::BATTERY | id::POSITION | id::HEADING
+    )
+}
+
+fn check(controller: &Controller, now: Instant, out: &Output, check: Check, row: usize) {
+    let status = controller.status(now);
+    match check {
+        Wheels {
+            left,
+            right,
+            left_accel,
+            right_accel,
+        } => {
+            let wheels = out
+                .wheels
+                .unwrap_or_else(|| panic!("row {row}: no wheel command"));
+            assert_eq!(
+                (
+                    wheels.rpm.left,
+                    wheels.rpm.right,
+                    wheels.left_accel,
+                    wheels.right_accel
+                ),
+                (left, right, left_accel, right_accel),
+                "row {row}: wheel command"
+            );
+        }
+        Stop { accel } => {
+            let wheels = out
+                .wheels
+                .unwrap_or_else(|| panic!("row {row}: no stop command"));
+            assert_eq!(
+                wheels.rpm,
+                MotorRpm { left: 0, right: 0 },
+                "row {row}: not a stop"
+            );
+            assert_eq!(
+                wheels.left_accel.max(wheels.right_accel),
+                accel,
+                "row {row}: stop acceleration"
+            );
+        }
+        NoWheels => assert_eq!(out.wheels, None, "row {row}: unexpected wheel command"),
+        Excite(level) => assert_eq!(out.excite, Some(level), "row {row}: excitation"),
+        NoExcite => assert_eq!(out.excite, None, "row {row}: unexpected excitation change"),
+        SetupDrives => assert!(out.setup_drives, "row {row}: drive setup not requested"),
+        NoSetupDrives => assert!(!out.setup_drives, "row {row}: unexpected drive setup"),
+        Mode(mode) => assert_eq!(status.mode, mode, "row {row}: mode"),
+        Control(source) => assert_eq!(status.control, source, "row {row}: control source"),
+        PcSwitch(level) => assert_eq!(out.pc_switch, Some(level), "row {row}: PC switch"),
+        NoPcSwitch => assert_eq!(out.pc_switch, None, "row {row}: unexpected PC switch"),
+        NoFeedback => assert!(
+            !out.frames.iter().any(is_feedback),
+            "row {row}: feedback frame sent: {:?}",
+            out.frames
+        ),
+        Sends(report) => assert!(
+            out.frames.contains(&report.encode()),
+            "row {row}: {report:?} not in {:?}",
+            out.frames
+        ),
+        Persists(reg, value) => assert!(
+            out.persist.changed.contains(&(reg.address(), value)),
+            "row {row}: {reg:?} = {value} not persisted: {:?}",
+            out.persist
+        ),
+        NothingPersisted => assert!(
+            out.persist.changed.is_empty() && !out.persist.defaults_restored,
+            "row {row}: unexpected persist {:?}",
+            out.persist
+        ),
+        Register(reg, value) => {
+            assert_eq!(controller.registers().get(reg), value, "row {row}: {reg:?}")
+        }
+        Rejected { code, subject } => assert_eq!(
+            (status.last_rejection, status.last_rejection_subject),
+            (code, subject),
+            "row {row}: last rejection"
+        ),
+        RejectedCount(count) => {
+            assert_eq!(status.rejected_count, count, "row {row}: rejected count")
+        }
+        Pose {
+            x_mm,
+            y_mm,
+            heading_mrad,
+        } => {
+            let pose = controller.odometry().pose();
+            assert_eq!(
+                (pose.x_mm, pose.y_mm, pose.heading_mrad),
+                (x_mm, y_mm, heading_mrad),
+                "row {row}: pose"
+            );
+        }
+        PcOn(on) => assert_eq!(status.flags.pc_on, on, "row {row}: PC on"),
+    }
+}
+
+/// Runs the rows in order on a controller whose drives became ready at t = 0.
+fn run(registers: Registers, rows: &[Row]) -> Controller {
+    let mut controller = Controller::new(Instant::BOOT, registers);
+    controller.handle(Instant::BOOT, Input::DrivesReady);
+    for (index, (ms, input, checks)) in rows.iter().enumerate() {
+        let now = Instant::from_millis(*ms);
+        let out = controller.handle(now, *input);
+        for check in checks.iter() {
+            self::check(&controller, now, &out, *check, index);
+        }
+    }
+    controller
+}
+
+const FORWARD_500: Check = Wheels {
+    left: 336,
+    right: -336,
+    left_accel: 700,
+    right_accel: 700,
+};
+
+#[test]
+fn velocity_frame_without_enable_does_nothing() {
+    run(
+        defaults(),
+        &[
+            (0, Input::Tick, &[Mode(Mode::Standby)]),
+            (
+                10,
+                velocity(500, 0),
+                &[NoWheels, NoExcite, Control(ControlSource::None)],
+            ),
+            // The enable alone does not replay the velocity that arrived without it.
+            (20, enable(), &[NoWheels, NoExcite]),
+            (
+                30,
+                velocity(500, 0),
+                &[FORWARD_500, Excite(true), Mode(Mode::Active)],
+            ),
+        ],
+    );
+}
+
+#[test]
+fn enable_lapse_brakes_and_closes_the_brakes_after_disable_time() {
+    run(
+        defaults(),
+        &[
+            (0, enable(), &[]),
+            (
+                0,
+                velocity(500, 0),
+                &[FORWARD_500, Excite(true), Control(ControlSource::Can)],
+            ),
+            (100, moving(336), &[NoWheels]),
+            // enable_timeout is 500 ms: fresh at 499, lapsed at 500.
+            (499, Input::Tick, &[NoWheels]),
+            (
+                500,
+                Input::Tick,
+                &[Stop { accel: 700 }, NoExcite, Control(ControlSource::None)],
+            ),
+            (600, moving(150), &[NoExcite]),
+            (980, moving(0), &[NoExcite, Mode(Mode::Active)]),
+            // disable_time is 300 ms from the measured standstill.
+            (1279, Input::Tick, &[NoExcite]),
+            (1280, Input::Tick, &[Excite(false), Mode(Mode::Standby)]),
+        ],
+    );
+}
+
+#[test]
+fn a_stale_command_never_resumes_after_the_enable_returns() {
+    run(
+        defaults(),
+        &[
+            (0, enable(), &[]),
+            (0, velocity(500, 0), &[FORWARD_500]),
+            (500, Input::Tick, &[Stop { accel: 700 }]),
+            (600, enable(), &[NoWheels, NoExcite]),
+            (650, enable(), &[NoWheels]),
+            (700, Input::Tick, &[NoWheels]),
+            (
+                750,
+                velocity(250, 0),
+                &[Wheels {
+                    left: 168,
+                    right: -168,
+                    left_accel: 700,
+                    right_accel: 700,
+                }],
+            ),
+        ],
+    );
+}
+
+#[test]
+fn withdrawn_enable_stops_at_once() {
+    run(
+        defaults(),
+        &[
+            (0, enable(), &[]),
+            (0, velocity(500, 0), &[FORWARD_500]),
+            (
+                20,
+                raw(id::ENABLE, &[0, 0, 0, 0, 0, 0, 0, 0]),
+                &[Stop { accel: 700 }],
+            ),
+        ],
+    );
+}
+
+#[test]
+fn estop_while_driving_stops_at_once_and_needs_release_confirm_and_setup() {
+    run(
+        defaults(),
+        &[
+            (0, enable(), &[]),
+            (0, velocity(500, 0), &[FORWARD_500]),
+            (40, moving(336), &[]),
+            // At once, with estop_decel, in the output of the e-stop edge itself.
+            (
+                50,
+                Input::Estop(true),
+                &[Stop { accel: 4500 }, Mode(Mode::Emergency), NoFeedback],
+            ),
+            // CAN and remote are ignored, nothing is buffered.
+            (60, enable(), &[NoWheels, NoFeedback]),
+            (70, velocity(300, 0), &[NoWheels, NoExcite, NoFeedback]),
+            (80, remote(false, 0, 0), &[NoWheels]),
+            (
+                90,
+                remote(true, 250, 0),
+                &[NoWheels, Control(ControlSource::None)],
+            ),
+            // The drives lose power: expected, not a fault.
+            (
+                350,
+                Input::DriveSilent(Wheel::Left),
+                &[Mode(Mode::Emergency), NoWheels],
+            ),
+            (
+                350,
+                Input::DriveSilent(Wheel::Right),
+                &[Mode(Mode::Emergency)],
+            ),
+            // Feedback stays off through the whole emergency; the status frame does not.
+            (
+                1000,
+                Input::Tick,
+                &[
+                    NoFeedback,
+                    Sends(Report::Status(base_controller::can::Status {
+                        mode: Mode::Emergency,
+                        control: ControlSource::None,
+                        flags: base_controller::can::StatusFlags {
+                            estop_pressed: true,
+                            brakes_applied: true,
+                            ..Default::default()
+                        },
+                        ..Default::default()
+                    })),
+                ],
+            ),
+            // A confirm while the e-stop is still pressed does nothing.
+            (1100, Input::Button(true), &[]),
+            (
+                1200,
+                Input::Button(false),
+                &[NoSetupDrives, Mode(Mode::Emergency)],
+            ),
+            (
+                2000,
+                Input::Estop(false),
+                &[Mode(Mode::AwaitingConfirm), NoWheels],
+            ),
+            (2050, Input::Tick, &[NoFeedback]),
+            (2100, enable(), &[]),
+            (2110, velocity(300, 0), &[NoWheels]),
+            (2200, Input::Button(true), &[]),
+            (
+                2300,
+                Input::Button(false),
+                &[SetupDrives, Mode(Mode::Recovering)],
+            ),
+            // Recovering: back to normal mode (feedback flows) but nothing moves yet.
+            (2310, enable(), &[NoWheels]),
+            (2320, velocity(300, 0), &[NoWheels, NoExcite]),
+            (
+                2800,
+                Input::DrivesReady,
+                &[Mode(Mode::Standby), NoWheels, NoExcite],
+            ),
+            // The command sent during the recovery is not replayed.
+            (2810, enable(), &[NoWheels]),
+            (
+                2820,
+                velocity(500, 0),
+                &[FORWARD_500, Excite(true), Mode(Mode::Active)],
+            ),
+        ],
+    );
+}
+
+#[test]
+fn remote_dead_man_overrides_can_and_its_release_brakes_hard() {
+    run(
+        defaults(),
+        &[
+            (0, enable(), &[]),
+            (
+                0,
+                velocity(500, 0),
+                &[FORWARD_500, Control(ControlSource::Can)],
+            ),
+            (
+                10,
+                remote(false, 0, 0),
+                &[NoWheels, Control(ControlSource::Can)],
+            ),
+            // Dead-man held: the remote takes over with Contr_acc_norm.
+            (
+                20,
+                remote(true, 250, 0),
+                &[
+                    Wheels {
+                        left: 168,
+                        right: -168,
+                        left_accel: 350,
+                        right_accel: 350,
+                    },
+                    Control(ControlSource::Remote),
+                ],
+            ),
+            (30, enable(), &[NoWheels]),
+            (
+                40,
+                velocity(500, 0),
+                &[NoWheels, Control(ControlSource::Remote)],
+            ),
+            // Released: brake with Contr_acc_high; the CAN command was dropped on takeover.
+            (
+                50,
+                remote(false, 0, 0),
+                &[Stop { accel: 500 }, Control(ControlSource::None)],
+            ),
+            (60, enable(), &[NoWheels]),
+            (
+                70,
+                velocity(500, 0),
+                &[FORWARD_500, Control(ControlSource::Can)],
+            ),
+        ],
+    );
+}
+
+#[test]
+fn remote_link_loss_while_driving_brakes_with_contr_acc_high() {
+    run(
+        defaults(),
+        &[
+            (0, remote(false, 0, 0), &[]),
+            (10, remote(true, 250, 0), &[Control(ControlSource::Remote)]),
+            (
+                20,
+                Input::RemoteLinkLost,
+                &[Stop { accel: 500 }, Control(ControlSource::None)],
+            ),
+        ],
+    );
+}
+
+#[test]
+fn safety_zone_clamps_speed_and_rotation() {
+    run(
+        defaults(),
+        &[
+            (0, Input::SafetyZone(true), &[NoWheels]),
+            (0, enable(), &[]),
+            // 500 mm/s and 300 mrad/s are clamped to 200 mm/s and 100 mrad/s: the left
+            // wheel runs 212.5 mm/s (143 r/min), the right 187.5 mm/s (126 r/min); the
+            // right wheel's acceleration is scaled so both arrive together.
+            (
+                10,
+                velocity(500, 300),
+                &[Wheels {
+                    left: 143,
+                    right: -126,
+                    left_accel: 700,
+                    right_accel: 617,
+                }],
+            ),
+            (
+                20,
+                Input::SafetyZone(false),
+                &[Wheels {
+                    left: 361,
+                    right: -311,
+                    left_accel: 700,
+                    right_accel: 594,
+                }],
+            ),
+            // Entering the zone while driving re-clamps at once.
+            (
+                30,
+                Input::SafetyZone(true),
+                &[Wheels {
+                    left: 143,
+                    right: -126,
+                    left_accel: 700,
+                    right_accel: 594,
+                }],
+            ),
+        ],
+    );
+}
+
+#[test]
+fn drive_that_stops_answering_stops_the_other_wheel_and_latches_a_fault() {
+    let controller = run(
+        defaults(),
+        &[
+            (0, enable(), &[]),
+            (0, velocity(500, 0), &[FORWARD_500]),
+            (
+                100,
+                Input::DriveSilent(Wheel::Right),
+                &[Stop { accel: 4500 }, Mode(Mode::Fault)],
+            ),
+            (110, enable(), &[]),
+            (120, velocity(500, 0), &[NoWheels]),
+            (200, Input::Button(true), &[]),
+            (
+                300,
+                Input::Button(false),
+                &[SetupDrives, Mode(Mode::Recovering)],
+            ),
+        ],
+    );
+    assert!(
+        controller
+            .status(Instant::from_millis(300))
+            .faults
+            .right_drive_silent
+    );
+}
+
+#[test]
+fn drive_alarm_is_reported_and_cleared_by_the_recovery() {
+    let mut controller = run(
+        defaults(),
+        &[(
+            0,
+            Input::DriveAlarm {
+                wheel: Wheel::Left,
+                code: 0x84,
+            },
+            &[Mode(Mode::Fault)],
+        )],
+    );
+    let status = controller.status(Instant::from_millis(1));
+    assert!(status.faults.left_drive_alarm);
+    assert_eq!(status.drive_alarm, 0x84);
+    controller.handle(Instant::from_millis(10), Input::Button(true));
+    controller.handle(Instant::from_millis(100), Input::Button(false));
+    controller.handle(Instant::from_millis(900), Input::DrivesReady);
+    let status = controller.status(Instant::from_millis(900));
+    assert!(!status.faults.any());
+    assert_eq!(status.mode, Mode::Standby);
+}
+
+#[test]
+fn button_switches_the_pc_on_at_three_seconds_and_off_at_eight() {
+    run(
+        defaults(),
+        &[
+            (0, Input::Button(true), &[PcOn(false)]),
+            (2999, Input::Tick, &[NoPcSwitch]),
+            // Acts when the hold time is reached, not on release.
+            (
+                3000,
+                Input::Tick,
+                &[PcSwitch(SwitchLevel::Closed), PcOn(true)],
+            ),
+            (3499, Input::Tick, &[NoPcSwitch]),
+            (3500, Input::Tick, &[PcSwitch(SwitchLevel::Open)]),
+            // Held on past 8 s: one action per press.
+            (9000, Input::Tick, &[NoPcSwitch]),
+            (9100, Input::Button(false), &[NoPcSwitch, NoSetupDrives]),
+            // Boot grace: the PC counts as on before its first heartbeat, so a second
+            // 3 s press does not switch it again.
+            (20_000, Input::Button(true), &[]),
+            (23_000, Input::Tick, &[NoPcSwitch]),
+            (24_000, Input::Button(false), &[NoPcSwitch]),
+            (30_000, can(Command::Heartbeat), &[PcOn(true)]),
+            // 8 s with the PC on: pulse at 8 s.
+            (31_000, Input::Button(true), &[]),
+            (33_000, can(Command::Heartbeat), &[]),
+            (36_000, can(Command::Heartbeat), &[]),
+            (38_999, Input::Tick, &[NoPcSwitch]),
+            (39_000, Input::Tick, &[PcSwitch(SwitchLevel::Closed)]),
+            (39_000, can(Command::Heartbeat), &[]),
+            (39_500, Input::Tick, &[PcSwitch(SwitchLevel::Open)]),
+            (40_000, Input::Button(false), &[]),
+            // The PC shuts down: no heartbeat for heartbeat_time (5 s) and it counts as off.
+            (43_999, Input::Tick, &[PcOn(true)]),
+            (44_000, Input::Tick, &[PcOn(false)]),
+        ],
+    );
+}
+
+#[test]
+fn boot_grace_expires_without_a_heartbeat() {
+    run(
+        defaults(),
+        &[
+            (0, Input::Button(true), &[]),
+            (3000, Input::Tick, &[PcSwitch(SwitchLevel::Closed)]),
+            (3100, Input::Button(false), &[]),
+            // pc_boot_grace is 120 s from the pulse.
+            (122_999, Input::Tick, &[PcOn(true)]),
+            (123_000, Input::Tick, &[PcOn(false)]),
+        ],
+    );
+}
+
+#[test]
+fn odometry_calibration_flow_stores_the_factors_on_04() {
+    // 403 491 counts are 1000.0 mm of wheel travel at r = 142 mm and gear 10.
+    run(
+        defaults(),
+        &[
+            (0, counts(0, 0), &[]),
+            (
+                10,
+                odometry_calibration(OdometryCalibrationCommand::StartLinear),
+                &[],
+            ),
+            (20, counts(201_746, -201_746), &[]),
+            (30, counts(403_491, -403_491), &[]),
+            (
+                40,
+                odometry_calibration(OdometryCalibrationCommand::EndLinear { real_mm: 1007 }),
+                &[NothingPersisted],
+            ),
+            // A clockwise spin: left forward, right backward (right motor mirrored).
+            (
+                50,
+                odometry_calibration(OdometryCalibrationCommand::StartClockwise),
+                &[],
+            ),
+            (60, counts(403_491 + 100_000, -403_491 + 100_000), &[]),
+            (
+                70,
+                odometry_calibration(OdometryCalibrationCommand::EndClockwise { real_mrad: 1570 }),
+                &[NothingPersisted],
+            ),
+            (
+                80,
+                odometry_calibration(OdometryCalibrationCommand::Store),
+                &[
+                    Persists(Reg::FLin, 10_070),
+                    Register(Reg::FLin, 10_070),
+                    // Raw clockwise rotation: 2 · 247.83 mm / 250 mm = 1982.6 mrad.
+                    Persists(Reg::FCw, 7_919),
+                    Register(Reg::FCcw, 9_894),
+                ],
+            ),
+        ],
+    );
+}
+
+#[test]
+fn odometry_calibration_rejects_out_of_order_and_out_of_range_steps() {
+    run(
+        defaults(),
+        &[
+            (0, counts(0, 0), &[]),
+            (
+                10,
+                odometry_calibration(OdometryCalibrationCommand::EndLinear { real_mm: 1000 }),
+                &[
+                    Rejected {
+                        code: 0x20,
+                        subject: 0x08,
+                    },
+                    RejectedCount(1),
+                ],
+            ),
+            (
+                20,
+                odometry_calibration(OdometryCalibrationCommand::StartLinear),
+                &[],
+            ),
+            (
+                30,
+                odometry_calibration(OdometryCalibrationCommand::EndLinear { real_mm: 1000 }),
+                &[Rejected {
+                    code: 0x21,
+                    subject: 0x08,
+                }],
+            ),
+            (
+                40,
+                odometry_calibration(OdometryCalibrationCommand::StartLinear),
+                &[],
+            ),
+            (50, counts(403_491, -403_491), &[]),
+            // 1600 mm real for 1000 mm measured: a factor of 1.6 is refused.
+            (
+                60,
+                odometry_calibration(OdometryCalibrationCommand::EndLinear { real_mm: 1600 }),
+                &[Rejected {
+                    code: 0x22,
+                    subject: 0x08,
+                }],
+            ),
+            (
+                70,
+                odometry_calibration(OdometryCalibrationCommand::Store),
+                &[
+                    Rejected {
+                        code: 0x23,
+                        subject: 0x08,
+                    },
+                    NothingPersisted,
+                    Register(Reg::FLin, 10_071),
+                    RejectedCount(4),
+                ],
+            ),
+        ],
+    );
+}
+
+#[test]
+fn scale_calibration_flow_tares_and_scales() {
+    let mut rows: Vec<Row> = vec![(0, scale_calibration(ScaleCalibrationCommand::Start), &[])];
+    for ms in 1..=10 {
+        rows.push((ms, Input::ScaleSample(20_000), &[]));
+    }
+    rows.push((
+        20,
+        scale_calibration(ScaleCalibrationCommand::Tare),
+        &[
+            Persists(Reg::WeightOffset, 20_000),
+            Register(Reg::WeightOffset, 20_000),
+        ],
+    ));
+    for ms in 21..=30 {
+        rows.push((ms, Input::ScaleSample(20_000 + 38_000), &[]));
+    }
+    // 38 000 counts for 1000 g: 38 counts per gram, scale_value 3800.
+    rows.push((
+        40,
+        scale_calibration(ScaleCalibrationCommand::KnownWeight { grams: 1000 }),
+        &[
+            Persists(Reg::ScaleValue, 3800),
+            Register(Reg::ScaleValue, 3800),
+        ],
+    ));
+    run(defaults(), &rows);
+}
+
+#[test]
+fn scale_calibration_rejects_out_of_order_steps_and_missing_readings() {
+    run(
+        defaults(),
+        &[
+            (
+                0,
+                scale_calibration(ScaleCalibrationCommand::Tare),
+                &[Rejected {
+                    code: 0x30,
+                    subject: 0x07,
+                }],
+            ),
+            (10, scale_calibration(ScaleCalibrationCommand::Start), &[]),
+            (
+                20,
+                scale_calibration(ScaleCalibrationCommand::KnownWeight { grams: 500 }),
+                &[Rejected {
+                    code: 0x31,
+                    subject: 0x07,
+                }],
+            ),
+            // No HX711 reading yet.
+            (
+                30,
+                scale_calibration(ScaleCalibrationCommand::Tare),
+                &[
+                    Rejected {
+                        code: 0x32,
+                        subject: 0x07,
+                    },
+                    NothingPersisted,
+                    Register(Reg::WeightOffset, 20_490),
+                ],
+            ),
+        ],
+    );
+}
+
+#[test]
+fn register_writes_with_bad_values_are_rejected_and_change_nothing() {
+    run(
+        defaults(),
+        &[
+            (
+                0,
+                raw(id::REGISTER_WRITE, &[0, 0x00, 0x00]),
+                &[
+                    Rejected {
+                        code: 0x12,
+                        subject: 0,
+                    },
+                    Register(Reg::RadR, 142),
+                    NothingPersisted,
+                ],
+            ),
+            (
+                10,
+                raw(id::REGISTER_WRITE, &[2, 0x00, 0x00]),
+                &[Rejected {
+                    code: 0x12,
+                    subject: 2,
+                }],
+            ),
+            (
+                20,
+                raw(id::REGISTER_WRITE, &[15, 0x00, 0x00]),
+                &[
+                    Rejected {
+                        code: 0x12,
+                        subject: 15,
+                    },
+                    Register(Reg::LoopEndDelay, 50),
+                ],
+            ),
+            (
+                30,
+                raw(id::REGISTER_WRITE, &[39, 0x00, 0x02]),
+                &[Rejected {
+                    code: 0x11,
+                    subject: 39,
+                }],
+            ),
+            (
+                40,
+                raw(id::REGISTER_WRITE, &[35, 0x00, 0x02]),
+                &[
+                    Rejected {
+                        code: 0x10,
+                        subject: 35,
+                    },
+                    RejectedCount(5),
+                ],
+            ),
+            // A good write is applied at once and persisted.
+            (
+                50,
+                raw(id::REGISTER_WRITE, &[15, 0x00, 0x14]),
+                &[
+                    Persists(Reg::LoopEndDelay, 20),
+                    Register(Reg::LoopEndDelay, 20),
+                ],
+            ),
+            (
+                60,
+                raw(id::REGISTER_READ, &[1, 15]),
+                &[Sends(Report::RegisterValue { value: 20 })],
+            ),
+            (
+                70,
+                raw(id::REGISTER_READ, &[1, 36]),
+                &[Sends(Report::RegisterReadError {
+                    address: 36,
+                    reason: 0x10,
+                })],
+            ),
+        ],
+    );
+}
+
+#[test]
+fn malformed_frames_are_counted_and_named_in_the_status() {
+    run(
+        defaults(),
+        &[
+            (
+                0,
+                raw(id::VELOCITY, &[0xF4, 0x01, 0, 0, 0x04]),
+                &[
+                    Rejected {
+                        code: 0x02,
+                        subject: 0xC8,
+                    },
+                    NoWheels,
+                ],
+            ),
+            (
+                10,
+                raw(id::REGISTER_WRITE, &[1, 2]),
+                &[Rejected {
+                    code: 0x01,
+                    subject: 0x03,
+                }],
+            ),
+            (
+                20,
+                raw(id::RESET_ODOMETRY, &[2]),
+                &[
+                    Rejected {
+                        code: 0x03,
+                        subject: 0x05,
+                    },
+                    RejectedCount(3),
+                ],
+            ),
+            // Unknown IDs are ignored, not counted.
+            (30, raw(0x123, &[1, 2, 3]), &[RejectedCount(3)]),
+        ],
+    );
+}
+
+#[test]
+fn register_changes_take_effect_at_once() {
+    run(
+        defaults(),
+        &[
+            // max_motor_vel 200: 500 mm/s (336 r/min) is scaled down to the limit.
+            (
+                0,
+                raw(id::REGISTER_WRITE, &[6, 0x00, 0xC8]),
+                &[Persists(Reg::MaxMotorVel, 200)],
+            ),
+            (10, enable(), &[]),
+            (
+                20,
+                velocity(500, 0),
+                &[Wheels {
+                    left: 200,
+                    right: -200,
+                    left_accel: 700,
+                    right_accel: 700,
+                }],
+            ),
+        ],
+    );
+}
+
+#[test]
+fn restore_defaults_command_is_reported_for_persisting() {
+    let mut controller = run(
+        defaults(),
+        &[(
+            0,
+            raw(id::REGISTER_WRITE, &[15, 0x00, 0x14]),
+            &[Register(Reg::LoopEndDelay, 20)],
+        )],
+    );
+    let out = controller.handle(
+        Instant::from_millis(10),
+        raw(id::REGISTER_WRITE, &[40, 0xDE, 0xF0]),
+    );
+    assert!(out.persist.defaults_restored);
+    assert_eq!(controller.registers().get(Reg::LoopEndDelay), 50);
+}
+
+#[test]
+fn odometry_reports_clockwise_heading_and_resets_over_can_and_from_the_remote() {
+    // A quarter turn clockwise in place: each wheel travels π/2 · 125 mm = 196.35 mm,
+    // 79 225 counts; left forward, right backward (its motor is mirrored).
+    run(
+        uncorrected(),
+        &[
+            (0, counts(1_000, 1_000), &[]),
+            (
+                50,
+                counts(80_225, 80_225),
+                &[Pose {
+                    x_mm: 0,
+                    y_mm: 0,
+                    heading_mrad: 1571,
+                }],
+            ),
+            // Then 1 m forward: along +y, to the right.
+            (
+                100,
+                counts(483_716, -323_266),
+                &[Pose {
+                    x_mm: 0,
+                    y_mm: 1000,
+                    heading_mrad: 1571,
+                }],
+            ),
+            (
+                110,
+                can(Command::ResetOdometry),
+                &[Pose {
+                    x_mm: 0,
+                    y_mm: 0,
+                    heading_mrad: 0,
+                }],
+            ),
+            (
+                120,
+                counts(887_207, -726_757),
+                &[Pose {
+                    x_mm: 1000,
+                    y_mm: 0,
+                    heading_mrad: 0,
+                }],
+            ),
+            (
+                130,
+                Input::RemoteResetOdometry,
+                &[Pose {
+                    x_mm: 0,
+                    y_mm: 0,
+                    heading_mrad: 0,
+                }],
+            ),
+        ],
+    );
+}
+
+#[test]
+fn odometry_does_not_jump_when_the_drives_come_back_with_new_counters() {
+    run(
+        uncorrected(),
+        &[
+            (0, counts(5_000_000, -5_000_000), &[]),
+            (
+                50,
+                counts(5_403_491, -5_403_491),
+                &[Pose {
+                    x_mm: 1000,
+                    y_mm: 0,
+                    heading_mrad: 0,
+                }],
+            ),
+            (60, Input::DrivesReady, &[]),
+            // The drives restarted at zero: a baseline, not 5 km backwards.
+            (
+                70,
+                counts(0, 0),
+                &[Pose {
+                    x_mm: 1000,
+                    y_mm: 0,
+                    heading_mrad: 0,
+                }],
+            ),
+            (
+                80,
+                counts(403_491, -403_491),
+                &[Pose {
+                    x_mm: 2000,
+                    y_mm: 0,
+                    heading_mrad: 0,
+                }],
+            ),
+        ],
+    );
+}
+
+#[test]
+fn feedback_frames_carry_pose_battery_and_weight_at_their_periods() {
+    let mut controller = Controller::new(Instant::BOOT, defaults());
+    controller.handle(Instant::BOOT, Input::DrivesReady);
+    controller.handle(Instant::BOOT, Input::BatterySample { voltage_mv: 25_500 });
+    for _ in 0..10 {
+        controller.handle(Instant::BOOT, Input::ScaleSample(20_490 + 19 * 1234));
+    }
+    let mut sent = Vec::new();
+    for ms in 1..=10_000 {
+        let out = controller.handle(Instant::from_millis(ms), Input::Tick);
+        sent.extend(out.frames.iter().map(|frame| frame.id()));
+    }
+    let count = |id| sent.iter().filter(|&&sent_id| sent_id == id).count();
+    assert_eq!(count(id::POSITION), 200);
+    assert_eq!(count(id::HEADING), 200);
+    assert_eq!(count(id::BATTERY), 2);
+    assert_eq!(count(id::WEIGHT), 10);
+    assert_eq!(count(id::STATUS), 10);
+    let out = controller.handle(Instant::from_millis(15_000), Input::Tick);
+    assert!(
+        out.frames.contains(
+            &Report::Battery {
+                percent: 100,
+                voltage_mv: 25_500
+            }
+            .encode()
+        )
+    );
+    assert!(
+        out.frames
+            .contains(&Report::Weight { grams: 1234 }.encode())
+    );
+}
