@@ -527,3 +527,25 @@ fn docs_table_matches_the_register_table() {
     let golden = encode_record(15, 50).map(|b| format!("{b:02X}")).join(" ");
     assert!(docs.contains(&format!("record: {golden}")), "{golden}");
 }
+
+#[test]
+fn readme_table_matches_the_register_table() {
+    let readme = include_str!("../../README.md");
+    for info in persistent() {
+        let name = if info.extension {
+            format!("{} (ext)", info.name)
+        } else {
+            info.name.to_string()
+        };
+        let valid = if info.zero_is_off {
+            format!("off or {}..={}", info.min, info.max)
+        } else {
+            format!("{}..={}", info.min, info.max)
+        };
+        let row = format!(
+            "\n| {} | {} | {} | {} | {} | ",
+            info.address, name, info.unit, info.default, valid
+        );
+        assert!(readme.contains(&row), "README.md lacks the row {row:?}");
+    }
+}
