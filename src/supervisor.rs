@@ -11,7 +11,8 @@
 //!      │                          │                                 │
 //!      │                          │ DrivesReady      drive lost /   │
 //!      │                       Recovering ◀──────┐   alarm          ▼
-//!      │                          ▲              └──── confirm ── Fault
+//!      │                          ▲              └──── confirm ── Fault (brakes close
+//!      │                          │                                 at rest)
 //!      │                          │ confirm
 //!      │  e-stop pressed    AwaitingConfirm
 //!      │  (from any state)        ▲
@@ -140,8 +141,9 @@ enum State {
     AwaitingConfirm,
     /// Confirmed; the drive link sets the drives up again.
     Recovering,
-    /// A drive fault outside an e-stop; a confirm press starts the recovery.
-    Fault,
+    /// A drive fault outside an e-stop; a confirm press starts the recovery. The drive
+    /// that still answers is de-excited once the base stands for `disable_time`.
+    Fault { at_rest_since: Option<Instant> },
 }
 
 /// A CAN velocity stored while the enable is fresh.
@@ -257,7 +259,7 @@ impl Supervisor {
             }
             Event::SafetyZone { occupied } => self.safety_zone = occupied,
             Event::ConfirmPressed => {
-                if matches!(self.state, State::AwaitingConfirm | State::Fault) {
+                if matches!(self.state, State::AwaitingConfirm | State::Fault { .. }) {
                     self.state = State::Recovering;
                     effects.setup_drives = true;
                 }
@@ -298,7 +300,7 @@ impl Supervisor {
             State::Emergency => Mode::Emergency,
             State::AwaitingConfirm => Mode::AwaitingConfirm,
             State::Recovering => Mode::Recovering,
-            State::Fault => Mode::Fault,
+            State::Fault { .. } => Mode::Fault,
         }
     }
 
@@ -426,7 +428,9 @@ impl Supervisor {
             }
         }
         debug_assert!(self.faults.any());
-        self.state = State::Fault;
+        self.state = State::Fault {
+            at_rest_since: None,
+        };
         self.can_command = None;
         self.remote.armed = false;
         self.stop_accel = params.estop_decel;
@@ -445,6 +449,10 @@ impl Supervisor {
 
     /// Arbitrates the sources, clamps to the safety zone and runs the brake timer.
     fn update_motion(&mut self, now: Instant, params: &SupervisorParams, effects: &mut Effects) {
+        if let State::Fault { at_rest_since } = self.state {
+            let at_rest_since = self.brake_timer(now, false, at_rest_since, params, effects);
+            self.state = State::Fault { at_rest_since };
+        }
         if !self.may_drive() {
             if self.last_setpoint.twist != Twist::ZERO {
                 self.send_zero(self.stop_accel, effects);
@@ -490,20 +498,35 @@ impl Supervisor {
         }
 
         if let State::Active { at_rest_since } = self.state {
-            let at_rest_since = match (requested, self.at_rest, at_rest_since) {
-                (false, true, None) => Some(now),
-                (false, true, since) => since,
-                _ => None,
+            let at_rest_since = self.brake_timer(now, requested, at_rest_since, params, effects);
+            self.state = if self.excited {
+                State::Active { at_rest_since }
+            } else {
+                State::Standby
             };
-            match at_rest_since {
-                Some(since) if now.millis_since(since) >= u64::from(params.disable_time_ms) => {
-                    self.excited = false;
-                    effects.excite = Some(false);
-                    self.state = State::Standby;
-                }
-                _ => self.state = State::Active { at_rest_since },
-            }
         }
+    }
+
+    /// De-excites the drives once nothing is requested and the wheels have been measured
+    /// at rest for `disable_time`. Returns when the standstill began (if it runs).
+    fn brake_timer(
+        &mut self,
+        now: Instant,
+        requested: bool,
+        at_rest_since: Option<Instant>,
+        params: &SupervisorParams,
+        effects: &mut Effects,
+    ) -> Option<Instant> {
+        if !self.excited || requested || !self.at_rest {
+            return None;
+        }
+        let since = at_rest_since.unwrap_or(now);
+        if now.millis_since(since) >= u64::from(params.disable_time_ms) {
+            self.excited = false;
+            effects.excite = Some(false);
+            return None;
+        }
+        Some(since)
     }
 }
 

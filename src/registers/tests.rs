@@ -501,24 +501,30 @@ proptest! {
     }
 }
 
+/// The start of a register's table row as `docs/registers.md` and the README print it:
+/// address, name, unit, default and valid range.
+fn documented_row(info: &RegisterInfo) -> String {
+    let name = if info.extension {
+        format!("{} (ext)", info.name)
+    } else {
+        info.name.to_string()
+    };
+    let valid = if info.zero_is_off {
+        format!("off or {}..={}", info.min, info.max)
+    } else {
+        format!("{}..={}", info.min, info.max)
+    };
+    format!(
+        "\n| {} | {} | {} | {} | {} | ",
+        info.address, name, info.unit, info.default, valid
+    )
+}
+
 #[test]
 fn docs_table_matches_the_register_table() {
     let docs = include_str!("../../docs/registers.md");
     for info in persistent() {
-        let name = if info.extension {
-            format!("{} (ext)", info.name)
-        } else {
-            info.name.to_string()
-        };
-        let valid = if info.zero_is_off {
-            format!("off or {}..={}", info.min, info.max)
-        } else {
-            format!("{}..={}", info.min, info.max)
-        };
-        let row = format!(
-            "\n| {} | {} | {} | {} | {} | rw | ",
-            info.address, name, info.unit, info.default, valid
-        );
+        let row = format!("{}rw | ", documented_row(info));
         assert!(
             docs.contains(&row),
             "docs/registers.md lacks the row {row:?}"
@@ -532,20 +538,7 @@ fn docs_table_matches_the_register_table() {
 fn readme_table_matches_the_register_table() {
     let readme = include_str!("../../README.md");
     for info in persistent() {
-        let name = if info.extension {
-            format!("{} (ext)", info.name)
-        } else {
-            info.name.to_string()
-        };
-        let valid = if info.zero_is_off {
-            format!("off or {}..={}", info.min, info.max)
-        } else {
-            format!("{}..={}", info.min, info.max)
-        };
-        let row = format!(
-            "\n| {} | {} | {} | {} | {} | ",
-            info.address, name, info.unit, info.default, valid
-        );
+        let row = documented_row(info);
         assert!(readme.contains(&row), "README.md lacks the row {row:?}");
     }
 }
