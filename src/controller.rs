@@ -420,7 +420,10 @@ impl Controller {
             self.odometry_calibration
                 .observe(motion.distance_mm, motion.rotation_mrad);
         }
-        let at_rest = rpm.left.abs() <= AT_REST_RPM && rpm.right.abs() <= AT_REST_RPM;
+        // A range, not `abs()`: i32::MIN from a drive would overflow (and, wrapped, read
+        // as standing).
+        let standing = -AT_REST_RPM..=AT_REST_RPM;
+        let at_rest = standing.contains(&rpm.left) && standing.contains(&rpm.right);
         self.supervise(now, Event::AtRest(at_rest), out);
     }
 
@@ -577,4 +580,61 @@ fn frame_subject(id: u16) -> u8 {
 fn push_frame(out: &mut Output, frame: RawFrame) {
     let pushed = out.frames.push(frame);
     debug_assert!(pushed.is_ok(), "more frames than Output holds");
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn at(ms: u64) -> Instant {
+        Instant::from_millis(ms)
+    }
+
+    fn can(command: Command) -> Input {
+        Input::CanFrame(command.encode())
+    }
+
+    /// Drives ready, CAN enabled and driving forward at 500 mm/s since 0 ms.
+    fn driving_forward() -> Controller {
+        let mut controller = Controller::new(at(0), Registers::defaults());
+        controller.handle(at(0), Input::DrivesReady);
+        controller.handle(at(0), can(Command::Enable { refresh: true }));
+        let out = controller.handle(
+            at(0),
+            can(Command::Velocity {
+                linear_mm_s: 500,
+                rotation_mrad_s: 0,
+            }),
+        );
+        // 336 r/min per motor; the right one is mirror-mounted (motor_dir 2).
+        assert_eq!(
+            out.wheels.map(|command| command.rpm),
+            Some(MotorRpm {
+                left: 336,
+                right: -336
+            })
+        );
+        controller
+    }
+
+    #[test]
+    fn a_drive_reporting_i32_min_rpm_counts_as_moving_and_does_not_panic() {
+        let mut controller = driving_forward();
+        controller.handle(at(10), can(Command::Enable { refresh: false }));
+        // A garbled but checksummed speed reading: -i32::MIN overflows, and wrapped it
+        // would read as standing and close the brakes on a moving wheel.
+        controller.handle(
+            at(20),
+            Input::DriveFeedback {
+                counts: EncoderCounts { left: 0, right: 0 },
+                rpm: MotorRpm {
+                    left: i32::MIN,
+                    right: 0,
+                },
+            },
+        );
+        let out = controller.handle(at(1_000), Input::Tick);
+        assert_eq!(out.excite, None);
+        assert!(!controller.supervisor().brakes_applied());
+    }
 }
