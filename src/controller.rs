@@ -16,7 +16,7 @@ use crate::odometry::{EncoderCounts, Odometry, OdometryParams};
 use crate::power::{PowerControl, PowerEvent, PowerParams, SwitchLevel};
 use crate::registers::{Reg, RegisterError, Registers, WriteOutcome};
 use crate::scale::{self, RawAverage};
-use crate::supervisor::{Event, Supervisor, SupervisorParams, Wheel};
+use crate::supervisor::{Event, Setpoint, Supervisor, SupervisorParams, Wheel};
 use crate::time::Instant;
 
 /// BLV R position counters: 0.01° of the motor shaft per count.
@@ -159,6 +159,8 @@ pub struct Controller {
     battery_mv: Option<u16>,
     scale: RawAverage<SCALE_AVERAGE_SAMPLES>,
     feedback: FeedbackSchedule,
+    /// The supervisor's latest setpoint: what the wheels follow until the next one.
+    setpoint: Setpoint,
     /// The motor speeds last commanded; the next ramp starts from here.
     commanded: MotorRpm,
     rejections: Rejections,
@@ -182,6 +184,10 @@ impl Controller {
             battery_mv: None,
             scale: RawAverage::new(),
             feedback: FeedbackSchedule::new(now),
+            setpoint: Setpoint {
+                twist: Twist::ZERO,
+                accel_rpm_per_s: 0,
+            },
             commanded: MotorRpm { left: 0, right: 0 },
             rejections: Rejections::default(),
             faults: ShellFaults::default(),
@@ -321,7 +327,7 @@ impl Controller {
                 self.supervise(now, Event::CanVelocity(twist), out);
             }
             Command::RegisterWrite { address, value } => {
-                self.write_register(address, value, out);
+                self.write_register(now, address, value, out);
             }
             Command::RegisterRead { address } => {
                 let report = match self.registers.read(address) {
@@ -345,10 +351,10 @@ impl Controller {
                     .handle(step, self.scale.average(), offset)
                 {
                     Ok(Some(ScaleUpdate::Offset(value))) => {
-                        self.write_register(Reg::WeightOffset as u8, value, out)
+                        self.write_register(now, Reg::WeightOffset as u8, value, out)
                     }
                     Ok(Some(ScaleUpdate::ScaleValue(value))) => {
-                        self.write_register(Reg::ScaleValue as u8, value, out)
+                        self.write_register(now, Reg::ScaleValue as u8, value, out)
                     }
                     Ok(None) => {}
                     Err(error) => self
@@ -364,7 +370,7 @@ impl Controller {
                         (Reg::FLin, factors.f_lin),
                     ] {
                         if let Some(value) = value {
-                            self.write_register(reg as u8, value, out);
+                            self.write_register(now, reg as u8, value, out);
                         }
                     }
                 }
@@ -382,8 +388,8 @@ impl Controller {
 
     /// Validates and applies a register write; a change is handed to the flash task and
     /// takes effect at once, because every parameter struct is built from the registers
-    /// at the moment it is used.
-    fn write_register(&mut self, address: u8, value: u16, out: &mut Output) {
+    /// at the moment it is used, and a supervisor step applies it to the running command.
+    fn write_register(&mut self, now: Instant, address: u8, value: u16, out: &mut Output) {
         let outcome = self.registers.write(address, value);
         if matches!(
             outcome,
@@ -392,6 +398,10 @@ impl Controller {
             // The power state machine holds its parameters; everything else reads the
             // registers when it needs them.
             self.power.set_params(power_params(&self.registers));
+            // Without a step a lowered max_motor_vel (or a new gear ratio, radius,
+            // motor_dir or safety limit) would wait for the next change of the twist,
+            // which never comes while the PC repeats the same velocity.
+            self.supervise(now, Event::Tick, out);
         }
         match outcome {
             Ok(WriteOutcome::Changed { address, value }) => {
@@ -420,17 +430,26 @@ impl Controller {
             self.odometry_calibration
                 .observe(motion.distance_mm, motion.rotation_mrad);
         }
-        let at_rest = rpm.left.abs() <= AT_REST_RPM && rpm.right.abs() <= AT_REST_RPM;
+        // A range, not `abs()`: i32::MIN from a drive would overflow (and, wrapped, read
+        // as standing).
+        let standing = -AT_REST_RPM..=AT_REST_RPM;
+        let at_rest = standing.contains(&rpm.left) && standing.contains(&rpm.right);
         self.supervise(now, Event::AtRest(at_rest), out);
     }
 
     fn supervise(&mut self, now: Instant, event: Event, out: &mut Output) {
         let effects = self.supervisor.step(now, event, &self.supervisor_params());
         if let Some(setpoint) = effects.setpoint {
-            let target = kinematics::motor_rpm(&self.kinematics_params(), setpoint.twist);
-            let command = kinematics::ramp(self.commanded, target, setpoint.accel_rpm_per_s);
+            self.setpoint = setpoint;
+        }
+        // Mapped on every step, not only for a new setpoint, so that registers written
+        // since then apply to the running command too. A new setpoint always goes out,
+        // even an unchanged zero (the e-stop edge).
+        let target = kinematics::motor_rpm(&self.kinematics_params(), self.setpoint.twist);
+        if effects.setpoint.is_some() || target != self.commanded {
+            let accel = self.setpoint.accel_rpm_per_s;
+            out.wheels = Some(kinematics::ramp(self.commanded, target, accel));
             self.commanded = target;
-            out.wheels = Some(command);
         }
         if effects.excite.is_some() {
             out.excite = effects.excite;
@@ -577,4 +596,103 @@ fn frame_subject(id: u16) -> u8 {
 fn push_frame(out: &mut Output, frame: RawFrame) {
     let pushed = out.frames.push(frame);
     debug_assert!(pushed.is_ok(), "more frames than Output holds");
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn at(ms: u64) -> Instant {
+        Instant::from_millis(ms)
+    }
+
+    fn can(command: Command) -> Input {
+        Input::CanFrame(command.encode())
+    }
+
+    /// Drives ready, CAN enabled and driving forward at 500 mm/s since 0 ms.
+    fn driving_forward() -> Controller {
+        let mut controller = Controller::new(at(0), Registers::defaults());
+        controller.handle(at(0), Input::DrivesReady);
+        controller.handle(at(0), can(Command::Enable { refresh: true }));
+        let out = controller.handle(
+            at(0),
+            can(Command::Velocity {
+                linear_mm_s: 500,
+                rotation_mrad_s: 0,
+            }),
+        );
+        // 336 r/min per motor; the right one is mirror-mounted (motor_dir 2).
+        assert_eq!(
+            out.wheels.map(|command| command.rpm),
+            Some(MotorRpm {
+                left: 336,
+                right: -336
+            })
+        );
+        controller
+    }
+
+    fn write(reg: Reg, value: u16) -> Input {
+        can(Command::RegisterWrite {
+            address: reg.address(),
+            value,
+        })
+    }
+
+    #[test]
+    fn lowering_max_motor_vel_while_driving_slows_the_running_command_at_once() {
+        let mut controller = driving_forward();
+        let out = controller.handle(at(10), write(Reg::MaxMotorVel, 100));
+        assert_eq!(
+            out.wheels,
+            Some(kinematics::WheelCommand {
+                rpm: MotorRpm {
+                    left: 100,
+                    right: -100
+                },
+                left_accel: 700,
+                right_accel: 700,
+            })
+        );
+        // The PC keeps sending the same velocity: nothing new to send, the limit holds.
+        controller.handle(at(20), can(Command::Enable { refresh: true }));
+        let out = controller.handle(
+            at(20),
+            can(Command::Velocity {
+                linear_mm_s: 500,
+                rotation_mrad_s: 0,
+            }),
+        );
+        assert_eq!(out.wheels, None);
+    }
+
+    #[test]
+    fn a_register_write_after_the_enable_lapsed_stops_the_wheels_instead_of_resending() {
+        let mut controller = driving_forward();
+        // enable_timeout is 500 ms and no tick came since: the write's step sees the lapse.
+        let out = controller.handle(at(600), write(Reg::GearRatio, 2000));
+        assert_eq!(out.wheels.map(|command| command.rpm), Some(MotorRpm::ZERO));
+    }
+
+    #[test]
+    fn a_drive_reporting_i32_min_rpm_counts_as_moving_and_does_not_panic() {
+        let mut controller = driving_forward();
+        controller.handle(at(10), can(Command::Enable { refresh: false }));
+        // A garbled but checksummed speed reading: -i32::MIN overflows, and wrapped it
+        // would read as standing and close the brakes on a moving wheel.
+        controller.handle(
+            at(20),
+            Input::DriveFeedback {
+                counts: EncoderCounts { left: 0, right: 0 },
+                rpm: MotorRpm {
+                    left: i32::MIN,
+                    right: 0,
+                },
+            },
+        );
+        let out = controller.handle(at(1_000), Input::Tick);
+        assert_eq!(out.excite, None);
+        assert!(!controller.supervisor().brakes_applied());
+    }
 }

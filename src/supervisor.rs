@@ -157,6 +157,9 @@ struct CanCommand {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 struct RemoteInput {
+    /// A report arrived since boot or since the link was lost. Until then `dead_man`
+    /// is a default, not an observation.
+    reported: bool,
     dead_man: bool,
     twist: Twist,
     /// The dead-man must be seen released before it may take control: a pad that connects
@@ -197,6 +200,7 @@ impl Supervisor {
             enable_refreshed: None,
             can_command: None,
             remote: RemoteInput {
+                reported: false,
                 dead_man: false,
                 twist: Twist::ZERO,
                 armed: false,
@@ -244,6 +248,7 @@ impl Supervisor {
                     self.stop_accel = params.remote_release_accel;
                 }
                 self.remote = RemoteInput {
+                    reported: false,
                     dead_man: false,
                     twist: Twist::ZERO,
                     armed: false,
@@ -268,8 +273,9 @@ impl Supervisor {
                 if matches!(self.state, State::Starting | State::Recovering) {
                     self.state = State::Standby;
                     self.excited = false;
-                    // A dead-man already up when the drives come back may take control.
-                    self.remote.armed = !self.remote.dead_man;
+                    // A dead-man seen up when the drives come back may take control; a
+                    // pad that has not reported yet has not been seen released.
+                    self.remote.armed = self.remote.reported && !self.remote.dead_man;
                     self.faults = DriveFaults {
                         last_alarm_code: self.faults.last_alarm_code,
                         ..DriveFaults::default()
@@ -381,6 +387,7 @@ impl Supervisor {
         if !dead_man && self.may_drive() {
             self.remote.armed = true;
         }
+        self.remote.reported = true;
         self.remote.dead_man = dead_man;
         self.remote.twist = twist;
         if self.remote_in_control() && !was_in_control {
@@ -654,6 +661,51 @@ mod tests {
         );
         let effects = supervisor.step(
             at(70),
+            Event::Remote {
+                dead_man: true,
+                twist: FORWARD,
+            },
+            &PARAMS,
+        );
+        assert_eq!(effects.setpoint, setpoint(FORWARD, 350));
+    }
+
+    #[test]
+    fn a_pad_whose_first_report_holds_the_dead_man_does_not_drive() {
+        // At boot, and after a link loss followed by a recovery: no report since, so
+        // the dead-man was never seen released.
+        let held = Event::Remote {
+            dead_man: true,
+            twist: FORWARD,
+        };
+        let mut supervisor = ready();
+        assert_eq!(supervisor.step(at(10), held, &PARAMS).setpoint, None);
+        assert!(!supervisor.remote_in_control());
+
+        let mut supervisor = ready();
+        supervisor.step(at(0), Event::RemoteLinkLost, &PARAMS);
+        supervisor.step(at(10), Event::Estop { pressed: true }, &PARAMS);
+        supervisor.step(at(20), Event::Estop { pressed: false }, &PARAMS);
+        supervisor.step(at(30), Event::ConfirmPressed, &PARAMS);
+        supervisor.step(at(40), Event::DrivesReady, &PARAMS);
+        assert_eq!(supervisor.step(at(50), held, &PARAMS).setpoint, None);
+        assert!(!supervisor.remote_in_control());
+    }
+
+    #[test]
+    fn a_dead_man_seen_released_before_the_drives_are_ready_drives_at_once() {
+        let mut supervisor = Supervisor::new();
+        supervisor.step(
+            at(0),
+            Event::Remote {
+                dead_man: false,
+                twist: Twist::ZERO,
+            },
+            &PARAMS,
+        );
+        supervisor.step(at(10), Event::DrivesReady, &PARAMS);
+        let effects = supervisor.step(
+            at(20),
             Event::Remote {
                 dead_man: true,
                 twist: FORWARD,

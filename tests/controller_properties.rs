@@ -1,0 +1,1155 @@
+//! The controller's safety invariants as properties over random event sequences: CAN
+//! frames (well-formed and garbage), inputs, remote reports, drive feedback and ticks are
+//! fed to `Controller::handle` with time moving forward, and every invariant is checked
+//! after every event. The module `model` holds the contract's rules for who may drive
+//! (spec §5.1, §6, the supervisor's rules), tracked from the inputs alone.
+
+use base_controller::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
+use base_controller::can::{Command, ControlSource, Mode, RawFrame, Report, Status, id};
+use base_controller::controller::{Controller, Input, Output};
+use base_controller::kinematics::{self, KinematicsParams, MotorRpm, SafetyLimits, Twist};
+use base_controller::odometry::{EncoderCounts, Pose};
+use base_controller::registers::{
+    MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, RESTORE_DEFAULTS_KEY, Reg, Registers,
+};
+use base_controller::supervisor::Wheel;
+use base_controller::time::Instant;
+use proptest::prelude::*;
+use proptest::strategy::ValueTree;
+use proptest::test_runner::{TestCaseError, TestRunner};
+
+/// Sequences per property: enough to reach driving, emergencies, faults and register
+/// changes in many combinations (see `event_sequences_reach_every_situation_checked`),
+/// while the whole file runs in a few seconds.
+const CASES: u32 = 1000;
+const MAX_EVENTS: usize = 200;
+
+// ---------------------------------------------------------------------------------------
+// Strategies
+// ---------------------------------------------------------------------------------------
+
+/// Milliseconds between two events: mostly short (so enables stay fresh and the base
+/// drives), sometimes long enough for every timeout.
+fn gap_ms() -> impl Strategy<Value = u64> {
+    prop_oneof![6 => 0..=30u64, 3 => 0..=300u64, 1 => 0..=1000u64]
+}
+
+fn frame(id: u16, data: &[u8]) -> RawFrame {
+    RawFrame::new(id, data).expect("test frames are valid classic CAN frames")
+}
+
+/// `len` bytes of `bytes`, with `first` in front when given.
+fn frame_with(id: u16, first: Option<u8>, bytes: [u8; 8], len: usize) -> RawFrame {
+    let mut data = bytes;
+    if let Some(first) = first {
+        data[0] = first;
+    }
+    frame(id, &data[..len])
+}
+
+fn can_speed() -> impl Strategy<Value = i16> {
+    prop_oneof![
+        4 => -1500i16..=1500,
+        1 => any::<i16>(),
+        1 => prop::sample::select(vec![i16::MIN, i16::MAX, 0, 1, -1]),
+    ]
+}
+
+fn velocity_frame() -> impl Strategy<Value = RawFrame> {
+    (can_speed(), can_speed()).prop_map(|(linear_mm_s, rotation_mrad_s)| {
+        Command::Velocity {
+            linear_mm_s,
+            rotation_mrad_s,
+        }
+        .encode()
+    })
+}
+
+fn remote_speed() -> impl Strategy<Value = i32> {
+    prop_oneof![
+        4 => -1500i32..=1500,
+        1 => any::<i32>(),
+        1 => prop::sample::select(vec![i32::MIN, i32::MAX, i32::MIN + 1, 0, 1, -1]),
+    ]
+}
+
+fn twist() -> impl Strategy<Value = Twist> {
+    (remote_speed(), remote_speed()).prop_map(|(linear_mm_s, rotation_mrad_s)| Twist {
+        linear_mm_s,
+        rotation_mrad_s,
+    })
+}
+
+/// Registers worth changing mid-sequence: limits, geometry, accelerations, timeouts and
+/// periods (what the wheels are told and when), and the PC button hold times.
+const DRIVING_REGISTERS: [Reg; 21] = [
+    Reg::MaxMotorVel,
+    Reg::GearRatio,
+    Reg::RadL,
+    Reg::RadR,
+    Reg::WheelDist,
+    Reg::EstopDecel,
+    Reg::MotorDir,
+    Reg::CanAccel,
+    Reg::ContrAccNorm,
+    Reg::ContrAccHigh,
+    Reg::SecLinVel,
+    Reg::SecTurnVel,
+    Reg::EnableTimeout,
+    Reg::CmdTimeout,
+    Reg::DisableTime,
+    Reg::LoopEndDelay,
+    Reg::VoltTime,
+    Reg::WeightTime,
+    Reg::StatusTime,
+    Reg::StartPc,
+    Reg::ShutdownPc,
+];
+
+/// The registers the motor speeds of a twist depend on.
+const KINEMATIC_REGISTERS: [Reg; 6] = [
+    Reg::MaxMotorVel,
+    Reg::GearRatio,
+    Reg::RadL,
+    Reg::RadR,
+    Reg::WheelDist,
+    Reg::MotorDir,
+];
+
+/// An in-range write to a kinematic register (it may still break a cross-register rule).
+fn kinematic_write() -> impl Strategy<Value = RawFrame> {
+    prop::sample::select(KINEMATIC_REGISTERS.to_vec())
+        .prop_flat_map(|reg| (Just(reg.address()), reg.info().min..=reg.info().max))
+        .prop_map(|(address, value)| Command::RegisterWrite { address, value }.encode())
+}
+
+/// 0x003 frames: mostly in-range values of the registers that matter for driving (so
+/// they are accepted and change the limits while the base moves), plus anything at all.
+fn register_write() -> impl Strategy<Value = RawFrame> {
+    let targeted = prop::sample::select(DRIVING_REGISTERS.to_vec()).prop_flat_map(|reg| {
+        let info = reg.info();
+        let value = prop_oneof![4 => info.min..=info.max, 1 => any::<u16>()];
+        (Just(reg.address()), value)
+    });
+    prop_oneof![
+        8 => targeted,
+        2 => (any::<u8>(), any::<u16>()),
+        1 => Just((Reg::Command.address(), RESTORE_DEFAULTS_KEY)),
+    ]
+    .prop_map(|(address, value)| Command::RegisterWrite { address, value }.encode())
+}
+
+fn scale_calibration() -> impl Strategy<Value = RawFrame> {
+    prop_oneof![
+        Just(ScaleCalibrationCommand::Start),
+        Just(ScaleCalibrationCommand::Tare),
+        any::<u16>().prop_map(|grams| ScaleCalibrationCommand::KnownWeight { grams }),
+    ]
+    .prop_map(|step| Command::ScaleCalibration(step).encode())
+}
+
+fn odometry_calibration() -> impl Strategy<Value = RawFrame> {
+    use OdometryCalibrationCommand as Step;
+    let value = prop_oneof![0u16..=5000, any::<u16>()];
+    prop_oneof![
+        Just(Step::StartLinear),
+        value
+            .clone()
+            .prop_map(|real_mm| Step::EndLinear { real_mm }),
+        Just(Step::StartClockwise),
+        value
+            .clone()
+            .prop_map(|real_mrad| Step::EndClockwise { real_mrad }),
+        Just(Step::StartCounterClockwise),
+        value.prop_map(|real_mrad| Step::EndCounterClockwise { real_mrad }),
+        Just(Step::Store),
+    ]
+    .prop_map(|step| Command::OdometryCalibration(step).encode())
+}
+
+/// Any frame at an ID the base controller listens to or sends, with a random length and
+/// a first byte that is often a real sub-command, so every rejection path is reached.
+fn known_id_garbage() -> impl Strategy<Value = RawFrame> {
+    let ids: Vec<u16> = id::COMMANDS
+        .iter()
+        .chain(id::REPORTS.iter())
+        .copied()
+        .collect();
+    let first = prop_oneof![
+        3 => prop::sample::select(vec![
+            0x00u8, 0x01, 0x02, 0x03, 0x04, 0x0C, 0x16, 0x20, 0x40, 0xFF,
+        ])
+        .prop_map(Some),
+        1 => Just(None),
+    ];
+    (
+        prop::sample::select(ids),
+        first,
+        any::<[u8; 8]>(),
+        0..=8usize,
+    )
+        .prop_map(|(id, first, bytes, len)| frame_with(id, first, bytes, len))
+}
+
+/// A completely random classic frame: any 11-bit ID, 0..=8 bytes.
+fn any_frame() -> impl Strategy<Value = RawFrame> {
+    (0..=0x7FFu16, any::<[u8; 8]>(), 0..=8usize)
+        .prop_map(|(id, bytes, len)| frame(id, &bytes[..len]))
+}
+
+fn can_frame() -> impl Strategy<Value = RawFrame> {
+    prop_oneof![
+        8 => Just(Command::Enable { refresh: true }.encode()),
+        1 => (any::<u8>().prop_filter("0x40 refreshes", |b| *b != 0x40), any::<[u8; 8]>(), 1..=8usize)
+            .prop_map(|(first, bytes, len)| frame_with(id::ENABLE, Some(first), bytes, len)),
+        8 => velocity_frame(),
+        4 => register_write(),
+        1 => any::<u8>().prop_map(|address| Command::RegisterRead { address }.encode()),
+        1 => Just(Command::ResetOdometry.encode()),
+        1 => Just(Command::Heartbeat.encode()),
+        1 => scale_calibration(),
+        1 => odometry_calibration(),
+        2 => known_id_garbage(),
+        1 => any_frame(),
+    ]
+}
+
+fn wheel() -> impl Strategy<Value = Wheel> {
+    prop_oneof![Just(Wheel::Left), Just(Wheel::Right)]
+}
+
+fn motor_rpm_sample() -> impl Strategy<Value = i32> {
+    prop_oneof![
+        4 => -3..=3i32,
+        4 => -4000..=4000i32,
+        1 => any::<i32>(),
+        1 => prop::sample::select(vec![i32::MIN, i32::MAX, i32::MIN + 1]),
+    ]
+}
+
+fn drive_feedback() -> impl Strategy<Value = Input> {
+    (
+        any::<i32>(),
+        any::<i32>(),
+        motor_rpm_sample(),
+        motor_rpm_sample(),
+    )
+        .prop_map(|(left, right, rpm_left, rpm_right)| Input::DriveFeedback {
+            counts: EncoderCounts { left, right },
+            rpm: MotorRpm {
+                left: rpm_left,
+                right: rpm_right,
+            },
+        })
+}
+
+/// One event of any kind the shell can deliver.
+fn input() -> impl Strategy<Value = Input> {
+    prop_oneof![
+        24 => can_frame().prop_map(Input::CanFrame),
+        3 => any::<bool>().prop_map(Input::Estop),
+        2 => any::<bool>().prop_map(Input::SafetyZone),
+        3 => any::<bool>().prop_map(Input::Button),
+        6 => (any::<bool>(), twist()).prop_map(|(dead_man, twist)| Input::Remote { dead_man, twist }),
+        1 => Just(Input::RemoteResetOdometry),
+        1 => Just(Input::RemoteLinkLost),
+        1 => (any::<bool>(), any::<bool>())
+            .prop_map(|(bonded, connected)| Input::RemoteLink { bonded, connected }),
+        4 => drive_feedback(),
+        3 => Just(Input::DrivesReady),
+        1 => wheel().prop_map(Input::DriveSilent),
+        1 => (wheel(), any::<u8>()).prop_map(|(wheel, code)| Input::DriveAlarm { wheel, code }),
+        1 => Just(Input::ModbusError),
+        1 => any::<i32>().prop_map(Input::ScaleSample),
+        1 => Just(Input::ScaleMissing),
+        1 => any::<u16>().prop_map(|voltage_mv| Input::BatterySample { voltage_mv }),
+        1 => prop_oneof![
+            Just(Input::CanBusFault),
+            Just(Input::FlashFault),
+            Just(Input::WatchdogReset),
+        ],
+        8 => Just(Input::Tick),
+    ]
+}
+
+/// A few events that belong together and rarely line up by chance.
+fn episode() -> impl Strategy<Value = Vec<(u64, Input)>> {
+    let enable = Input::CanFrame(Command::Enable { refresh: true }.encode());
+    let remote = |dead_man, twist| Input::Remote { dead_man, twist };
+    prop_oneof![
+        // CAN drives: a refresh, then a velocity while it is fresh.
+        (0..=50u64, velocity_frame().prop_map(Input::CanFrame))
+            .prop_map(move |(gap, velocity)| vec![(0, enable), (gap, velocity)]),
+        // CAN drives, then the speed limit or the geometry changes.
+        (
+            0..=50u64,
+            velocity_frame().prop_map(Input::CanFrame),
+            0..=100u64,
+            kinematic_write()
+        )
+            .prop_map(move |(gap, velocity, write_gap, write)| {
+                vec![
+                    (0, enable),
+                    (gap, velocity),
+                    (write_gap, Input::CanFrame(write)),
+                ]
+            }),
+        // The dead-man released, then held with a twist.
+        (0..=200u64, twist()).prop_map(move |(gap, twist)| {
+            vec![(0, remote(false, Twist::ZERO)), (gap, remote(true, twist))]
+        }),
+        // Leaving an emergency: release, a short press, the drives set up again.
+        (0..=500u64, 0..=2000u64, 0..=300u64).prop_map(|(release, hold, ready)| {
+            vec![
+                (release, Input::Estop(false)),
+                (0, Input::Button(true)),
+                (hold, Input::Button(false)),
+                (ready, Input::DrivesReady),
+            ]
+        }),
+    ]
+}
+
+/// A boot followed by up to `MAX_EVENTS` events, single ones and (with weight
+/// `episodes` against 8) short episodes. Most sequences start with the drives ready, so
+/// the interesting part is not spent waiting for them.
+fn sequence_of(
+    input: impl Strategy<Value = Input>,
+    episodes: u32,
+) -> impl Strategy<Value = Vec<(u64, Input)>> {
+    let single = (gap_ms(), input).prop_map(|event| vec![event]);
+    let parts = prop_oneof![8 => single, episodes => episode()];
+    (any::<bool>(), prop::collection::vec(parts, 1..=MAX_EVENTS)).prop_map(
+        |(ready_at_boot, parts)| {
+            let boot = ready_at_boot.then_some((0, Input::DrivesReady));
+            boot.into_iter()
+                .chain(parts.into_iter().flatten())
+                .take(MAX_EVENTS)
+                .collect()
+        },
+    )
+}
+
+fn sequence() -> impl Strategy<Value = Vec<(u64, Input)>> {
+    sequence_of(input(), 1)
+}
+
+/// Sequences dominated by CAN frames, most of them garbage.
+fn frame_sequence() -> impl Strategy<Value = Vec<(u64, Input)>> {
+    let frames = prop_oneof![
+        4 => known_id_garbage(),
+        2 => any_frame(),
+        2 => can_frame(),
+    ]
+    .prop_map(Input::CanFrame);
+    sequence_of(prop_oneof![8 => frames, 1 => input()], 0)
+}
+
+// ---------------------------------------------------------------------------------------
+// The model: the contract's rules for who may drive, tracked from the inputs
+// ---------------------------------------------------------------------------------------
+
+mod model {
+    use super::*;
+
+    /// A CAN velocity stored while the enable was fresh.
+    #[derive(Debug, Clone, Copy)]
+    struct CanVelocity {
+        twist: Twist,
+        received: Instant,
+        /// The enable session it arrived in: a lapse or a withdrawal starts a new one.
+        session: u32,
+    }
+
+    /// What the contract says about the sources, from the inputs and the mode each
+    /// input met. It is never stricter than the contract: where the controller may
+    /// legitimately have forgotten a command already (a lapse it noticed at some input
+    /// before `enable_timeout` was raised again), the model may still allow it, so "the
+    /// model forbids it" is a sound reason for a failure.
+    #[derive(Debug, Clone, Default)]
+    pub struct Model {
+        pub estop_pressed: bool,
+        pub safety_zone: bool,
+        enable_refreshed: Option<Instant>,
+        session: u32,
+        can: Option<CanVelocity>,
+        /// A gamepad report arrived since boot or since the link was lost: until then
+        /// the dead-man's state is unknown, not "released".
+        remote_reported: bool,
+        remote_held: bool,
+        /// The dead-man was seen released while the base could drive (or was seen up
+        /// when the drives came back): only then may holding it take control, so a pad
+        /// that connects with the button held, or a button held through an e-stop,
+        /// does not drive.
+        remote_armed: bool,
+        remote_twist: Twist,
+    }
+
+    fn may_drive(mode: Mode) -> bool {
+        matches!(mode, Mode::Standby | Mode::Active)
+    }
+
+    impl Model {
+        /// §5.1: the last 0x2E4 `40` is younger than `enable_timeout`.
+        pub fn enable_fresh(&self, now: Instant, registers: &Registers) -> bool {
+            let timeout = u64::from(registers.get(Reg::EnableTimeout));
+            self.enable_refreshed
+                .is_some_and(|at| now.millis_since(at) < timeout)
+        }
+
+        pub fn remote_in_control(&self) -> bool {
+            self.remote_armed && self.remote_held
+        }
+
+        /// The CAN velocity that may drive now, if any.
+        pub fn can_twist(&self, now: Instant, registers: &Registers) -> Option<Twist> {
+            let velocity = self.can?;
+            let cmd_timeout = u64::from(registers.get(Reg::CmdTimeout));
+            let current = cmd_timeout == 0 || now.millis_since(velocity.received) < cmd_timeout;
+            (velocity.session == self.session
+                && self.enable_fresh(now, registers)
+                && current
+                && !self.remote_in_control())
+            .then_some(velocity.twist)
+        }
+
+        /// The source that may drive now and the twist it asks for (before the
+        /// safety-zone clamp), ignoring the mode.
+        pub fn source(
+            &self,
+            now: Instant,
+            registers: &Registers,
+        ) -> Option<(ControlSource, Twist)> {
+            if self.estop_pressed {
+                None
+            } else if self.remote_in_control() {
+                Some((ControlSource::Remote, self.remote_twist))
+            } else {
+                self.can_twist(now, registers)
+                    .map(|twist| (ControlSource::Can, twist))
+            }
+        }
+
+        /// Updates the model with one input; `before` is the mode the input met.
+        pub fn observe(
+            &mut self,
+            input: &Input,
+            now: Instant,
+            before: Mode,
+            registers: &Registers,
+        ) {
+            match *input {
+                Input::CanFrame(frame) => match Command::decode(frame.id(), frame.data()) {
+                    Ok(Some(Command::Enable { refresh: true })) => {
+                        if !self.enable_fresh(now, registers) {
+                            self.session += 1;
+                        }
+                        self.enable_refreshed = Some(now);
+                    }
+                    Ok(Some(Command::Enable { refresh: false })) => {
+                        self.enable_refreshed = None;
+                        self.session += 1;
+                    }
+                    // Stored only when it may drive, as the supervisor's rules say.
+                    Ok(Some(Command::Velocity {
+                        linear_mm_s,
+                        rotation_mrad_s,
+                    })) if self.enable_fresh(now, registers)
+                        && may_drive(before)
+                        && !self.remote_in_control() =>
+                    {
+                        self.can = Some(CanVelocity {
+                            twist: Twist {
+                                linear_mm_s: linear_mm_s.into(),
+                                rotation_mrad_s: rotation_mrad_s.into(),
+                            },
+                            received: now,
+                            session: self.session,
+                        });
+                    }
+                    _ => {}
+                },
+                Input::Remote { dead_man, twist } => {
+                    let was_in_control = self.remote_in_control();
+                    if !dead_man && may_drive(before) {
+                        self.remote_armed = true;
+                    }
+                    self.remote_reported = true;
+                    self.remote_held = dead_man;
+                    self.remote_twist = twist;
+                    if self.remote_in_control() && !was_in_control {
+                        // The remote takes over: CAN needs a fresh velocity afterwards.
+                        self.can = None;
+                    }
+                }
+                Input::RemoteLinkLost => {
+                    self.remote_reported = false;
+                    self.remote_held = false;
+                    self.remote_armed = false;
+                    self.remote_twist = Twist::ZERO;
+                }
+                Input::Estop(pressed) => {
+                    self.estop_pressed = pressed;
+                    if pressed {
+                        // §6: nothing is buffered through an emergency.
+                        self.can = None;
+                        self.remote_armed = false;
+                    }
+                }
+                Input::SafetyZone(occupied) => self.safety_zone = occupied,
+                Input::DrivesReady if matches!(before, Mode::Starting | Mode::Recovering) => {
+                    self.remote_armed = self.remote_reported && !self.remote_held;
+                }
+                // A drive fault outside an emergency forgets every command, like an e-stop.
+                Input::DriveSilent(_) | Input::DriveAlarm { .. } if may_drive(before) => {
+                    self.can = None;
+                    self.remote_armed = false;
+                }
+                _ => {}
+            }
+        }
+    }
+}
+
+use model::Model;
+
+// ---------------------------------------------------------------------------------------
+// The harness
+// ---------------------------------------------------------------------------------------
+
+/// What can be observed of the controller at one moment.
+#[derive(Debug, Clone)]
+struct Snapshot {
+    registers: Registers,
+    mode: Mode,
+    emergency: bool,
+    status: Status,
+    pose: Pose,
+}
+
+impl Snapshot {
+    fn of(controller: &Controller, now: Instant) -> Self {
+        Self {
+            registers: controller.registers().clone(),
+            mode: controller.supervisor().mode(),
+            emergency: controller.supervisor().in_emergency(),
+            status: controller.status(now),
+            pose: controller.odometry().pose(),
+        }
+    }
+}
+
+/// One event and everything around it.
+struct Step<'a> {
+    now: Instant,
+    input: &'a Input,
+    out: &'a Output,
+    before: &'a Snapshot,
+    after: &'a Snapshot,
+    /// The motor speeds the drives were told last, before this event.
+    in_force_before: MotorRpm,
+    /// The same after this event: what the drives run at from now on.
+    in_force: MotorRpm,
+    /// The drives were told to excite (brakes released) and not to de-excite since.
+    excited: bool,
+    /// The model after this event.
+    model: &'a Model,
+}
+
+/// Feeds `events` to a controller booted at 0 with the register defaults and calls
+/// `check` after every event.
+fn run(
+    events: &[(u64, Input)],
+    mut check: impl FnMut(&Step) -> Result<(), TestCaseError>,
+) -> Result<(), TestCaseError> {
+    let mut now = Instant::BOOT;
+    let mut controller = Controller::new(now, Registers::defaults());
+    let mut model = Model::default();
+    let mut in_force = MotorRpm::ZERO;
+    let mut excited = false;
+    // The drive link sets the drives up at boot and when the controller asks; only then
+    // does its DrivesReady mean "set up from scratch". The sequences also carry
+    // unrequested ones, which must not break any invariant either.
+    let mut setup_requested = true;
+    for (gap, input) in events {
+        now = now.plus_millis(*gap);
+        let before = Snapshot::of(&controller, now);
+        let out = controller.handle(now, *input);
+        let after = Snapshot::of(&controller, now);
+
+        let in_force_before = in_force;
+        if *input == Input::DrivesReady && setup_requested {
+            // The drives were set up from scratch: they stand, de-excited, until told
+            // otherwise.
+            in_force = MotorRpm::ZERO;
+            excited = false;
+            setup_requested = false;
+        }
+        setup_requested |= out.setup_drives;
+        if let Some(command) = out.wheels {
+            in_force = command.rpm;
+        }
+        if let Some(excite) = out.excite {
+            excited = excite;
+        }
+        model.observe(input, now, before.mode, &before.registers);
+
+        check(&Step {
+            now,
+            input,
+            out: &out,
+            before: &before,
+            after: &after,
+            in_force_before,
+            in_force,
+            excited,
+            model: &model,
+        })?;
+    }
+    Ok(())
+}
+
+fn is_zero(rpm: MotorRpm) -> bool {
+    rpm == MotorRpm::ZERO
+}
+
+fn is_feedback(frame: &RawFrame) -> bool {
+    matches!(
+        frame.id(),
+        id::WEIGHT | id::BATTERY | id::POSITION | id::HEADING
+    )
+}
+
+fn is_periodic(frame: &RawFrame) -> bool {
+    is_feedback(frame) || frame.id() == id::STATUS
+}
+
+/// The kinematics the registers describe (spec §5.2 and the register units).
+fn kinematics_params(registers: &Registers) -> KinematicsParams {
+    let motor_dir = registers.get(Reg::MotorDir);
+    KinematicsParams {
+        left_radius_mm: registers.get(Reg::RadL).into(),
+        right_radius_mm: registers.get(Reg::RadR).into(),
+        wheel_distance_mm: registers.get(Reg::WheelDist).into(),
+        gear_ratio: f32::from(registers.get(Reg::GearRatio)) / 100.0,
+        max_motor_rpm: registers.get(Reg::MaxMotorVel).into(),
+        invert_left: motor_dir & MOTOR_DIR_INVERT_LEFT != 0,
+        invert_right: motor_dir & MOTOR_DIR_INVERT_RIGHT != 0,
+    }
+}
+
+/// The motor speeds `twist` asks for under the registers and the safety zone.
+fn expected_rpm(twist: Twist, safety_zone: bool, registers: &Registers) -> MotorRpm {
+    let twist = if safety_zone {
+        twist.clamped(SafetyLimits {
+            linear_mm_s: registers.get(Reg::SecLinVel),
+            rotation_mrad_s: registers.get(Reg::SecTurnVel),
+        })
+    } else {
+        twist
+    };
+    kinematics::motor_rpm(&kinematics_params(registers), twist)
+}
+
+/// Inputs the supervisor never sees: they must never touch the wheels. (A frame that
+/// changes a register, calibrations included, gives the supervisor a step so the change
+/// applies to the running command.)
+fn never_commands_wheels(input: &Input) -> bool {
+    match input {
+        Input::CanFrame(frame) => !matches!(
+            Command::decode(frame.id(), frame.data()),
+            Ok(Some(
+                Command::Enable { .. }
+                    | Command::Velocity { .. }
+                    | Command::RegisterWrite { .. }
+                    | Command::ScaleCalibration(_)
+                    | Command::OdometryCalibration(_)
+            ))
+        ),
+        Input::RemoteResetOdometry
+        | Input::RemoteLink { .. }
+        | Input::ModbusError
+        | Input::ScaleSample(_)
+        | Input::ScaleMissing
+        | Input::BatterySample { .. }
+        | Input::CanBusFault
+        | Input::FlashFault
+        | Input::WatchdogReset => true,
+        _ => false,
+    }
+}
+
+/// Inputs that always give the supervisor a step (timeouts are checked in every step).
+fn supervisor_sees(input: &Input) -> bool {
+    match input {
+        Input::CanFrame(frame) => matches!(
+            Command::decode(frame.id(), frame.data()),
+            Ok(Some(Command::Enable { .. } | Command::Velocity { .. }))
+        ),
+        Input::Estop(_)
+        | Input::SafetyZone(_)
+        | Input::Remote { .. }
+        | Input::RemoteLinkLost
+        | Input::DriveFeedback { .. }
+        | Input::DrivesReady
+        | Input::DriveSilent(_)
+        | Input::DriveAlarm { .. }
+        | Input::Tick => true,
+        _ => false,
+    }
+}
+
+/// Inputs that can only ever stop the wheels. Every other input the supervisor sees
+/// (even a confirm press or a duplicate e-stop release) re-applies the safety-zone
+/// limits in force, so it may legitimately change a running command.
+fn never_starts_wheels(input: &Input) -> bool {
+    never_commands_wheels(input)
+        || matches!(
+            input,
+            Input::Estop(true) | Input::DriveSilent(_) | Input::DriveAlarm { .. }
+        )
+}
+
+fn proptest_config(cases: u32) -> ProptestConfig {
+    ProptestConfig {
+        cases,
+        ..ProptestConfig::default()
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Invariant 1: the speed limit
+// ---------------------------------------------------------------------------------------
+
+proptest! {
+    #![proptest_config(proptest_config(CASES))]
+
+    /// Every wheel command respects `max_motor_vel` as it is at that moment, whatever
+    /// the twist, the geometry registers and the writes to the limit itself.
+    #[test]
+    fn wheel_commands_never_exceed_max_motor_vel(events in sequence()) {
+        run(&events, |step| {
+            if let Some(command) = step.out.wheels {
+                let max = i64::from(step.after.registers.get(Reg::MaxMotorVel));
+                prop_assert!(
+                    i64::from(command.rpm.left).abs() <= max
+                        && i64::from(command.rpm.right).abs() <= max,
+                    "{:?} exceeds max_motor_vel {} at {:?} after {:?}",
+                    command, max, step.now, step.input
+                );
+            }
+            Ok(())
+        })?;
+    }
+
+    /// The speed the drives run at never exceeds `max_motor_vel` either: a limit (or
+    /// geometry) written while the base moves applies to the command already running,
+    /// not only to the next one (spec §12: a write is applied at once).
+    #[test]
+    fn speed_in_force_never_exceeds_max_motor_vel(events in sequence()) {
+        run(&events, |step| {
+            let max = i64::from(step.after.registers.get(Reg::MaxMotorVel));
+            prop_assert!(
+                i64::from(step.in_force.left).abs() <= max
+                    && i64::from(step.in_force.right).abs() <= max,
+                "{:?} in force above max_motor_vel {} at {:?} after {:?}",
+                step.in_force, max, step.now, step.input
+            );
+            Ok(())
+        })?;
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Invariant 2: nothing but zero outside Active; the e-stop stops at once
+// ---------------------------------------------------------------------------------------
+
+proptest! {
+    #![proptest_config(proptest_config(CASES))]
+
+    /// Only `Active` may command motion: in every other mode (Starting, Standby,
+    /// Emergency, AwaitingConfirm, Recovering, Fault), and while the e-stop is pressed,
+    /// any wheel command is zero on both wheels and the drives are never excited.
+    #[test]
+    fn only_active_mode_commands_non_zero_speed(events in sequence()) {
+        run(&events, |step| {
+            let held_still = step.after.mode != Mode::Active
+                || step.after.emergency
+                || step.model.estop_pressed;
+            if let Some(command) = step.out.wheels {
+                prop_assert!(
+                    !held_still || is_zero(command.rpm),
+                    "{:?} in {:?} (emergency {}, e-stop {}) after {:?}",
+                    command, step.after.mode, step.after.emergency,
+                    step.model.estop_pressed, step.input
+                );
+            }
+            if step.after.emergency || step.model.estop_pressed {
+                prop_assert_ne!(step.out.excite, Some(true), "excited in an emergency");
+                prop_assert!(is_zero(step.in_force), "{:?} in force in an emergency", step.in_force);
+            }
+            Ok(())
+        })?;
+    }
+
+    /// An e-stop press, and a drive fault outside an emergency, put zero on both wheels
+    /// in the same output, with `estop_decel`: the wheel with the larger change (and a
+    /// wheel that does not change) ramps with exactly `estop_decel`, the other with its
+    /// share of it, so both stop together.
+    #[test]
+    fn estop_and_drive_faults_stop_at_once_with_estop_decel(events in sequence()) {
+        run(&events, |step| {
+            let may_drive = matches!(step.before.mode, Mode::Standby | Mode::Active);
+            let stops = match step.input {
+                Input::Estop(true) => true,
+                Input::DriveSilent(_) | Input::DriveAlarm { .. } => may_drive,
+                _ => false,
+            };
+            if !stops {
+                return Ok(());
+            }
+            let decel = u32::from(step.after.registers.get(Reg::EstopDecel));
+            let Some(command) = step.out.wheels else {
+                return Err(TestCaseError::fail(format!(
+                    "no wheel command after {:?} in {:?}", step.input, step.before.mode
+                )));
+            };
+            prop_assert!(is_zero(command.rpm), "{:?} after {:?}", command, step.input);
+            let from = step.in_force_before;
+            let delta_left = i64::from(from.left).unsigned_abs();
+            let delta_right = i64::from(from.right).unsigned_abs();
+            let largest = delta_left.max(delta_right);
+            for (delta, accel) in [(delta_left, command.left_accel), (delta_right, command.right_accel)] {
+                if delta == largest || delta == 0 {
+                    prop_assert_eq!(accel, decel, "from {:?}: {:?}", from, command);
+                } else {
+                    prop_assert!(
+                        (1..=decel).contains(&accel),
+                        "from {:?}: {:?} (estop_decel {})", from, command, decel
+                    );
+                }
+            }
+            if matches!(step.input, Input::Estop(true)) {
+                prop_assert_eq!(step.after.mode, Mode::Emergency);
+            } else {
+                prop_assert_eq!(step.after.mode, Mode::Fault);
+            }
+            Ok(())
+        })?;
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Invariant 3: no feedback frames in an emergency
+// ---------------------------------------------------------------------------------------
+
+proptest! {
+    #![proptest_config(proptest_config(CASES))]
+
+    /// No 0x0EA..0x0ED frame leaves in an output produced in emergency mode, the output
+    /// of the e-stop press itself included (the mode after the event is the one in force
+    /// when the output is composed); the status frame 0x0EE keeps coming. Emergency mode
+    /// (Emergency, AwaitingConfirm) starts only with an e-stop press, lasts while it is
+    /// held, and ends only with a confirm press (a short button press) after the release.
+    #[test]
+    fn no_feedback_frames_while_in_emergency(events in sequence()) {
+        run(&events, |step| {
+            if step.model.estop_pressed {
+                prop_assert_eq!(step.after.mode, Mode::Emergency, "e-stop held");
+            }
+            prop_assert_eq!(
+                step.after.emergency,
+                matches!(step.after.mode, Mode::Emergency | Mode::AwaitingConfirm)
+            );
+            if step.after.emergency && !step.before.emergency {
+                prop_assert_eq!(*step.input, Input::Estop(true), "emergency entered");
+            }
+            if step.before.emergency && !step.after.emergency {
+                prop_assert_eq!(*step.input, Input::Button(false), "emergency left");
+                prop_assert_eq!(step.after.mode, Mode::Recovering);
+            }
+            if step.after.emergency {
+                let feedback: Vec<_> = step.out.frames.iter().filter(|f| is_feedback(f)).collect();
+                prop_assert!(
+                    feedback.is_empty(),
+                    "{:?} sent in {:?} after {:?}", feedback, step.after.mode, step.input
+                );
+            }
+            Ok(())
+        })?;
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Invariant 4: any CAN input is safe; malformed frames are counted and change nothing
+// ---------------------------------------------------------------------------------------
+
+proptest! {
+    #![proptest_config(proptest_config(2 * CASES))]
+
+    /// No CAN frame makes the controller panic (random IDs, every known ID with random
+    /// lengths and bytes). A frame with a known ID that does not decode increments the
+    /// status frame's rejected_count by one, names its reason and ID, and changes
+    /// nothing else; a frame for someone else changes nothing at all.
+    #[test]
+    fn malformed_known_id_frames_are_counted_and_change_nothing(events in frame_sequence()) {
+        run(&events, |step| {
+            let Input::CanFrame(frame) = step.input else {
+                return Ok(());
+            };
+            let decoded = Command::decode(frame.id(), frame.data());
+            let before = &step.before.status;
+            let after = &step.after.status;
+            match decoded {
+                Ok(Some(_)) => return Ok(()),
+                Ok(None) => prop_assert_eq!(
+                    after.rejected_count, before.rejected_count,
+                    "{:?} is not for us", frame
+                ),
+                Err(error) => {
+                    prop_assert_eq!(
+                        after.rejected_count, before.rejected_count.wrapping_add(1),
+                        "{:?} rejected as {:?}", frame, error
+                    );
+                    prop_assert_eq!(after.last_rejection, error.code());
+                    prop_assert_eq!(after.last_rejection_subject, frame.id().to_le_bytes()[0]);
+                }
+            }
+            let out = step.out;
+            prop_assert!(out.frames.iter().all(is_periodic), "{:?} answered {:?}", frame, out.frames);
+            prop_assert_eq!(out.wheels, None);
+            prop_assert_eq!(out.excite, None);
+            prop_assert!(!out.setup_drives);
+            prop_assert_eq!(out.pc_switch, None);
+            prop_assert_eq!(&out.persist, &Default::default());
+            prop_assert_eq!(&step.after.registers, &step.before.registers);
+            prop_assert_eq!(step.after.mode, step.before.mode);
+            prop_assert_eq!(step.after.status.control, step.before.status.control);
+            prop_assert_eq!(step.after.pose, step.before.pose);
+            Ok(())
+        })?;
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Invariant 5: who may move the wheels
+// ---------------------------------------------------------------------------------------
+
+proptest! {
+    #![proptest_config(proptest_config(CASES))]
+
+    /// A non-zero wheel command needs a source the contract allows: mode Active with the
+    /// drives excited, the e-stop released, no drive fault, and either
+    /// - the remote in control (dead-man held, and seen released since the base could
+    ///   drive), the command being exactly the remote's twist, or
+    /// - the remote not in control, a CAN enable fresh at this moment (no lapse or
+    ///   withdrawal since the velocity arrived, `cmd_timeout` not expired), the command
+    ///   being exactly that velocity,
+    ///
+    /// each clamped to the safety zone and turned into motor speeds with the registers
+    /// in force; the status frame names that source. Inputs the supervisor never sees
+    /// never carry a wheel command, and an e-stop press or a drive fault never a
+    /// non-zero one.
+    #[test]
+    fn wheels_move_only_for_a_fresh_can_enable_or_an_armed_dead_man(events in sequence()) {
+        run(&events, |step| {
+            if never_commands_wheels(step.input) {
+                prop_assert_eq!(step.out.wheels, None, "{:?} commanded the wheels", step.input);
+            }
+            let Some(command) = step.out.wheels.filter(|c| !is_zero(c.rpm)) else {
+                return Ok(());
+            };
+            prop_assert!(!never_starts_wheels(step.input), "{:?} started {:?}", step.input, command);
+            let status = &step.after.status;
+            prop_assert_eq!(step.after.mode, Mode::Active);
+            prop_assert!(
+                step.excited && !status.flags.brakes_applied,
+                "moving against the brakes"
+            );
+            prop_assert!(!step.model.estop_pressed);
+            prop_assert!(!status.faults.left_drive_silent && !status.faults.left_drive_alarm
+                && !status.faults.right_drive_silent && !status.faults.right_drive_alarm);
+            let Some((source, twist)) = step.model.source(step.now, &step.after.registers) else {
+                return Err(TestCaseError::fail(format!(
+                    "{command:?} after {:?} with no source allowed: {:?}", step.input, step.model
+                )));
+            };
+            prop_assert_eq!(status.control, source, "{:?}", step.model);
+            if source == ControlSource::Can {
+                prop_assert!(status.flags.enable_fresh);
+            } else {
+                prop_assert!(status.flags.remote_in_control);
+            }
+            prop_assert_eq!(
+                command.rpm,
+                expected_rpm(twist, step.model.safety_zone, &step.after.registers),
+                "{:?} from {:?}", source, twist
+            );
+            Ok(())
+        })?;
+    }
+
+    /// Once no source may drive (enable lapsed or withdrawn, velocity stale, dead-man
+    /// released or link lost, e-stop, drive fault), the next tick, or any other input the
+    /// supervisor sees, leaves the drives at zero: nothing keeps moving on an old command.
+    #[test]
+    fn without_a_source_the_next_supervised_step_stops_the_wheels(events in sequence()) {
+        run(&events, |step| {
+            if !supervisor_sees(step.input) {
+                return Ok(());
+            }
+            let driving = matches!(step.after.mode, Mode::Active)
+                && step.model.source(step.now, &step.after.registers).is_some();
+            if !driving {
+                prop_assert!(
+                    is_zero(step.in_force),
+                    "{:?} still in force at {:?} in {:?}: {:?}",
+                    step.in_force, step.now, step.after.mode, step.model
+                );
+            }
+            Ok(())
+        })?;
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Invariant 6: only well-formed reports go out
+// ---------------------------------------------------------------------------------------
+
+proptest! {
+    #![proptest_config(proptest_config(CASES))]
+
+    /// Every frame the controller emits decodes as a report and encodes back to the same
+    /// bytes; every register read request is answered by exactly one 0x004 frame that
+    /// carries the register's value or the reason for the refusal.
+    #[test]
+    fn every_emitted_frame_is_a_well_formed_report(events in sequence()) {
+        run(&events, |step| {
+            for frame in &step.out.frames {
+                let report = Report::decode(frame.id(), frame.data());
+                let Ok(Some(report)) = report else {
+                    return Err(TestCaseError::fail(format!("{frame:?} decodes as {report:?}")));
+                };
+                prop_assert_eq!(report.encode(), *frame);
+            }
+            let Input::CanFrame(frame) = step.input else {
+                return Ok(());
+            };
+            if let Ok(Some(Command::RegisterRead { address })) =
+                Command::decode(frame.id(), frame.data())
+            {
+                let replies: Vec<_> = step
+                    .out
+                    .frames
+                    .iter()
+                    .filter(|f| f.id() == id::REGISTER_READ)
+                    .map(|f| Report::decode(f.id(), f.data()))
+                    .collect();
+                let expected = match step.after.registers.read(address) {
+                    Ok(value) => Report::RegisterValue { value },
+                    Err(error) => Report::RegisterReadError { address, reason: error.code() },
+                };
+                prop_assert_eq!(replies, vec![Ok(Some(expected))]);
+            }
+            Ok(())
+        })?;
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// The strategies reach what the properties are about
+// ---------------------------------------------------------------------------------------
+
+fn moving_command(step: &Step) -> Option<MotorRpm> {
+    step.out.wheels.map(|c| c.rpm).filter(|rpm| !is_zero(*rpm))
+}
+
+fn changes_kinematics(step: &Step) -> bool {
+    KINEMATIC_REGISTERS
+        .into_iter()
+        .any(|reg| step.before.registers.get(reg) != step.after.registers.get(reg))
+}
+
+/// A situation the properties are about, recognised in one step.
+type Situation = (&'static str, fn(&Step) -> bool);
+
+/// How often the situations the properties check occur in `sequence()`: a property over
+/// sequences that never drive, never enter an emergency or never reject a frame would
+/// pass vacuously. Each must occur in at least a fifth of the sequences.
+#[test]
+fn event_sequences_reach_every_situation_checked() {
+    let situations: [Situation; 12] = [
+        ("CAN drives", |step| {
+            moving_command(step).is_some() && step.after.status.control == ControlSource::Can
+        }),
+        ("remote drives", |step| {
+            moving_command(step).is_some() && step.after.status.control == ControlSource::Remote
+        }),
+        ("speed limited to max_motor_vel", |step| {
+            let max = i32::from(step.after.registers.get(Reg::MaxMotorVel));
+            moving_command(step).is_some_and(|rpm| rpm.left.abs() == max || rpm.right.abs() == max)
+        }),
+        ("safety zone while moving", |step| {
+            step.model.safety_zone && moving_command(step).is_some()
+        }),
+        ("limit or geometry written while moving", |step| {
+            !is_zero(step.in_force_before) && changes_kinematics(step)
+        }),
+        ("e-stop while moving", |step| {
+            !is_zero(step.in_force_before) && *step.input == Input::Estop(true)
+        }),
+        ("drive fault while moving", |step| {
+            !is_zero(step.in_force_before)
+                && step.before.mode == Mode::Active
+                && step.after.mode == Mode::Fault
+        }),
+        ("a lost source stopped by the next step", |step| {
+            supervisor_sees(step.input) && !is_zero(step.in_force_before) && is_zero(step.in_force)
+        }),
+        ("recovery completed", |step| {
+            step.before.mode == Mode::Recovering && step.after.mode == Mode::Standby
+        }),
+        ("feedback frames sent", |step| {
+            step.out.frames.iter().any(is_feedback)
+        }),
+        ("emergency with status frames", |step| {
+            step.after.emergency && step.out.frames.iter().any(|f| f.id() == id::STATUS)
+        }),
+        ("frame rejected", |step| {
+            step.after.status.rejected_count != step.before.status.rejected_count
+        }),
+    ];
+    let mut runner = TestRunner::deterministic();
+    let strategy = sequence();
+    let sequences = 200;
+    let mut counts = [0u32; 12];
+    for _ in 0..sequences {
+        let events = strategy
+            .new_tree(&mut runner)
+            .expect("the strategy generates")
+            .current();
+        let mut seen = [false; 12];
+        run(&events, |step| {
+            for (seen, (_, occurs)) in seen.iter_mut().zip(&situations) {
+                *seen |= occurs(step);
+            }
+            Ok(())
+        })
+        .expect("no check fails");
+        for (count, seen) in counts.iter_mut().zip(seen) {
+            *count += u32::from(seen);
+        }
+    }
+    let report: Vec<_> = situations
+        .iter()
+        .map(|(what, _)| *what)
+        .zip(counts)
+        .collect();
+    println!("of {sequences} sequences: {report:?}");
+    for (what, count) in report {
+        assert!(
+            count >= sequences / 5,
+            "only {count} of {sequences} sequences: {what}"
+        );
+    }
+}
