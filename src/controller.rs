@@ -60,7 +60,9 @@ pub enum Input {
         counts: EncoderCounts,
         rpm: MotorRpm,
     },
-    /// The drive link finished setting up both drives.
+    /// The drive link finished setting up both drives. Sent once after boot and once
+    /// after each [`Output::setup_drives`] request, never on its own: a drive that lost
+    /// power unasked is reported as [`Input::DriveSilent`] first.
     DrivesReady,
     DriveSilent(Wheel),
     DriveAlarm {
