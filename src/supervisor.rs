@@ -570,6 +570,23 @@ mod tests {
         supervisor
     }
 
+    /// Drives ready, the dead-man seen released at 0 ms and held at 10 ms: the remote
+    /// drives forward.
+    fn remote_driving_forward() -> Supervisor {
+        let mut supervisor = ready();
+        let released = Event::Remote {
+            dead_man: false,
+            twist: Twist::ZERO,
+        };
+        supervisor.step(at(0), released, &PARAMS);
+        let held = Event::Remote {
+            dead_man: true,
+            twist: FORWARD,
+        };
+        supervisor.step(at(10), held, &PARAMS);
+        supervisor
+    }
+
     fn setpoint(twist: Twist, accel_rpm_per_s: u32) -> Option<Setpoint> {
         Some(Setpoint {
             twist,
@@ -626,23 +643,7 @@ mod tests {
 
     #[test]
     fn remote_held_through_an_emergency_does_not_drive_after_recovery() {
-        let mut supervisor = ready();
-        supervisor.step(
-            at(0),
-            Event::Remote {
-                dead_man: false,
-                twist: Twist::ZERO,
-            },
-            &PARAMS,
-        );
-        supervisor.step(
-            at(10),
-            Event::Remote {
-                dead_man: true,
-                twist: FORWARD,
-            },
-            &PARAMS,
-        );
+        let mut supervisor = remote_driving_forward();
         assert!(supervisor.remote_in_control());
         supervisor.step(at(20), Event::Estop { pressed: true }, &PARAMS);
         supervisor.step(at(30), Event::Estop { pressed: false }, &PARAMS);
@@ -717,23 +718,7 @@ mod tests {
 
     #[test]
     fn remote_link_loss_while_held_brakes_with_contr_acc_high() {
-        let mut supervisor = ready();
-        supervisor.step(
-            at(0),
-            Event::Remote {
-                dead_man: false,
-                twist: Twist::ZERO,
-            },
-            &PARAMS,
-        );
-        supervisor.step(
-            at(10),
-            Event::Remote {
-                dead_man: true,
-                twist: FORWARD,
-            },
-            &PARAMS,
-        );
+        let mut supervisor = remote_driving_forward();
         let effects = supervisor.step(at(20), Event::RemoteLinkLost, &PARAMS);
         assert_eq!(effects.setpoint, setpoint(Twist::ZERO, 500));
         assert_eq!(supervisor.control(), ControlSource::None);
