@@ -1,14 +1,17 @@
-//! The hardware-free core of the base controller: everything that decides, as pure
-//! `no_std` code with time passed in. The chip shell only moves bytes between the
-//! peripherals and this crate.
+//! The base controller: a hardware-free core that decides (pure `no_std` code with
+//! time passed in), and the async tasks that run it, written against the hardware
+//! traits of [`hw`]. The chip shell implements those traits with esp-hal; the virtual
+//! robot in `sim/` implements them in memory for the whole-system tests.
 #![cfg_attr(not(test), no_std)]
 
+pub mod app;
 pub mod battery;
 pub mod calibration;
 pub mod can;
 pub mod controller;
 pub mod debounce;
 pub mod feedback;
+pub mod hw;
 pub mod kinematics;
 pub mod odometry;
 pub mod power;
