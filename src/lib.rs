@@ -12,6 +12,7 @@ pub mod controller;
 pub mod debounce;
 pub mod feedback;
 pub mod hw;
+pub mod hx711;
 pub mod kinematics;
 pub mod odometry;
 pub mod power;
