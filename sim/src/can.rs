@@ -1,0 +1,453 @@
+//! A virtual CAN bus between the firmware's CAN controller ([`CanRxPort`],
+//! [`CanTxPort`]) and the robot PC ([`CanPeer`]), which the test script plays.
+//!
+//! Frames the firmware sends take their time on the wire (500 kbit/s, see
+//! [`frame_time`]), so a transmit queue can fill; frames the PC sends arrive at once,
+//! because the script decides when they were sent. Faults are injected from the PC's
+//! side: bus-off, receive overrun and bus errors, error-passive. Everything shares one
+//! thread and the virtual clock of [`crate::runtime`].
+
+use core::future::poll_fn;
+use core::task::Poll;
+use std::cell::RefCell;
+use std::collections::VecDeque;
+use std::rc::Rc;
+
+use base_controller::can::RawFrame;
+use base_controller::hw::{BusState, CanError, CanRx, CanTx};
+use embassy_sync::waitqueue::WakerRegistration;
+use embassy_time::{Duration, Instant, Timer};
+use embedded_can::{Frame, Id, StandardId};
+
+/// The bus speed of the robot's CAN.
+pub const BITRATE_BPS: u32 = 500_000;
+
+/// Bus-off recovery: the controller must see 128 × 11 recessive bits before it may
+/// take part again.
+pub const RECOVERY_BITS: u32 = 128 * 11;
+
+/// Most data bytes of a classic CAN frame.
+const MAX_DLC: usize = 8;
+
+/// One classic CAN frame (2.0A or 2.0B), data or remote. `embedded-can` defines only
+/// the `Frame` trait, so the virtual bus brings its own frame type.
+///
+/// Data bytes past the length are always zero, so the derived equality is equality of
+/// frames. A remote frame carries no data; its DLC is the length it asks for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct SimFrame {
+    id: Id,
+    remote: bool,
+    dlc: u8,
+    data: [u8; MAX_DLC],
+}
+
+impl Frame for SimFrame {
+    fn new(id: impl Into<Id>, data: &[u8]) -> Option<Self> {
+        let mut bytes = [0; MAX_DLC];
+        bytes.get_mut(..data.len())?.copy_from_slice(data);
+        Some(Self {
+            id: id.into(),
+            remote: false,
+            dlc: u8::try_from(data.len()).ok()?,
+            data: bytes,
+        })
+    }
+
+    fn new_remote(id: impl Into<Id>, dlc: usize) -> Option<Self> {
+        if dlc > MAX_DLC {
+            return None;
+        }
+        Some(Self {
+            id: id.into(),
+            remote: true,
+            dlc: u8::try_from(dlc).ok()?,
+            data: [0; MAX_DLC],
+        })
+    }
+
+    fn is_extended(&self) -> bool {
+        matches!(self.id, Id::Extended(_))
+    }
+
+    fn is_remote_frame(&self) -> bool {
+        self.remote
+    }
+
+    fn id(&self) -> Id {
+        self.id
+    }
+
+    fn dlc(&self) -> usize {
+        usize::from(self.dlc)
+    }
+
+    fn data(&self) -> &[u8] {
+        if self.remote {
+            return &[];
+        }
+        self.data.get(..self.dlc()).unwrap_or(&[])
+    }
+}
+
+impl SimFrame {
+    /// A standard data frame; `None` if `id` is wider than 11 bits or `data` longer
+    /// than 8 bytes.
+    pub fn standard(id: u16, data: &[u8]) -> Option<Self> {
+        Self::new(StandardId::new(id)?, data)
+    }
+
+    /// The 11-bit identifier, if this is a standard frame.
+    pub fn standard_id(&self) -> Option<u16> {
+        match self.id {
+            Id::Standard(id) => Some(id.as_raw()),
+            Id::Extended(_) => None,
+        }
+    }
+
+    /// The protocol's view of the frame; `None` for extended and remote frames, which
+    /// the protocol does not use.
+    pub fn to_raw(&self) -> Option<RawFrame> {
+        if self.remote {
+            return None;
+        }
+        RawFrame::new(self.standard_id()?, self.data())
+    }
+
+    /// Bits this frame occupies on the wire, an upper bound.
+    ///
+    /// Without stuffing a standard frame has 47 bits plus 8 per data byte (SOF, 11-bit
+    /// ID, RTR, IDE, r0, DLC, CRC 15, CRC delimiter, ACK slot and delimiter, 7 EOF,
+    /// 3 intermission): 111 bits with 8 bytes. An extended frame adds SRR, the
+    /// 18-bit ID extension and r1: 67 + 8n. Stuffing inserts a bit after five equal
+    /// bits from SOF to the end of the CRC; at worst that is the first five bits and
+    /// then every fourth, `(L - 1) / 4` for `L` bits. Counting the worst case instead
+    /// of stuffing the real bits (which needs the CRC) keeps the model simple and
+    /// errs towards a slower bus: 135 bits for 8 standard bytes, 270 µs at 500 kbit/s.
+    /// A remote frame sends no data field, whatever its DLC.
+    pub fn wire_bits(&self) -> u32 {
+        let data_bits = if self.remote {
+            0
+        } else {
+            8 * u32::from(self.dlc)
+        };
+        // SOF to the end of the CRC: the part that is stuffed.
+        let stuffed = if self.is_extended() { 54 } else { 34 } + data_bits;
+        // CRC delimiter, ACK slot and delimiter, end of frame, intermission.
+        let trailer = 1 + 2 + 7 + 3;
+        stuffed + (stuffed - 1) / 4 + trailer
+    }
+}
+
+impl From<RawFrame> for SimFrame {
+    fn from(raw: RawFrame) -> Self {
+        Self::standard(raw.id(), raw.data())
+            .expect("a RawFrame has an 11-bit ID and at most 8 bytes by construction")
+    }
+}
+
+/// How long `frame` occupies the bus at [`BITRATE_BPS`], rounded up to whole µs.
+pub fn frame_time(frame: &SimFrame) -> Duration {
+    bit_time(frame.wire_bits())
+}
+
+/// How long bus-off recovery takes: [`RECOVERY_BITS`] at [`BITRATE_BPS`].
+pub fn recovery_time() -> Duration {
+    bit_time(RECOVERY_BITS)
+}
+
+fn bit_time(bits: u32) -> Duration {
+    Duration::from_micros((u64::from(bits) * 1_000_000).div_ceil(u64::from(BITRATE_BPS)))
+}
+
+/// A frame the firmware sent, stamped with the virtual time its last bit left the
+/// wire (when the PC would have it).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SentFrame {
+    pub at: Instant,
+    pub frame: SimFrame,
+}
+
+struct Bus {
+    /// What the firmware's next `receive` calls return, in order: frames that passed
+    /// the filter, and injected errors where they happened in the stream.
+    to_firmware: VecDeque<Result<SimFrame, CanError>>,
+    firmware_waiting: WakerRegistration,
+    /// Frames the firmware sent that the PC has not received yet.
+    to_peer: VecDeque<SimFrame>,
+    peer_waiting: WakerRegistration,
+    /// Every frame the firmware sent, until the test takes them.
+    sent: Vec<SentFrame>,
+    /// The receive acceptance filter; `None` accepts everything.
+    filter: Option<Vec<Id>>,
+    filtered_out: u32,
+    lost_while_bus_off: u32,
+    bus_off: bool,
+    error_passive: bool,
+    recoveries: u32,
+}
+
+impl Bus {
+    fn deliver_to_firmware(&mut self, frame: SimFrame) {
+        // A bus-off controller takes no part in the bus, so it receives nothing either.
+        if self.bus_off {
+            self.lost_while_bus_off += 1;
+            return;
+        }
+        if let Some(filter) = &self.filter
+            && !filter.contains(&frame.id())
+        {
+            self.filtered_out += 1;
+            return;
+        }
+        self.to_firmware.push_back(Ok(frame));
+        self.firmware_waiting.wake();
+    }
+}
+
+type Shared = Rc<RefCell<Bus>>;
+
+/// Builds the bus.
+pub struct VirtualCan;
+
+impl VirtualCan {
+    /// The firmware's two halves and the PC's end of one bus. The receive port accepts
+    /// every frame until [`CanRxPort::accept_only`] sets a filter.
+    #[allow(
+        clippy::new_ret_no_self,
+        reason = "the bus is only ever used through its three ends"
+    )]
+    pub fn new() -> (CanRxPort, CanTxPort, CanPeer) {
+        let bus = Rc::new(RefCell::new(Bus {
+            to_firmware: VecDeque::new(),
+            firmware_waiting: WakerRegistration::new(),
+            to_peer: VecDeque::new(),
+            peer_waiting: WakerRegistration::new(),
+            sent: Vec::new(),
+            filter: None,
+            filtered_out: 0,
+            lost_while_bus_off: 0,
+            bus_off: false,
+            error_passive: false,
+            recoveries: 0,
+        }));
+        (
+            CanRxPort { bus: bus.clone() },
+            CanTxPort { bus: bus.clone() },
+            CanPeer { bus },
+        )
+    }
+}
+
+/// The firmware's receive half. Its queue is unbounded: frames are lost to an overrun
+/// only when the test injects one.
+pub struct CanRxPort {
+    bus: Shared,
+}
+
+impl CanRxPort {
+    /// Accepts only frames with these identifiers, as the board's acceptance filter
+    /// does; others are dropped before they reach the queue. A standard and an
+    /// extended ID with the same number are different identifiers.
+    pub fn accept_only(&mut self, ids: impl IntoIterator<Item = Id>) {
+        self.bus.borrow_mut().filter = Some(ids.into_iter().collect());
+    }
+
+    /// [`Self::accept_only`] for 11-bit identifiers such as `can::id::COMMANDS`.
+    ///
+    /// # Panics
+    /// If an identifier is wider than 11 bits: no standard frame could carry it, so the
+    /// filter would be wrong, not just strict.
+    pub fn accept_only_standard(&mut self, ids: &[u16]) {
+        self.accept_only(ids.iter().map(|&id| {
+            let Some(id) = StandardId::new(id) else {
+                panic!("{id:#x} is not an 11-bit CAN identifier");
+            };
+            Id::Standard(id)
+        }));
+    }
+
+    /// Removes the filter.
+    pub fn accept_all(&mut self) {
+        self.bus.borrow_mut().filter = None;
+    }
+}
+
+impl CanRx for CanRxPort {
+    type Frame = SimFrame;
+
+    async fn receive(&mut self) -> Result<SimFrame, CanError> {
+        poll_fn(|cx| {
+            let mut bus = self.bus.borrow_mut();
+            match bus.to_firmware.pop_front() {
+                Some(item) => Poll::Ready(item),
+                None => {
+                    bus.firmware_waiting.register(cx.waker());
+                    Poll::Pending
+                }
+            }
+        })
+        .await
+    }
+}
+
+/// The firmware's transmit half: one frame at a time, each for its [`frame_time`].
+pub struct CanTxPort {
+    bus: Shared,
+}
+
+impl CanTx for CanTxPort {
+    type Frame = SimFrame;
+
+    /// Occupies the bus for the frame's [`frame_time`], then hands the frame to the PC.
+    /// A controller that is or goes bus-off in that time fails with
+    /// [`CanError::BusOff`] and the frame is lost.
+    async fn transmit(&mut self, frame: &SimFrame) -> Result<(), CanError> {
+        if self.bus.borrow().bus_off {
+            return Err(CanError::BusOff);
+        }
+        Timer::after(frame_time(frame)).await;
+        let mut bus = self.bus.borrow_mut();
+        if bus.bus_off {
+            return Err(CanError::BusOff);
+        }
+        bus.sent.push(SentFrame {
+            at: Instant::now(),
+            frame: *frame,
+        });
+        bus.to_peer.push_back(*frame);
+        bus.peer_waiting.wake();
+        Ok(())
+    }
+
+    fn state(&mut self) -> BusState {
+        let bus = self.bus.borrow();
+        if bus.bus_off {
+            BusState::Off
+        } else if bus.error_passive {
+            BusState::Passive
+        } else {
+            BusState::Active
+        }
+    }
+
+    /// Takes [`recovery_time`] when bus-off and counts the recovery; returns at once
+    /// otherwise, as a controller that is on the bus has nothing to recover from.
+    async fn recover(&mut self) {
+        if !self.bus.borrow().bus_off {
+            return;
+        }
+        Timer::after(recovery_time()).await;
+        let mut bus = self.bus.borrow_mut();
+        bus.bus_off = false;
+        bus.recoveries += 1;
+    }
+}
+
+/// The robot PC's end of the bus, and the test's handle on its faults. Clones share
+/// the bus.
+#[derive(Clone)]
+pub struct CanPeer {
+    bus: Shared,
+}
+
+impl CanPeer {
+    /// Sends a standard data frame to the firmware; it arrives at once.
+    ///
+    /// # Panics
+    /// If `id` is wider than 11 bits or `data` longer than 8 bytes: such a frame cannot
+    /// exist, so the test is wrong. Use [`Self::send_frame`] for any other frame.
+    pub fn send(&self, id: u16, data: &[u8]) {
+        let Some(frame) = SimFrame::standard(id, data) else {
+            panic!(
+                "no standard CAN frame has ID {id:#x} and {} bytes",
+                data.len()
+            );
+        };
+        self.send_frame(frame);
+    }
+
+    /// Sends any frame (extended, remote) to the firmware; it arrives at once unless
+    /// the acceptance filter drops it or the firmware's controller is bus-off.
+    pub fn send_frame(&self, frame: SimFrame) {
+        self.bus.borrow_mut().deliver_to_firmware(frame);
+    }
+
+    /// The next frame from the firmware, waiting for one if none is queued.
+    pub async fn receive(&self) -> SimFrame {
+        poll_fn(|cx| {
+            let mut bus = self.bus.borrow_mut();
+            match bus.to_peer.pop_front() {
+                Some(frame) => Poll::Ready(frame),
+                None => {
+                    bus.peer_waiting.register(cx.waker());
+                    Poll::Pending
+                }
+            }
+        })
+        .await
+    }
+
+    /// The next frame from the firmware, if one is queued.
+    pub fn try_receive(&self) -> Option<SimFrame> {
+        self.bus.borrow_mut().to_peer.pop_front()
+    }
+
+    /// Every frame the firmware sent since the last [`Self::take_sent`], oldest first.
+    /// Independent of [`Self::receive`]: a frame is both logged here and queued there.
+    pub fn sent(&self) -> Vec<SentFrame> {
+        self.bus.borrow().sent.clone()
+    }
+
+    /// [`Self::sent`], emptying the log.
+    pub fn take_sent(&self) -> Vec<SentFrame> {
+        core::mem::take(&mut self.bus.borrow_mut().sent)
+    }
+
+    /// The logged frames with standard identifier `id`, oldest first.
+    pub fn sent_with_id(&self, id: u16) -> Vec<SentFrame> {
+        let bus = self.bus.borrow();
+        bus.sent
+            .iter()
+            .filter(|sent| sent.frame.standard_id() == Some(id))
+            .copied()
+            .collect()
+    }
+
+    /// Puts the firmware's controller bus-off, as after too many transmit errors: a
+    /// transmit under way fails, every transmit fails and nothing is received until
+    /// the firmware calls [`CanTx::recover`].
+    pub fn force_bus_off(&self) {
+        self.bus.borrow_mut().bus_off = true;
+    }
+
+    /// Bus-off recoveries the firmware completed.
+    pub fn recoveries(&self) -> u32 {
+        self.bus.borrow().recoveries
+    }
+
+    /// Makes the controller report [`BusState::Passive`] (high error counters) or not.
+    /// Frames still go both ways, as they do on a real error-passive node.
+    pub fn set_error_passive(&self, passive: bool) {
+        self.bus.borrow_mut().error_passive = passive;
+    }
+
+    /// Queues a receive error, typically [`CanError::Overrun`]. It comes out of the
+    /// firmware's `receive` after the frames sent before it and before those sent
+    /// after it, where the loss happened.
+    pub fn inject_rx_error(&self, error: CanError) {
+        let mut bus = self.bus.borrow_mut();
+        bus.to_firmware.push_back(Err(error));
+        bus.firmware_waiting.wake();
+    }
+
+    /// Frames the acceptance filter dropped.
+    pub fn filtered_out(&self) -> u32 {
+        self.bus.borrow().filtered_out
+    }
+
+    /// Frames sent to the firmware while its controller was bus-off, which it missed.
+    pub fn lost_while_bus_off(&self) -> u32 {
+        self.bus.borrow().lost_while_bus_off
+    }
+}
