@@ -7,5 +7,5 @@
 //! milliseconds and always the same way.
 
 pub mod can;
-
+pub mod io;
 pub mod runtime;
