@@ -13,6 +13,7 @@ pub mod debounce;
 pub mod feedback;
 pub mod hw;
 pub mod kinematics;
+pub mod modbus;
 pub mod odometry;
 pub mod power;
 pub mod registers;
