@@ -14,6 +14,7 @@ pub mod feedback;
 pub mod hw;
 pub mod hx711;
 pub mod kinematics;
+pub mod modbus;
 pub mod odometry;
 pub mod power;
 pub mod registers;
