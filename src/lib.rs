@@ -19,5 +19,6 @@ pub mod odometry;
 pub mod power;
 pub mod registers;
 pub mod scale;
+pub mod store;
 pub mod supervisor;
 pub mod time;

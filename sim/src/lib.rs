@@ -7,5 +7,6 @@
 //! milliseconds and always the same way.
 
 pub mod can;
+pub mod flash;
 pub mod io;
 pub mod runtime;

@@ -1,0 +1,693 @@
+//! The register store: the one owner of the parameter flash. At boot
+//! [`RegisterStore::load`] rebuilds the registers from it; afterwards the store task
+//! ([`run`]) takes the controller's [`PendingWrites`] and persists them, reporting any
+//! failure to the controller as [`Input::FlashFault`].
+//!
+//! # On the flash
+//!
+//! The store is a [`sequential_storage`] map over the flash range the board's partition
+//! gives (whole erase pages, at least 2, at most [`MAX_PAGES`]; the board uses
+//! [`PARTITION_PAGES`] pages of 4096 bytes). The key is the register address (one
+//! byte); the value is the 6-byte record of [`crate::registers::encode_record`]:
+//! `[schema, address, value MSB, value LSB, CRC LSB, CRC MSB]`. So every item carries
+//! the core's schema version and CRC inside sequential-storage's own item CRC, and the
+//! key repeats the record's address: an item whose key and address disagree is rejected.
+//!
+//! # When the flash is written
+//!
+//! Only when a register takes a value the flash does not already hold: the store keeps
+//! a RAM copy of the newest record of every address, so an unchanged value costs no
+//! flash access at all. A write appends one item; nothing is rewritten in place.
+//! Restoring the defaults appends the default record of every register not already at
+//! its default (all 34 on a blank store), so the next boot loads the defaults from a
+//! store that is not blank. The store erases the range itself only when it cannot be
+//! read (see below).
+//!
+//! # Wear
+//!
+//! On the ESP32's flash (4-byte words, 4096-byte pages) an item is 16 bytes: an 8-byte
+//! header (length, CRCs) and key + record padded to 8. A page holds 255 items after its
+//! two state words. When the open page is full, sequential-storage erases the oldest
+//! page and first copies into the new page the items that are still current there, at
+//! most one per persistent register (34). So every page erase buys at least
+//! 255 − 34 = 221 register writes, and with 4 pages used in turn each page is erased
+//! once per at least 4 × 221 = 884 writes. At the 100 000 erase cycles NOR flash is
+//! specified for, that is about 88 million register writes, far beyond the calibration
+//! and configuration writes this store sees.
+//!
+//! # Blank, damaged, power cuts
+//!
+//! - Blank store (nothing ever written, or erased): defaults, and the load report says
+//!   `blank`, so the flash fault bit shows that calibration is missing.
+//! - A damaged item (sequential-storage's CRC fails) is skipped by sequential-storage,
+//!   which then yields the key's previous item, if any. The store scans the pages itself
+//!   after reading them and counts every damaged item as rejected, so the fault shows.
+//!   The damaged bytes stay until sequential-storage recycles their page (after some
+//!   hundreds of writes), and so does the fault: the flash does hold a broken item.
+//! - An item that is intact but holds no valid record (wrong length, wrong address,
+//!   record CRC, unknown register, out of range, inconsistent): rejected, the register
+//!   keeps its default, fault. Records of a newer firmware's extension registers are
+//!   dropped without a fault (see `docs/registers.md`, Migration).
+//! - A store sequential-storage cannot make sense of even after its own repair (which
+//!   the store triggers itself where 8.0.2's `fetch_all_items` skips it): erased,
+//!   defaults, reported as blank. A flash that cannot be read at all: defaults, blank,
+//!   and left as it is (erasing it would destroy what a later boot might still read).
+//! - A power cut during a write leaves the old or the new value of that register and
+//!   every other register as it was: sequential-storage writes the item header and data
+//!   after the page state, and an item whose CRC does not match is ignored (a torn item
+//!   counts as damaged and shows the fault). `sim/tests/store.rs` cuts the power after
+//!   every single byte of a write, of one that recycles a page, and of a restore.
+//!
+//! # Cache
+//!
+//! sequential-storage is given array caches for the page states, the page write
+//! pointers and one pointer per register address. The ESP32's flash driver blocks while
+//! it works, so every flash read the store avoids is time the controller's executor
+//! keeps: the page pointers spare the scan for the free spot on every write, and the key
+//! pointers turn the copy of live items at a page change from a scan of all pages per
+//! item into one read. About 400 bytes of RAM. The cache is reset whenever the store
+//! erases the range itself, because sequential-storage's caches only follow its own
+//! operations. Its page-state cache holds [`MAX_PAGES`] entries, hence that limit.
+
+use core::ops::Range;
+
+use embassy_sync::channel::Sender;
+use embedded_storage_async::nor_flash::NorFlash;
+use sequential_storage::cache::Cache;
+use sequential_storage::cache::key_pointers::ArrayKeyPointers;
+use sequential_storage::cache::page_pointers::ArrayPagePointers;
+use sequential_storage::cache::page_states::ArrayPageStates;
+use sequential_storage::map::{MapConfig, MapStorage};
+
+use crate::app::channels::{INPUT_QUEUE, PendingBatch, PendingWrites, RawMutex};
+use crate::controller::Input;
+use crate::registers::{
+    ADDRESS_COUNT, Access, LoadReport, RECORD_LEN, RecordError, Registers, decode_record,
+    encode_record, info,
+};
+
+/// Pages of the board's register partition (4 × 4096 bytes); see the module doc on wear.
+pub const PARTITION_PAGES: u32 = 4;
+
+/// The largest range the store accepts, in pages: the size of its page caches.
+pub const MAX_PAGES: usize = 8;
+
+/// sequential-storage's RAM cache for this map; see the module doc.
+type StoreCache = Cache<
+    ArrayPageStates<MAX_PAGES>,
+    ArrayPagePointers<MAX_PAGES>,
+    ArrayKeyPointers<u8, ADDRESS_COUNT>,
+    u8,
+>;
+
+fn new_cache() -> StoreCache {
+    Cache::new(
+        ArrayPageStates::new(),
+        ArrayPagePointers::new(),
+        ArrayKeyPointers::new(),
+    )
+}
+
+/// Work buffer for sequential-storage: one item's key and value rounded up to the word
+/// (8 bytes here), with room for flashes with words up to 32 bytes. Word-aligned because
+/// some flash drivers read and write only from aligned RAM.
+#[repr(align(4))]
+struct WorkBuffer([u8; 32]);
+
+/// Why the store could not do what was asked. Never goes on CAN (the controller shows
+/// only the flash fault bit), so no wire codes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum StoreError {
+    /// The flash driver failed a read, write or erase.
+    Flash,
+    /// No room for the item even after recycling pages: the range is too small.
+    Full,
+    /// sequential-storage found the store corrupt and its repair did not help.
+    Corrupted,
+    /// The store was corrupt beyond repair during a write; it was erased and rebuilt
+    /// from the RAM copy, this write included. Values only the flash held are lost.
+    Rebuilt,
+    /// The address is not a persistent (read-write) register: nothing was stored.
+    NotPersistent,
+    /// The range is not whole pages, shorter than 2 pages or longer than [`MAX_PAGES`].
+    Misconfigured,
+}
+
+impl<E> From<sequential_storage::Error<E>> for StoreError {
+    fn from(error: sequential_storage::Error<E>) -> Self {
+        match error {
+            sequential_storage::Error::Storage { .. } => Self::Flash,
+            sequential_storage::Error::FullStorage => Self::Full,
+            sequential_storage::Error::ItemTooBig => Self::Misconfigured,
+            // Corruption, a logic bug in the crate, an item that does not fit the work
+            // buffer or does not deserialize: either way the store's content cannot be
+            // trusted, and the reaction is the same.
+            _ => Self::Corrupted,
+        }
+    }
+}
+
+/// What the store knows about one address.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Slot {
+    /// No item seen, or a write whose outcome is unknown.
+    Unknown,
+    /// The newest item holds this record.
+    Record([u8; RECORD_LEN]),
+    /// The newest item is intact but not a record of this address.
+    Broken,
+}
+
+/// The newest item of every key, collected while sequential-storage reads the store
+/// from the oldest item to the newest.
+struct Newest {
+    slots: [Slot; ADDRESS_COUNT],
+    /// Items read at all (blank means none).
+    seen: bool,
+    /// Items of keys beyond this map: rejected, or dropped as a newer firmware's.
+    /// Counted per item, since the store keeps no slot for them.
+    rejected: u16,
+    dropped: u16,
+}
+
+impl Newest {
+    fn new() -> Self {
+        Self {
+            slots: [Slot::Unknown; ADDRESS_COUNT],
+            seen: false,
+            rejected: 0,
+            dropped: 0,
+        }
+    }
+
+    /// Takes the next item in store order; a later item of a key replaces an earlier one.
+    fn note(&mut self, key: u8, value: &[u8]) {
+        self.seen = true;
+        let record = <[u8; RECORD_LEN]>::try_from(value)
+            .ok()
+            .filter(|record| record[1] == key);
+        match self.slots.get_mut(usize::from(key)) {
+            Some(slot) => *slot = record.map_or(Slot::Broken, Slot::Record),
+            None => match record.map(|record| decode_record(&record)) {
+                Some(Err(RecordError::NewerSchema { .. })) => {
+                    self.dropped = self.dropped.saturating_add(1);
+                }
+                // Either broken or a current record of an address no firmware of this
+                // schema has.
+                _ => self.rejected = self.rejected.saturating_add(1),
+            },
+        }
+    }
+
+    /// The registers from the newest records, with `damaged` items the scan found.
+    fn finish(&self, damaged: u16) -> (Registers, LoadReport) {
+        let records = self.slots.iter().filter_map(|slot| match slot {
+            Slot::Record(record) => Some(&record[..]),
+            _ => None,
+        });
+        let (registers, mut report) = Registers::load(records);
+        let broken = self
+            .slots
+            .iter()
+            .filter(|slot| **slot == Slot::Broken)
+            .count() as u16;
+        report.rejected = report
+            .rejected
+            .saturating_add(broken)
+            .saturating_add(self.rejected)
+            .saturating_add(damaged);
+        report.dropped = report.dropped.saturating_add(self.dropped);
+        // Registers::load only saw the valid records; blank is about the whole store.
+        report.blank = !self.seen && damaged == 0;
+        (registers, report)
+    }
+}
+
+/// The register flash: sequential-storage over `range`, plus the RAM copy of what it holds.
+pub struct RegisterStore<F: NorFlash> {
+    flash: F,
+    range: Range<u32>,
+    /// Taken out while an operation runs; a fresh one is always valid.
+    cache: StoreCache,
+    /// What the flash holds for each address, as far as the store knows.
+    stored: [Slot; ADDRESS_COUNT],
+    buffer: WorkBuffer,
+}
+
+impl<F: NorFlash> RegisterStore<F> {
+    /// A store over `range` of `flash`.
+    ///
+    /// # Panics
+    /// If the range does not suit the store (see [`Self::try_new`]): a board
+    /// configuration error, found at the first start-up.
+    pub fn new(flash: F, range: Range<u32>) -> Self {
+        match Self::try_new(flash, range) {
+            Ok(store) => store,
+            Err(_) => panic!("register store range is not 2..=MAX_PAGES whole flash pages"),
+        }
+    }
+
+    /// A store over `range` of `flash`, or [`StoreError::Misconfigured`] unless the range
+    /// is 2 to [`MAX_PAGES`] whole erase pages.
+    pub fn try_new(flash: F, range: Range<u32>) -> Result<Self, StoreError> {
+        let pages = range.end.saturating_sub(range.start) as usize / F::ERASE_SIZE;
+        if MapConfig::<F>::try_new(range.clone()).is_err() || pages > MAX_PAGES {
+            return Err(StoreError::Misconfigured);
+        }
+        Ok(Self {
+            flash,
+            range,
+            cache: new_cache(),
+            stored: [Slot::Unknown; ADDRESS_COUNT],
+            buffer: WorkBuffer([0; 32]),
+        })
+    }
+
+    /// Reads every record and builds the registers: defaults for anything missing or
+    /// rejected, with the report [`LoadReport::flash_fault`] reads (see the module doc
+    /// for blank, damaged and unreadable stores). Never panics.
+    pub async fn load(&mut self) -> (Registers, LoadReport) {
+        self.stored = [Slot::Unknown; ADDRESS_COUNT];
+        let mut newest = Newest::new();
+        match self.read_items(&mut newest).await {
+            Ok(()) => {
+                // A scan that cannot read the flash it just read is itself a fault.
+                let damaged = count_damaged(&mut self.flash, &self.range)
+                    .await
+                    .unwrap_or(1);
+                self.stored = newest.slots;
+                newest.finish(damaged)
+            }
+            Err(error) => {
+                if error != StoreError::Flash {
+                    // Already reported as blank; if the erase fails too, the next write
+                    // fails and reports again.
+                    let _ = self.erase().await;
+                }
+                let report = LoadReport {
+                    blank: true,
+                    ..LoadReport::default()
+                };
+                (Registers::defaults(), report)
+            }
+        }
+    }
+
+    /// Stores one value; a value equal to what is stored is not written again (flash
+    /// wear). The caller has validated it ([`Registers::write`]).
+    pub async fn write(&mut self, address: u8, value: u16) -> Result<(), StoreError> {
+        if !info(address).is_some_and(|register| register.access == Access::ReadWrite) {
+            return Err(StoreError::NotPersistent);
+        }
+        let record = encode_record(address, value);
+        let slot = usize::from(address);
+        if self.stored[slot] == Slot::Record(record) {
+            return Ok(());
+        }
+        // Until the write returns, the flash may hold either value.
+        self.stored[slot] = Slot::Unknown;
+        match self.store_record(address, &record).await {
+            Ok(()) => {
+                self.stored[slot] = Slot::Record(record);
+                Ok(())
+            }
+            Err(StoreError::Corrupted) => {
+                // The next boot would erase the store and lose every value; the RAM copy
+                // still has them, so rebuild now.
+                self.stored[slot] = Slot::Record(record);
+                self.rebuild().await?;
+                Err(StoreError::Rebuilt)
+            }
+            Err(error) => Err(error),
+        }
+    }
+
+    /// Writes every persistent register's default that the flash does not already hold,
+    /// so the next boot loads the defaults (from a store that is not blank). Appended
+    /// like any write rather than erasing the range: a power cut then leaves each
+    /// register at its value or its default, whereas an erase cut short could leave
+    /// older pages alive and bring back values overwritten long ago. Goes on after a
+    /// failure and returns the first error.
+    pub async fn restore_defaults(&mut self) -> Result<(), StoreError> {
+        let defaults = Registers::defaults();
+        let mut result = Ok(());
+        for (address, value) in defaults.iter() {
+            let written = self.write(address, value).await;
+            result = result.and(written);
+        }
+        result
+    }
+
+    /// Applies one batch of [`PendingWrites`]: the restore first, then every write. Goes
+    /// on after a failure, so one bad write does not cost the others, and returns the
+    /// first error.
+    pub async fn apply(&mut self, batch: &PendingBatch) -> Result<(), StoreError> {
+        let mut result = Ok(());
+        if batch.restore_defaults {
+            result = self.restore_defaults().await;
+        }
+        for &(address, value) in &batch.writes {
+            let written = self.write(address, value).await;
+            result = result.and(written);
+        }
+        result
+    }
+
+    async fn read_items(&mut self, newest: &mut Newest) -> Result<(), StoreError> {
+        let mut map = open_map(&mut self.flash, &self.range, &mut self.cache)?;
+        let mut result = read_all(&mut map, &mut self.buffer.0, newest).await;
+        if result == Err(StoreError::Corrupted) {
+            // sequential-storage 8.0.2's `fetch_all_items` returns a corrupt page state
+            // (a page erase cut short by a power cut) before its own repair runs: the
+            // page search sits behind a `?` inside the repaired block. `fetch_item` runs
+            // the same search with the repair, so let it mend the store, then read again.
+            // Without this, one power cut during a page change would cost every value.
+            let _ = map.fetch_item::<&[u8]>(&mut self.buffer.0, &0).await;
+            *newest = Newest::new();
+            result = read_all(&mut map, &mut self.buffer.0, newest).await;
+        }
+        self.cache = map.destroy().1;
+        result
+    }
+
+    async fn store_record(
+        &mut self,
+        address: u8,
+        record: &[u8; RECORD_LEN],
+    ) -> Result<(), StoreError> {
+        let mut map = open_map(&mut self.flash, &self.range, &mut self.cache)?;
+        let result = map
+            .store_item(&mut self.buffer.0, &address, &&record[..])
+            .await;
+        self.cache = map.destroy().1;
+        Ok(result?)
+    }
+
+    /// Erases the whole range. Done here rather than through sequential-storage's
+    /// `erase_all`, which leaves its cache believing in the erased pages.
+    async fn erase(&mut self) -> Result<(), StoreError> {
+        self.stored = [Slot::Unknown; ADDRESS_COUNT];
+        self.cache = new_cache();
+        self.flash
+            .erase(self.range.start, self.range.end)
+            .await
+            .map_err(|_| StoreError::Flash)
+    }
+
+    /// Erases the store and writes back every record of the RAM copy.
+    async fn rebuild(&mut self) -> Result<(), StoreError> {
+        let wanted = self.stored;
+        self.erase().await?;
+        for (address, slot) in wanted.iter().enumerate() {
+            if let Slot::Record(record) = slot {
+                let address = address as u8;
+                self.store_record(address, record).await?;
+                self.stored[usize::from(address)] = Slot::Record(*record);
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The store task: waits for pending register changes, applies each batch and reports
+/// any failure as [`Input::FlashFault`]. A failed write is not retried: the flash that
+/// refused it would most likely refuse again, the controller keeps running on the value
+/// in RAM, and the address is written again with its next change.
+pub async fn run<F: NorFlash>(
+    store: &mut RegisterStore<F>,
+    pending: &PendingWrites,
+    faults: Sender<'_, RawMutex, Input, INPUT_QUEUE>,
+) -> ! {
+    loop {
+        let batch = pending.take().await;
+        if store.apply(&batch).await.is_err() {
+            faults.send(Input::FlashFault).await;
+        }
+    }
+}
+
+/// sequential-storage over the store's flash, with the store's cache lent to it; give
+/// the cache back with `destroy` when done.
+fn open_map<'a, F: NorFlash>(
+    flash: &'a mut F,
+    range: &Range<u32>,
+    cache: &mut StoreCache,
+) -> Result<MapStorage<u8, &'a mut F, StoreCache>, StoreError> {
+    let config = MapConfig::try_new(range.clone()).map_err(|_| StoreError::Misconfigured)?;
+    Ok(MapStorage::new(
+        flash,
+        config,
+        core::mem::replace(cache, new_cache()),
+    ))
+}
+
+async fn read_all<F: NorFlash>(
+    map: &mut MapStorage<u8, F, StoreCache>,
+    buffer: &mut [u8],
+    newest: &mut Newest,
+) -> Result<(), StoreError> {
+    let mut items = map.fetch_all_items(buffer).await?;
+    while let Some((key, value)) = items.next::<&[u8]>(buffer).await? {
+        newest.note(key, value);
+    }
+    Ok(())
+}
+
+/// Counts the items sequential-storage skips as damaged in the pages it reads, which its
+/// API does not report. Follows sequential-storage 8's layout (`item.rs`): a page is
+/// in use when its first word is marked; from its second word on it holds items of an
+/// 8-byte header (data CRC-32, length, CRC-16 of the length) and word-padded data. A
+/// header whose length CRC fails is skipped one word at a time, as sequential-storage
+/// does; a run of such words counts once. `sim/tests/store.rs` checks that an intact
+/// store scans clean after thousands of writes, so a format change shows there.
+async fn count_damaged<F: NorFlash>(flash: &mut F, range: &Range<u32>) -> Result<u16, F::Error> {
+    const HEADER_LEN: u32 = 8;
+    let word = F::READ_SIZE.max(F::WRITE_SIZE) as u32;
+    let header_len = HEADER_LEN.next_multiple_of(word);
+    let page_size = F::ERASE_SIZE as u32;
+    let mut buffer = WorkBuffer([0; 32]);
+    let chunk_len = (buffer.0.len() as u32 / word) * word;
+    let mut damaged: u16 = 0;
+
+    let mut page = range.start;
+    while page < range.end {
+        let page_end = page + page_size;
+        // Only pages whose start marker is written hold items. A page with just its end
+        // marker is one whose erase was cut short: sequential-storage erases it again and
+        // it held nothing still current.
+        if !is_marked(flash, page, &mut buffer.0).await? {
+            page = page_end;
+            continue;
+        }
+        let data_end = page_end - word;
+        let mut address = page + word;
+        let mut in_garbage = false;
+        while address + header_len <= data_end {
+            let header = &mut buffer.0[..header_len as usize];
+            flash.read(address, header).await?;
+            if header.iter().all(|&byte| byte == 0xFF) {
+                break;
+            }
+            let length = u16::from_le_bytes([header[4], header[5]]);
+            let length_crc = u16::from_le_bytes([header[6], header[7]]);
+            let data_crc = u32::from_le_bytes([header[0], header[1], header[2], header[3]]);
+            let data_address = address + header_len;
+            let next = data_address + u32::from(length).next_multiple_of(word);
+            if length_crc != item_crc16(&header[4..6]) || next > data_end {
+                if !in_garbage {
+                    damaged = damaged.saturating_add(1);
+                    in_garbage = true;
+                }
+                address += word;
+                continue;
+            }
+            in_garbage = false;
+            // A data CRC of 0 marks an item sequential-storage erased on purpose.
+            if data_crc != 0 {
+                let mut crc = ItemCrc32::new();
+                let mut offset = 0;
+                while offset < u32::from(length) {
+                    let left = u32::from(length) - offset;
+                    let read_len = left.next_multiple_of(word).min(chunk_len);
+                    let chunk = &mut buffer.0[..read_len as usize];
+                    flash.read(data_address + offset, chunk).await?;
+                    crc.update(&chunk[..left.min(read_len) as usize]);
+                    offset += read_len;
+                }
+                if crc.finish() != data_crc {
+                    damaged = damaged.saturating_add(1);
+                }
+            }
+            address = next;
+        }
+        page = page_end;
+    }
+    Ok(damaged)
+}
+
+/// Whether the page's first word carries sequential-storage's marker: at least 4 of its
+/// bits cleared (the crate tolerates bit flips in the marker).
+async fn is_marked<F: NorFlash>(
+    flash: &mut F,
+    page: u32,
+    buffer: &mut [u8],
+) -> Result<bool, F::Error> {
+    let marker = &mut buffer[..F::READ_SIZE];
+    flash.read(page, marker).await?;
+    Ok(marker.iter().map(|byte| byte.count_zeros()).sum::<u32>() >= 4)
+}
+
+/// sequential-storage's CRC of the item length (CRC-16F/4.2, never 0xFFFF).
+fn item_crc16(data: &[u8]) -> u16 {
+    let mut crc: u16 = 0xFFFF;
+    for &byte in data {
+        crc ^= u16::from(byte);
+        for _ in 0..8 {
+            crc = if crc & 1 == 1 {
+                (crc >> 1) ^ 0x1A2E
+            } else {
+                crc >> 1
+            };
+        }
+    }
+    match crc ^ 0xFFFF {
+        0xFFFF => 0xFFFE,
+        crc => crc,
+    }
+}
+
+/// sequential-storage's CRC of the item data: CRC-32C from 0xEEEEEEEE, adjusted so that
+/// it is never 0 (the erased mark) and its first byte is never 0x00 or 0xFF.
+struct ItemCrc32(u32);
+
+impl ItemCrc32 {
+    fn new() -> Self {
+        Self(0xEEEE_EEEE)
+    }
+
+    fn update(&mut self, data: &[u8]) {
+        for &byte in data {
+            self.0 ^= u32::from(byte);
+            for _ in 0..8 {
+                self.0 = if self.0 & 1 == 1 {
+                    (self.0 >> 1) ^ 0x82F6_3B78
+                } else {
+                    self.0 >> 1
+                };
+            }
+        }
+    }
+
+    fn finish(&self) -> u32 {
+        match !self.0 {
+            0 => 1,
+            crc if matches!(crc.to_le_bytes()[0], 0x00 | 0xFF) => crc ^ 1,
+            crc => crc,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::registers::Reg;
+
+    fn newest(items: &[(u8, &[u8])]) -> (Registers, LoadReport) {
+        let mut newest = Newest::new();
+        for &(key, value) in items {
+            newest.note(key, value);
+        }
+        newest.finish(0)
+    }
+
+    #[test]
+    fn the_newest_item_of_a_key_wins() {
+        let (registers, report) = newest(&[
+            (0, &encode_record(0, 150)),
+            (2, &encode_record(2, 300)),
+            (0, &encode_record(0, 160)),
+        ]);
+        assert_eq!(registers.get(Reg::RadR), 160);
+        assert_eq!(registers.get(Reg::WheelDist), 300);
+        assert_eq!(report.applied, 2);
+        assert!(!report.flash_fault());
+    }
+
+    #[test]
+    fn a_broken_newest_item_hides_the_older_record_and_is_rejected() {
+        let (registers, report) = newest(&[(0, &encode_record(0, 150)), (0, &[1, 0, 0])]);
+        assert_eq!(registers.get(Reg::RadR), Reg::RadR.info().default);
+        assert_eq!(report.rejected, 1);
+        assert!(report.flash_fault());
+    }
+
+    #[test]
+    fn an_item_whose_key_is_not_its_record_address_is_rejected() {
+        let (registers, report) = newest(&[(1, &encode_record(0, 150))]);
+        assert_eq!(registers, Registers::defaults());
+        assert_eq!(report.rejected, 1);
+        assert!(!report.blank);
+    }
+
+    #[test]
+    fn a_record_failing_its_own_crc_is_rejected() {
+        let mut record = encode_record(15, 60);
+        record[3] ^= 0x01;
+        let (registers, report) = newest(&[(15, &record)]);
+        assert_eq!(registers.get(Reg::LoopEndDelay), 50);
+        assert_eq!(report.rejected, 1);
+    }
+
+    #[test]
+    fn keys_beyond_the_map_are_dropped_if_newer_and_rejected_otherwise() {
+        let mut newer = encode_record(45, 7);
+        newer[0] += 1;
+        // Re-encode the CRC for the newer schema byte.
+        let crc = crc::Crc::<u16, crc::NoTable>::new(&crc::CRC_16_IBM_3740).checksum(&newer[..4]);
+        newer[4..].copy_from_slice(&crc.to_le_bytes());
+        let (_, report) = newest(&[(45, &newer), (46, &encode_record(46, 7))]);
+        assert_eq!(report.dropped, 1);
+        assert_eq!(report.rejected, 1);
+    }
+
+    #[test]
+    fn damaged_items_are_a_fault_even_without_any_readable_item() {
+        let (registers, report) = Newest::new().finish(2);
+        assert_eq!(registers, Registers::defaults());
+        assert!(!report.blank);
+        assert_eq!(report.rejected, 2);
+        assert!(report.flash_fault());
+    }
+
+    #[test]
+    fn nothing_read_is_blank() {
+        let (_, report) = Newest::new().finish(0);
+        assert!(report.blank);
+        assert!(report.flash_fault());
+    }
+
+    #[test]
+    fn item_crc16_never_gives_the_erased_value() {
+        // Every two-byte length: the erased 0xFFFF must be impossible.
+        for length in 0..=u16::MAX {
+            assert_ne!(item_crc16(&length.to_le_bytes()), 0xFFFF);
+        }
+    }
+
+    #[test]
+    fn item_crc32_is_crc32c_from_eeeeeeee_with_the_adjustments() {
+        // CRC-32C ("123456789") is 0xE3069283 from the standard 0xFFFFFFFF init; the same
+        // engine from that init must give it.
+        let mut standard = ItemCrc32(0xFFFF_FFFF);
+        standard.update(b"123456789");
+        assert_eq!(!standard.0, 0xE306_9283);
+        for data in [&b""[..], b"\x00", b"\xFF\xFF\xFF", b"register store"] {
+            let mut crc = ItemCrc32::new();
+            crc.update(data);
+            let value = crc.finish();
+            assert_ne!(value, 0);
+            assert!(!matches!(value.to_le_bytes()[0], 0x00 | 0xFF));
+        }
+    }
+}
