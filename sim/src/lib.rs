@@ -6,4 +6,5 @@
 //! timer whenever every task waits, so a test of minutes of driving runs in
 //! milliseconds and always the same way.
 
+pub mod drives;
 pub mod runtime;
