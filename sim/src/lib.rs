@@ -7,6 +7,7 @@
 //! milliseconds and always the same way.
 
 pub mod can;
+pub mod drives;
 pub mod flash;
 pub mod io;
 pub mod runtime;
