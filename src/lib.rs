@@ -10,6 +10,7 @@ pub mod calibration;
 pub mod can;
 pub mod controller;
 pub mod debounce;
+pub mod drives;
 pub mod feedback;
 pub mod hw;
 pub mod hx711;

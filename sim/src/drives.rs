@@ -359,6 +359,13 @@ impl Write for DrivesPort {
 impl Rs485 for DrivesPort {}
 
 impl DrivesHandle {
+    /// Another master end of the same line: a rebooted controller's port.
+    pub fn port(&self) -> DrivesPort {
+        DrivesPort {
+            bus: self.bus.clone(),
+        }
+    }
+
     /// Switches both drives' power. Off loses all RAM settings (share group and lists,
     /// DDO fields, S-ON, alarms), silences the drives and applies the brakes; on starts
     /// the position counters at 0 and answering after the boot time.

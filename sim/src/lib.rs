@@ -10,4 +10,5 @@ pub mod can;
 pub mod drives;
 pub mod flash;
 pub mod io;
+pub mod robot;
 pub mod runtime;

@@ -1,4 +1,139 @@
 //! The running controller: async tasks that own the hardware (through [`crate::hw`])
-//! and move values between it and the [`crate::controller::Controller`].
+//! and move values between it and the [`Controller`]. They decide nothing themselves.
+//!
+//! ```text
+//!   CanRx ──frames──┐                                  ┌──▶ can_tx ──▶ CanTx
+//!   inputs (pins) ──┤                                  │
+//!   battery, scale ─┼──▶ inputs ──▶ controller task ───┼──▶ drive_demand ──▶ drive link ◀──▶ RS-485
+//!   drive link ─────┤    (queue)   (Controller::handle)│      (signal)          │
+//!   BLE remote ─────┘                                  ├──▶ pending_writes ──▶ store ◀──▶ flash
+//!                                                      └──▶ PC power switch pin
+//!   controller, drive link, inputs ──check-in──▶ liveness ──▶ watchdog
+//! ```
+//!
+//! Every task is an `async fn` generic over its hardware; [`run`] joins them into one
+//! future. The chip shell spawns that future on its executor; the virtual robot runs
+//! it under a virtual clock. Neither adds logic.
 
+pub mod can;
 pub mod channels;
+pub mod control;
+pub mod inputs;
+pub mod liveness;
+pub mod sensors;
+
+use embassy_futures::join::{join, join4, join5};
+
+use crate::controller::{Controller, Input};
+use crate::drives::{self, DriveSettings};
+use crate::hw::{
+    BatteryVoltage, CanRx, CanTx, InputPin, LoadCell, NorFlash, OutputPin, Rs485, Watchdog,
+};
+use crate::store::{self, RegisterStore};
+
+use channels::Channels;
+pub use inputs::{ActiveLevel, InputSettings};
+
+/// Every piece of hardware the tasks use, as the board provides it.
+pub struct Hardware<CR, CT, P, F, E, Z, B, S, V, L, W> {
+    pub can_rx: CR,
+    pub can_tx: CT,
+    /// The RS-485 line to the drives.
+    pub drives: P,
+    /// The register store's flash and the byte range of its partition.
+    pub flash: F,
+    pub flash_range: core::ops::Range<u32>,
+    pub estop: E,
+    pub safety_zone: Z,
+    pub button: B,
+    /// The output that closes the PC's power switch (high = closed).
+    pub pc_switch: S,
+    pub battery: V,
+    pub load_cell: L,
+    pub watchdog: W,
+    /// The chip's reset reason says the watchdog bit.
+    pub reset_by_watchdog: bool,
+}
+
+/// What the board knows about its wiring and the drives.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Settings {
+    pub drives: DriveSettings,
+    pub inputs: InputSettings,
+}
+
+impl Settings {
+    pub const DEFAULT: Settings = Settings {
+        drives: DriveSettings::DEFAULT,
+        inputs: InputSettings::DEFAULT,
+    };
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+/// Loads the registers, then runs every task forever.
+#[allow(clippy::too_many_arguments)]
+pub async fn run<CR, CT, P, F, E, Z, B, S, V, L, W>(
+    hardware: Hardware<CR, CT, P, F, E, Z, B, S, V, L, W>,
+    settings: Settings,
+    channels: &Channels,
+) -> !
+where
+    CR: CanRx,
+    CT: CanTx,
+    P: Rs485,
+    F: NorFlash,
+    E: InputPin,
+    Z: InputPin,
+    B: InputPin,
+    S: OutputPin,
+    V: BatteryVoltage,
+    L: LoadCell,
+    W: Watchdog,
+{
+    let mut store = RegisterStore::new(hardware.flash, hardware.flash_range);
+    let (registers, report) = store.load().await;
+    let now = control::core_now();
+    let controller = Controller::new(now, registers);
+    let mut boot_inputs = heapless::Vec::<Input, 2>::new();
+    if report.flash_fault() {
+        let _ = boot_inputs.push(Input::FlashFault);
+    }
+    if hardware.reset_by_watchdog {
+        let _ = boot_inputs.push(Input::WatchdogReset);
+    }
+    let ((never, ..), ..) = join(
+        join5(
+            control::run(controller, channels, hardware.pc_switch, &boot_inputs),
+            drives::link::run(hardware.drives, settings.drives, channels),
+            can::run_rx(hardware.can_rx, channels),
+            can::run_tx(hardware.can_tx, channels),
+            inputs::run(
+                inputs::InputPins {
+                    estop: hardware.estop,
+                    safety_zone: hardware.safety_zone,
+                    button: hardware.button,
+                },
+                settings.inputs,
+                channels,
+            ),
+        ),
+        join4(
+            store::run(
+                &mut store,
+                &channels.pending_writes,
+                channels.inputs.sender(),
+            ),
+            sensors::run_battery(hardware.battery, channels),
+            sensors::run_scale(hardware.load_cell, channels),
+            liveness::run(hardware.watchdog, channels),
+        ),
+    )
+    .await;
+    never
+}

@@ -1,0 +1,246 @@
+//! The whole virtual robot: every simulated part wired to the firmware's real tasks.
+//!
+//! ```
+//! use virtual_robot::robot::{VirtualRobot, wait_ms};
+//!
+//! let robot = VirtualRobot::new();
+//! let position = robot.run(async |pc| {
+//!     wait_ms(1_500).await; // the drives boot and are set up
+//!     pc.drive(300, 0, 1_000).await; // enable + 300 mm/s every 50 ms
+//!     pc.position()
+//! });
+//! assert!(position.is_some_and(|(x, _)| x > 200));
+//! ```
+//!
+//! [`VirtualRobot::run`] boots the firmware (`base_controller::app::run`) on the
+//! virtual clock and runs the test script beside it; when the script returns, the
+//! controller loses power. The drives, flash, pins and sensors outlive a run, so a
+//! second `run` is a reboot of the controller alone.
+
+use base_controller::app::{self, Hardware, Settings, channels::Channels};
+use base_controller::can::{Command, RawFrame, Report, Status, id};
+use embassy_futures::select::{Either, select};
+use embassy_time::{Duration, Instant, Timer};
+use embedded_hal::digital::PinState;
+
+use crate::can::{CanPeer, VirtualCan};
+use crate::drives::{DrivesConfig, DrivesHandle, DrivesPort};
+use crate::flash::RamFlash;
+use crate::io::{SimBattery, SimLoadCell, SimPin, SimWatchdog};
+use crate::runtime::block_on;
+
+/// The register store's partition: 4 pages of 4 KiB, as on the chip.
+pub const FLASH_SIZE: u32 = 4 * 4096;
+/// The board's hardware watchdog timeout.
+pub const WATCHDOG_TIMEOUT: Duration = Duration::from_secs(2);
+
+pub struct VirtualRobot {
+    pub settings: Settings,
+    pub drives: DrivesHandle,
+    pub flash: RamFlash,
+    /// E-stop loop: high = closed = released (the inputs are active low).
+    pub estop: SimPin,
+    pub safety_zone: SimPin,
+    pub button: SimPin,
+    pub pc_switch: SimPin,
+    pub battery: SimBattery,
+    pub load_cell: SimLoadCell,
+    pub watchdog: SimWatchdog,
+    /// Whether the next boot reports a watchdog reset.
+    pub reset_by_watchdog: bool,
+    drives_port: std::cell::RefCell<Option<DrivesPort>>,
+}
+
+impl Default for VirtualRobot {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl VirtualRobot {
+    /// A robot on the defaults: drives at 115200 8E1 powered on now, a blank flash, all
+    /// inputs released, a 24.5 V battery and an empty scale.
+    pub fn new() -> Self {
+        Self::with_drives(DrivesConfig::default())
+    }
+
+    pub fn with_drives(config: DrivesConfig) -> Self {
+        let (port, drives) = DrivesPort::new(config);
+        Self {
+            settings: Settings::DEFAULT,
+            drives,
+            flash: RamFlash::new(FLASH_SIZE as usize),
+            estop: SimPin::new(PinState::High),
+            safety_zone: SimPin::new(PinState::High),
+            button: SimPin::new(PinState::High),
+            pc_switch: SimPin::new(PinState::Low),
+            battery: SimBattery::new(24_500),
+            load_cell: SimLoadCell::new(8_000, 100.0),
+            watchdog: SimWatchdog::new(WATCHDOG_TIMEOUT),
+            reset_by_watchdog: false,
+            drives_port: std::cell::RefCell::new(Some(port)),
+        }
+    }
+
+    /// Boots the controller and runs `script` beside it, with the robot PC's end of
+    /// the CAN bus; returns what the script returns.
+    pub fn run<T>(&self, script: impl AsyncFnOnce(&Pc) -> T) -> T {
+        let (can_rx, can_tx, peer) = VirtualCan::new();
+        let drives = self
+            .drives_port
+            .borrow_mut()
+            .take()
+            .unwrap_or_else(|| self.drives.port());
+        let hardware = Hardware {
+            can_rx,
+            can_tx,
+            drives,
+            flash: self.flash.clone(),
+            flash_range: 0..FLASH_SIZE,
+            estop: self.estop.clone(),
+            safety_zone: self.safety_zone.clone(),
+            button: self.button.clone(),
+            pc_switch: self.pc_switch.clone(),
+            battery: self.battery.clone(),
+            load_cell: self.load_cell.clone(),
+            watchdog: self.watchdog.clone(),
+            reset_by_watchdog: self.reset_by_watchdog,
+        };
+        let channels = Channels::new();
+        let pc = Pc { peer };
+        block_on(async {
+            match select(app::run(hardware, self.settings, &channels), script(&pc)).await {
+                Either::First(never) => never,
+                Either::Second(result) => result,
+            }
+        })
+    }
+
+    pub fn press_estop(&self) {
+        self.estop.set_level(PinState::Low);
+    }
+
+    pub fn release_estop(&self) {
+        self.estop.set_level(PinState::High);
+    }
+
+    pub fn set_safety_zone(&self, occupied: bool) {
+        self.safety_zone.set_level(if occupied {
+            PinState::Low
+        } else {
+            PinState::High
+        });
+    }
+
+    /// Presses the front button for `hold_ms`, then releases it.
+    pub async fn press_button(&self, hold_ms: u64) {
+        self.button.set_level(PinState::Low);
+        wait_ms(hold_ms).await;
+        self.button.set_level(PinState::High);
+    }
+}
+
+/// Waits `ms` of virtual time.
+pub async fn wait_ms(ms: u64) {
+    Timer::after_millis(ms).await;
+}
+
+/// The robot PC: sends commands and reads what the controller reported.
+pub struct Pc {
+    pub peer: CanPeer,
+}
+
+impl Pc {
+    pub fn command(&self, command: Command) {
+        self.send(command.encode());
+    }
+
+    pub fn send(&self, frame: RawFrame) {
+        self.peer.send(frame.id(), frame.data());
+    }
+
+    pub fn enable(&self) {
+        self.command(Command::Enable { refresh: true });
+    }
+
+    pub fn velocity(&self, linear_mm_s: i16, rotation_mrad_s: i16) {
+        self.command(Command::Velocity {
+            linear_mm_s,
+            rotation_mrad_s,
+        });
+    }
+
+    /// Sends the enable and the same velocity every `period_ms` for `duration_ms`, as
+    /// the robot PC does while driving.
+    pub async fn drive(&self, linear_mm_s: i16, rotation_mrad_s: i16, duration_ms: u64) {
+        const PERIOD_MS: u64 = 50;
+        let end = Instant::now() + Duration::from_millis(duration_ms);
+        while Instant::now() < end {
+            self.enable();
+            self.velocity(linear_mm_s, rotation_mrad_s);
+            wait_ms(PERIOD_MS).await;
+        }
+    }
+
+    /// Every report the controller sent so far with this ID, decoded, with its time.
+    pub fn reports(&self, frame_id: u16) -> Vec<(Instant, Report)> {
+        self.peer
+            .sent_with_id(frame_id)
+            .into_iter()
+            .filter_map(|sent| {
+                let raw = sent.frame.to_raw()?;
+                let report = Report::decode(raw.id(), raw.data()).ok()??;
+                Some((sent.at, report))
+            })
+            .collect()
+    }
+
+    /// The last position (x, y) in mm.
+    pub fn position(&self) -> Option<(i32, i32)> {
+        self.reports(id::POSITION)
+            .into_iter()
+            .rev()
+            .find_map(|(_, report)| match report {
+                Report::Position { x_mm, y_mm } => Some((x_mm, y_mm)),
+                _ => None,
+            })
+    }
+
+    /// The last heading in mrad.
+    pub fn heading(&self) -> Option<i32> {
+        self.reports(id::HEADING)
+            .into_iter()
+            .rev()
+            .find_map(|(_, report)| match report {
+                Report::Heading { heading_mrad } => Some(heading_mrad),
+                _ => None,
+            })
+    }
+
+    /// The last status frame.
+    pub fn status(&self) -> Option<Status> {
+        self.reports(id::STATUS)
+            .into_iter()
+            .rev()
+            .find_map(|(_, report)| match report {
+                Report::Status(status) => Some(status),
+                _ => None,
+            })
+    }
+
+    /// Waits (up to `timeout_ms`) for a status frame that satisfies `check`.
+    pub async fn wait_for_status(
+        &self,
+        timeout_ms: u64,
+        check: impl Fn(&Status) -> bool,
+    ) -> Option<Status> {
+        let end = Instant::now() + Duration::from_millis(timeout_ms);
+        while Instant::now() < end {
+            if let Some(status) = self.status().filter(|status| check(status)) {
+                return Some(status);
+            }
+            wait_ms(10).await;
+        }
+        None
+    }
+}

@@ -1,0 +1,377 @@
+//! The real firmware tasks on the virtual robot: CAN in, Modbus bytes out, odometry
+//! back, all on a virtual clock. Each test is a story a user of the robot would tell.
+
+use base_controller::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
+use base_controller::can::{Command, Mode, Report, id};
+use base_controller::drives::reg;
+use embassy_time::Instant;
+use virtual_robot::robot::{Pc, VirtualRobot, wait_ms};
+
+/// The drives answer 1 s after power-on; their setup takes a few transactions more.
+const BOOT_MS: u64 = 1_500;
+
+/// Motor r/min for `mm_s` at the wheel with the default registers: radius 142 mm,
+/// gear 10:1.
+fn motor_rpm(mm_s: f64) -> f64 {
+    mm_s / (2.0 * std::f64::consts::PI * 142.0) * 60.0 * 10.0
+}
+
+/// What the odometry reports for `revolutions` of a motor: the default `f_lin`
+/// correction (1.0071) applies.
+fn reported_mm(revolutions: f64) -> f64 {
+    revolutions / 10.0 * 2.0 * std::f64::consts::PI * 142.0 * 1.0071
+}
+
+async fn stop_and_settle(pc: &Pc) {
+    pc.enable();
+    pc.velocity(0, 0);
+    wait_ms(2_000).await;
+}
+
+#[test]
+fn driving_500_mm_s_for_2_s_commands_the_drives_and_reports_a_metre() {
+    let robot = VirtualRobot::new();
+    let (x, y, heading, travelled) = robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        pc.drive(500, 0, 1_000).await;
+        // Mid-drive: both drives run the rounded motor speed, the right one mirrored,
+        // with CAN_accel (700 (1/min)/s) as their rate.
+        let left = robot.drives.drive(1).command.expect("left commanded");
+        let right = robot.drives.drive(2).command.expect("right commanded");
+        let rpm = motor_rpm(500.0).round() as i32;
+        assert_eq!((left.speed_rpm, right.speed_rpm), (rpm, -rpm));
+        assert_eq!((left.accel_rpm_per_s, left.decel_rpm_per_s), (700, 700));
+        assert_eq!((right.accel_rpm_per_s, right.decel_rpm_per_s), (700, 700));
+        pc.drive(500, 0, 1_000).await;
+        stop_and_settle(pc).await;
+        let (x, y) = pc.position().expect("position frames");
+        let travelled = reported_mm(robot.drives.drive(1).forward_revolutions());
+        (x, y, pc.heading().expect("heading frames"), travelled)
+    });
+    // Speeding up and slowing down at the same rate cancel out, so 2 s at 500 mm/s is
+    // 1000 mm, times f_lin (1007 mm), less the brake release: the first command
+    // excites the drives (two S-ON writes, 3 ms) and waits 50 ms for the brakes before
+    // any speed, 26 mm at 500 mm/s. Tolerance 8 mm: the speed is rounded to whole
+    // r/min (336.25 → 336, 0.8 mm), and each command reaches the drives within one
+    // Modbus transaction (≤ 15 ms, 7 mm at 500 mm/s; the same delay at start and
+    // stop mostly cancels).
+    let expected = 1_000.0 * 1.0071 - 26.5;
+    assert!(
+        (f64::from(x) - expected).abs() <= 8.0,
+        "x = {x} mm, expected {expected:.0}"
+    );
+    // The odometry itself is exact: it matches the wheels' real travel to the mm.
+    assert!(
+        (f64::from(x) - travelled).abs() <= 1.0,
+        "x = {x}, wheels {travelled:.1}"
+    );
+    assert_eq!((y, heading), (0, 0));
+}
+
+#[test]
+fn a_clockwise_rotation_command_turns_clockwise_and_reports_a_positive_heading() {
+    let robot = VirtualRobot::new();
+    let heading = robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        pc.drive(0, 500, 1_000).await;
+        // Clockwise seen from above: the left wheel rolls forward, the right backward.
+        // 500 mrad/s on a 250 mm track is 62.5 mm/s at each wheel: ±42 r/min.
+        assert!(robot.drives.drive(1).forward_rpm() > 40.0);
+        assert!(robot.drives.drive(2).forward_rpm() < -40.0);
+        pc.drive(0, 500, 1_000).await;
+        stop_and_settle(pc).await;
+        pc.heading().expect("heading frames")
+    });
+    // 2 s at 500 mrad/s, times the clockwise correction f_cw (0.9938) and within 5 %
+    // for the command rounding and timing.
+    assert!((950..=1_050).contains(&heading), "heading = {heading} mrad");
+}
+
+#[test]
+fn an_estop_stops_at_once_then_the_drives_are_set_up_again_and_driving_resumes() {
+    let robot = VirtualRobot::new();
+    robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        pc.drive(500, 0, 1_500).await;
+
+        let pressed_at = Instant::now();
+        robot.press_estop();
+        pc.enable();
+        pc.velocity(500, 0);
+        wait_ms(50).await;
+        for slave in [1, 2] {
+            let drive = robot.drives.drive(slave);
+            let command = drive.command.expect("commanded");
+            assert_eq!(command.speed_rpm, 0, "drive {slave} got zero speed");
+            assert_eq!(
+                command.decel_rpm_per_s, 4_500,
+                "drive {slave} brakes with estop_decel"
+            );
+            let latency = drive.last_new_speed_at.expect("new speed") - pressed_at;
+            assert!(latency.as_millis() < 20, "zero speed after {latency:?}");
+        }
+        // No feedback in an emergency: nothing after the stop reached the bus.
+        let frames_before = pc.reports(id::POSITION).len();
+        // The e-stop circuit cuts the drives' power 300 ms after the press.
+        wait_ms(250).await;
+        robot.drives.power(false);
+        wait_ms(1_000).await;
+        assert_eq!(pc.reports(id::POSITION).len(), frames_before);
+
+        robot.release_estop();
+        robot.drives.power(true);
+        wait_ms(200).await;
+        let requests_before_confirm = robot.drives.request_count();
+        robot.press_button(200).await;
+        let ready = pc
+            .wait_for_status(3_000, |status| status.mode == Mode::Standby)
+            .await;
+        assert!(ready.is_some(), "back in standby after the confirm press");
+        // The setup frames went out again: share control to both slaves.
+        let setups: Vec<u8> = robot.drives.requests()[requests_before_confirm..]
+            .iter()
+            .filter(|request| {
+                request.bytes[1] == 0x10 && request.bytes[2..4] == reg::SHARE_CONTROL.to_be_bytes()
+            })
+            .map(|request| request.bytes[0])
+            .collect();
+        assert_eq!(setups, [1, 2]);
+
+        // The pose continues where the wheels stopped, braking included: no jump from
+        // the counters that restarted at zero with the drives' power.
+        wait_ms(200).await;
+        let after = pc.position().expect("position after recovery").0;
+        let travelled = reported_mm(robot.drives.drive(1).forward_revolutions());
+        assert!(
+            (f64::from(after) - travelled).abs() <= 1.0,
+            "pose {after} mm, wheels travelled {travelled:.1} mm"
+        );
+
+        pc.drive(300, 0, 1_000).await;
+        stop_and_settle(pc).await;
+        let driven = pc.position().expect("position").0 - after;
+        assert!(
+            (290..=315).contains(&driven),
+            "drove {driven} mm after the recovery"
+        );
+    });
+}
+
+#[test]
+fn a_drive_that_stops_answering_stops_the_other_and_recovers_after_the_confirm_press() {
+    let robot = VirtualRobot::new();
+    robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        pc.drive(300, 0, 1_000).await;
+        robot.drives.set_silent(2, true);
+        pc.drive(300, 0, 500).await;
+        let left = robot.drives.drive(1);
+        assert_eq!(
+            left.command.expect("commanded").speed_rpm,
+            0,
+            "the left drive stopped"
+        );
+        let status = pc
+            .wait_for_status(1_500, |status| status.faults.right_drive_silent)
+            .await
+            .expect("fault in the status frame");
+        assert_eq!(status.mode, Mode::Fault);
+        assert!(!status.faults.left_drive_silent);
+
+        robot.drives.set_silent(2, false);
+        wait_ms(500).await;
+        robot.press_button(200).await;
+        let status = pc
+            .wait_for_status(3_000, |status| status.mode == Mode::Standby)
+            .await
+            .expect("standby after the confirm press");
+        assert!(!status.faults.right_drive_silent && !status.faults.left_drive_silent);
+        let start = pc.position().expect("position").0;
+        pc.drive(300, 0, 1_000).await;
+        stop_and_settle(pc).await;
+        assert!(pc.position().expect("position").0 - start > 250);
+    });
+}
+
+#[test]
+fn a_register_written_over_can_survives_a_reboot() {
+    let robot = VirtualRobot::new();
+    robot.run(async |pc| {
+        wait_ms(200).await;
+        pc.command(Command::RegisterWrite {
+            address: 11,
+            value: 750,
+        });
+        wait_ms(200).await;
+    });
+    let value = robot.run(async |pc| read_register(pc, 11).await);
+    assert_eq!(value, Some(750));
+}
+
+async fn read_register(pc: &Pc, address: u8) -> Option<u16> {
+    let before = pc.reports(id::REGISTER_READ).len();
+    pc.command(Command::RegisterRead { address });
+    wait_ms(50).await;
+    pc.reports(id::REGISTER_READ)
+        .into_iter()
+        .skip(before)
+        .find_map(|(_, report)| match report {
+            Report::RegisterValue { value } => Some(value),
+            _ => None,
+        })
+}
+
+#[test]
+fn a_power_cut_during_a_register_write_leaves_the_old_or_the_new_value() {
+    let robot = VirtualRobot::new();
+    robot.run(async |pc| {
+        pc.command(Command::RegisterWrite {
+            address: 11,
+            value: 500,
+        });
+        wait_ms(100).await;
+    });
+    let mut outcomes = std::collections::BTreeMap::new();
+    // Every flash step of the write, and then some: the cut lands before, inside and
+    // after it.
+    for cut_after in 0..80 {
+        robot.run(async |pc| {
+            robot.flash.cut_power_after(cut_after);
+            pc.command(Command::RegisterWrite {
+                address: 11,
+                value: 900,
+            });
+            wait_ms(100).await;
+        });
+        robot.flash.restore_power();
+        let value = robot
+            .run(async |pc| read_register(pc, 11).await)
+            .expect("register 11 reads");
+        assert!(
+            value == 500 || value == 900,
+            "cut after {cut_after} steps: {value}"
+        );
+        *outcomes.entry(value).or_insert(0) += 1;
+        // Back to the old value for the next cut.
+        robot.run(async |pc| {
+            pc.command(Command::RegisterWrite {
+                address: 11,
+                value: 500,
+            });
+            wait_ms(100).await;
+        });
+    }
+    assert!(outcomes.len() == 2, "both outcomes occur: {outcomes:?}");
+}
+
+#[test]
+fn a_corrupt_store_boots_with_defaults_and_reports_the_flash_fault() {
+    let robot = VirtualRobot::new();
+    robot.run(async |pc| {
+        pc.command(Command::RegisterWrite {
+            address: 11,
+            value: 750,
+        });
+        wait_ms(100).await;
+    });
+    let size = robot.flash.size() as u32;
+    robot.flash.corrupt(0, &vec![0x5A; size as usize]);
+    let (value, status) = robot.run(async |pc| {
+        let value = read_register(pc, 11).await;
+        let status = pc.wait_for_status(1_500, |_| true).await;
+        (value, status)
+    });
+    assert_eq!(value, Some(300), "disable_time back at its default");
+    assert!(status.expect("status frame").faults.flash);
+}
+
+#[test]
+fn garbled_modbus_replies_and_can_garbage_are_counted_and_driving_goes_on() {
+    let robot = VirtualRobot::new();
+    robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        pc.drive(300, 0, 500).await;
+        robot.drives.garble_next_replies(2);
+        // Wrong lengths on our IDs, unknown IDs, extended and remote frames.
+        pc.peer.send(id::VELOCITY, &[1, 2, 3]);
+        pc.peer.send(id::ENABLE, &[]);
+        pc.peer.send(id::REGISTER_WRITE, &[200, 0, 1]);
+        pc.peer.send(0x7FF, &[0xFF; 8]);
+        pc.drive(300, 0, 1_000).await;
+        let status = pc
+            .wait_for_status(1_500, |status| status.modbus_errors >= 2)
+            .await
+            .expect("Modbus errors counted");
+        assert!(status.rejected_count >= 3, "{status:?}");
+        assert_eq!(status.mode, Mode::Active, "still driving");
+        assert!(robot.drives.drive(1).forward_rpm() > 100.0);
+    });
+}
+
+#[test]
+fn the_scale_calibration_over_can_is_persisted() {
+    let robot = VirtualRobot::new();
+    // The weight frame comes every second and averages the last second of samples:
+    // 2.5 s after a change, the last frame holds only new samples.
+    let weigh = async |pc: &Pc| {
+        wait_ms(2_500).await;
+        pc.reports(id::WEIGHT).last().map(|(_, report)| *report)
+    };
+    robot.run(async |pc| {
+        wait_ms(1_000).await;
+        pc.command(Command::ScaleCalibration(ScaleCalibrationCommand::Start));
+        pc.command(Command::ScaleCalibration(ScaleCalibrationCommand::Tare));
+        robot.load_cell.set_load_grams(5_000.0);
+        wait_ms(1_500).await;
+        pc.command(Command::ScaleCalibration(
+            ScaleCalibrationCommand::KnownWeight { grams: 5_000 },
+        ));
+        robot.load_cell.set_load_grams(2_000.0);
+        assert_eq!(weigh(pc).await, Some(Report::Weight { grams: 2_000 }));
+    });
+    let after_reboot = robot.run(async |pc| weigh(pc).await);
+    assert_eq!(after_reboot, Some(Report::Weight { grams: 2_000 }));
+}
+
+#[test]
+fn the_odometry_calibration_over_can_is_persisted() {
+    let robot = VirtualRobot::new();
+    let (raw_x, f_lin) = robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        pc.command(Command::OdometryCalibration(
+            OdometryCalibrationCommand::StartLinear,
+        ));
+        let revolutions = robot.drives.drive(1).forward_revolutions();
+        pc.drive(400, 0, 2_000).await;
+        stop_and_settle(pc).await;
+        // The tape measure says the robot drove 3 % further than the wheels think.
+        let wheel_mm =
+            reported_mm(robot.drives.drive(1).forward_revolutions() - revolutions) / 1.0071;
+        let real_mm = (wheel_mm * 1.03).round() as u16;
+        pc.command(Command::OdometryCalibration(
+            OdometryCalibrationCommand::EndLinear { real_mm },
+        ));
+        pc.command(Command::OdometryCalibration(
+            OdometryCalibrationCommand::Store,
+        ));
+        wait_ms(200).await;
+        (wheel_mm, read_register(pc, 18).await)
+    });
+    assert!(raw_x > 700.0);
+    // The wheels' travel is measured from the test's side, a sample apart from the
+    // controller's: 0.1 % tolerance.
+    let f_lin = f_lin.expect("f_lin reads");
+    assert!((10_290..=10_310).contains(&f_lin), "f_lin = {f_lin}");
+    let after_reboot = robot.run(async |pc| read_register(pc, 18).await);
+    assert_eq!(after_reboot, Some(f_lin));
+}
+
+#[test]
+fn the_watchdog_is_fed_while_every_task_runs() {
+    let robot = VirtualRobot::new();
+    robot.run(async |pc| {
+        pc.drive(200, 0, 5_000).await;
+    });
+    assert!(!robot.watchdog.has_bitten());
+    assert!(robot.watchdog.feeds() >= 8);
+}

@@ -1,0 +1,83 @@
+//! The controller task: the only caller of [`Controller::handle`]. It turns the input
+//! queue and a 10 ms tick into calls, and hands each output to whoever acts on it.
+
+use embassy_futures::select::{Either, select};
+use embassy_time::{Duration, Instant, Timer};
+
+use crate::controller::{Controller, Input, Output};
+use crate::hw::OutputPin;
+use crate::power::SwitchLevel;
+use crate::registers::Reg;
+use crate::time;
+
+use super::channels::{Channels, CriticalTask, DriveDemand};
+
+/// Timeouts and periodic frames are checked this often (the controller's contract).
+pub const TICK: Duration = Duration::from_millis(10);
+
+/// The core's time: milliseconds since boot.
+pub fn core_now() -> time::Instant {
+    time::Instant::from_millis(Instant::now().as_millis())
+}
+
+pub async fn run<S: OutputPin>(
+    mut controller: Controller,
+    channels: &Channels,
+    mut pc_switch: S,
+    boot_inputs: &[Input],
+) -> ! {
+    let mut demand = DriveDemand::at_rest(controller.registers().get(Reg::LoopEndDelay));
+    for input in boot_inputs {
+        let out = controller.handle(core_now(), *input);
+        dispatch(&controller, out, channels, &mut demand, &mut pc_switch);
+    }
+    let mut next_tick = Instant::now() + TICK;
+    loop {
+        let input = match select(channels.inputs.receive(), Timer::at(next_tick)).await {
+            Either::First(input) => input,
+            Either::Second(()) => {
+                channels.liveness.check_in(CriticalTask::Controller);
+                next_tick = (next_tick + TICK).max(Instant::now());
+                Input::Tick
+            }
+        };
+        let out = controller.handle(core_now(), input);
+        dispatch(&controller, out, channels, &mut demand, &mut pc_switch);
+    }
+}
+
+fn dispatch<S: OutputPin>(
+    controller: &Controller,
+    out: Output,
+    channels: &Channels,
+    demand: &mut DriveDemand,
+    pc_switch: &mut S,
+) {
+    for frame in out.frames {
+        channels.send_frame(frame);
+    }
+    let mut next = *demand;
+    if let Some(wheels) = out.wheels {
+        next.wheels = wheels;
+    }
+    if let Some(excite) = out.excite {
+        next.excite = excite;
+    }
+    if out.setup_drives {
+        next.setup_requests = next.setup_requests.wrapping_add(1);
+    }
+    next.cycle_ms = controller.registers().get(Reg::LoopEndDelay);
+    // A new command always goes out, even one equal to the last (the e-stop edge).
+    if next != *demand || out.wheels.is_some() {
+        *demand = next;
+        channels.drive_demand.signal(next);
+    }
+    if let Some(level) = out.pc_switch {
+        // A GPIO write cannot fail on our boards; the error type is kept generic.
+        let _ = match level {
+            SwitchLevel::Closed => pc_switch.set_high(),
+            SwitchLevel::Open => pc_switch.set_low(),
+        };
+    }
+    channels.pending_writes.record(&out.persist);
+}

@@ -1,0 +1,44 @@
+//! The drive link: the two Oriental Motor BLV R drives on one RS-485 line, spoken to
+//! in Modbus-RTU ID share mode (motor-drives.md). [`link::run`] is the task;
+//! [`master`] moves bytes with the line's timing; [`settings`] holds what must match
+//! the drives' configuration.
+
+pub mod link;
+pub mod master;
+pub mod settings;
+
+pub use settings::{AccelUnit, DriveSettings, LineSettings, Parity};
+
+/// Drive registers (address = 2 × NET-ID) and the NET-IDs of the share lists.
+pub mod reg {
+    /// DDO block: operation type (NET-ID 45).
+    pub const DDO_OPERATION_TYPE: u16 = 0x005A;
+    /// DDO operating speed, r/min of the motor shaft (NET-ID 47).
+    pub const DDO_SPEED: u16 = 0x005E;
+    /// DDO trigger: 1 applies the fields (NET-ID 51).
+    pub const DDO_TRIGGER: u16 = 0x0066;
+    /// Driver input command; bit 0 = S-ON (NET-ID 62).
+    pub const DRIVER_INPUT_COMMAND: u16 = 0x007C;
+    /// Present alarm, 0 = none (NET-ID 64).
+    pub const PRESENT_ALARM: u16 = 0x0080;
+    /// Alarm reset: acts on the 0 → 1 change (NET-ID 192).
+    pub const ALARM_RESET: u16 = 0x0180;
+    /// Share control global ID, number, local ID.
+    pub const SHARE_CONTROL: u16 = 0x0980;
+    /// Share read data 0..11, then share write data 0..11.
+    pub const SHARE_LISTS: u16 = 0x0990;
+    /// Modbus communication timeout, ms (alarm 85h).
+    pub const COMM_TIMEOUT: u16 = 0x138A;
+
+    /// S-ON bit of [`DRIVER_INPUT_COMMAND`].
+    pub const S_ON: u32 = 1;
+
+    /// What each member reports per cycle: detected position, detected speed,
+    /// present alarm, present communication error.
+    pub const SHARE_READ_LIST: [u32; 4] = [102, 103, 64, 86];
+    /// What each member takes per cycle: operation type, speed, acceleration,
+    /// deceleration, trigger.
+    pub const SHARE_WRITE_LIST: [u32; 5] = [45, 47, 48, 49, 51];
+    /// Slots per list in the drive.
+    pub const SHARE_LIST_SLOTS: usize = 12;
+}
