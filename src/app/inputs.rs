@@ -22,7 +22,8 @@ pub enum ActiveLevel {
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct InputSettings {
     pub sample_period_ms: u32,
-    /// Short, because it delays the stop; long enough to ignore a spike on the wire.
+    /// Short, because it adds to the stop latency; two agreeing samples still ignore a
+    /// spike on the wire.
     pub estop_debounce_ms: u32,
     pub safety_zone_debounce_ms: u32,
     /// Contact bounce of a push button lasts up to ~20 ms.
@@ -36,7 +37,7 @@ pub struct InputSettings {
 impl InputSettings {
     pub const DEFAULT: InputSettings = InputSettings {
         sample_period_ms: 1,
-        estop_debounce_ms: 3,
+        estop_debounce_ms: 1,
         safety_zone_debounce_ms: 10,
         button_debounce_ms: 20,
         estop_active: ActiveLevel::Low,
