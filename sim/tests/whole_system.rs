@@ -375,3 +375,97 @@ fn the_watchdog_is_fed_while_every_task_runs() {
     assert!(!robot.watchdog.has_bitten());
     assert!(robot.watchdog.feeds() >= 8);
 }
+
+#[test]
+fn a_drive_alarm_stops_the_base_is_reported_and_reset_by_the_recovery() {
+    let robot = VirtualRobot::new();
+    robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        pc.drive(300, 0, 1_000).await;
+        robot.drives.raise_alarm(1, 0x30);
+        pc.drive(300, 0, 300).await;
+        let status = pc
+            .wait_for_status(1_500, |status| status.faults.left_drive_alarm)
+            .await
+            .expect("alarm in the status frame");
+        assert_eq!((status.mode, status.drive_alarm), (Mode::Fault, 0x30));
+        assert_eq!(
+            robot.drives.drive(2).command.expect("commanded").speed_rpm,
+            0
+        );
+
+        wait_ms(1_000).await;
+        robot.press_button(200).await;
+        let status = pc
+            .wait_for_status(3_000, |status| status.mode == Mode::Standby)
+            .await
+            .expect("standby after the confirm press");
+        assert!(!status.faults.left_drive_alarm);
+        assert_eq!(robot.drives.drive(1).alarm, 0, "the setup reset the alarm");
+    });
+}
+
+#[test]
+fn a_bus_off_is_reported_recovered_from_and_reports_flow_again() {
+    let robot = VirtualRobot::new();
+    robot.run(async |pc| {
+        wait_ms(1_000).await;
+        pc.peer.force_bus_off();
+        wait_ms(100).await;
+        assert!(pc.peer.recoveries() >= 1);
+        let frames = pc.reports(id::POSITION).len();
+        let status = pc
+            .wait_for_status(1_500, |status| status.faults.can_bus)
+            .await
+            .expect("the bus-off in the status frame");
+        assert_eq!(status.mode, Mode::Standby);
+        assert!(
+            pc.reports(id::POSITION).len() > frames,
+            "odometry frames flow again"
+        );
+    });
+}
+
+#[test]
+fn holding_the_front_button_for_3_s_pulses_the_pc_power_switch() {
+    let robot = VirtualRobot::new();
+    robot.run(async |_| {
+        wait_ms(500).await;
+        robot.press_button(3_500).await;
+        wait_ms(1_000).await;
+    });
+    let pulses = robot.pc_switch.high_pulses();
+    assert_eq!(pulses.len(), 1, "{pulses:?}");
+    // pc_switch_pulse = 500 ms, on the controller's 10 ms tick.
+    let length = pulses[0].length.as_millis();
+    assert!((500..=510).contains(&length), "pulse of {length} ms");
+}
+
+#[test]
+fn battery_and_weight_frames_report_the_sensors() {
+    let robot = VirtualRobot::new();
+    robot.load_cell.set_load_grams(1_234.0);
+    let (battery, weight) = robot.run(async |pc| {
+        // Calibrate the scale for the virtual load cell (offset 8000, 100 counts/g).
+        pc.command(Command::RegisterWrite {
+            address: 19,
+            value: 8_000,
+        });
+        pc.command(Command::RegisterWrite {
+            address: 20,
+            value: 10_000,
+        });
+        wait_ms(6_000).await;
+        (
+            pc.reports(id::BATTERY).last().map(|(_, report)| *report),
+            pc.reports(id::WEIGHT).last().map(|(_, report)| *report),
+        )
+    });
+    assert_eq!(weight, Some(Report::Weight { grams: 1_234 }));
+    match battery {
+        Some(Report::Battery { voltage_mv, .. }) => {
+            assert!((24_400..=24_600).contains(&voltage_mv), "{voltage_mv} mV")
+        }
+        other => panic!("no battery frame: {other:?}"),
+    }
+}

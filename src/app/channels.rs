@@ -246,3 +246,72 @@ impl Default for Liveness {
         Self::new()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use embassy_futures::block_on;
+
+    fn persist(changed: &[(u8, u16)], defaults_restored: bool) -> Persist {
+        Persist {
+            changed: Vec::from_slice(changed).expect("fits"),
+            defaults_restored,
+        }
+    }
+
+    #[test]
+    fn repeated_writes_coalesce_to_the_latest_value_in_address_order() {
+        let pending = PendingWrites::new();
+        pending.record(&persist(&[(11, 500), (3, 7)], false));
+        pending.record(&persist(&[(11, 900)], false));
+        let batch = block_on(pending.take());
+        assert!(!batch.restore_defaults);
+        assert_eq!(batch.writes[..], [(3, 7), (11, 900)]);
+    }
+
+    #[test]
+    fn a_restore_voids_earlier_writes_and_keeps_later_ones() {
+        let pending = PendingWrites::new();
+        pending.record(&persist(&[(11, 500)], false));
+        pending.record(&persist(&[], true));
+        pending.record(&persist(&[(12, 2_000)], false));
+        let batch = block_on(pending.take());
+        assert!(batch.restore_defaults);
+        assert_eq!(batch.writes[..], [(12, 2_000)]);
+    }
+
+    #[test]
+    fn nothing_recorded_means_nothing_to_take() {
+        let pending = PendingWrites::new();
+        pending.record(&persist(&[], false));
+        let mut take = core::pin::pin!(pending.take());
+        let waker = core::task::Waker::noop();
+        let poll = take
+            .as_mut()
+            .poll(&mut core::task::Context::from_waker(waker));
+        assert!(poll.is_pending());
+    }
+
+    #[test]
+    fn the_watchdog_is_fed_only_when_every_critical_task_checked_in() {
+        let liveness = Liveness::new();
+        liveness.check_in(CriticalTask::Controller);
+        liveness.check_in(CriticalTask::Inputs);
+        assert!(!liveness.all_checked_in(), "the drive link is missing");
+        for task in CriticalTask::ALL {
+            liveness.check_in(task);
+        }
+        assert!(liveness.all_checked_in());
+        assert!(!liveness.all_checked_in(), "the marks were cleared");
+    }
+
+    #[test]
+    fn a_full_can_queue_drops_and_counts_instead_of_waiting() {
+        let channels = Channels::new();
+        let frame = RawFrame::new(0x0EC, &[0; 8]).expect("valid frame");
+        for _ in 0..CAN_TX_QUEUE + 3 {
+            channels.send_frame(frame);
+        }
+        assert_eq!(channels.can_tx_dropped(), 3);
+    }
+}
