@@ -27,6 +27,8 @@ pub async fn run<S: OutputPin>(
     boot_inputs: &[Input],
 ) -> ! {
     let mut demand = DriveDemand::at_rest(controller.registers().get(Reg::LoopEndDelay));
+    // The drive link starts from the defaults; this gives it the stored cycle time.
+    channels.drive_demand.signal(demand);
     for input in boot_inputs {
         let out = controller.handle(core_now(), *input);
         dispatch(&controller, out, channels, &mut demand, &mut pc_switch);

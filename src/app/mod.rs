@@ -77,7 +77,6 @@ impl Default for Settings {
 }
 
 /// Loads the registers, then runs every task forever.
-#[allow(clippy::too_many_arguments)]
 pub async fn run<CR, CT, P, F, E, Z, B, S, V, L, W>(
     hardware: Hardware<CR, CT, P, F, E, Z, B, S, V, L, W>,
     settings: Settings,

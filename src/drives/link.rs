@@ -22,6 +22,7 @@ use crate::hw::Rs485;
 use crate::kinematics::MotorRpm;
 use crate::modbus::{self, Frame, ReplyError, Target};
 use crate::odometry::EncoderCounts;
+use crate::registers::{Reg, Registers};
 use crate::supervisor::Wheel;
 
 use super::master::{Master, TransferError};
@@ -89,7 +90,8 @@ impl<'a, P: Rs485> DriveLink<'a, P> {
             master: Master::new(port, &settings.line, settings.reply_timeout_ms),
             settings,
             channels,
-            demand: DriveDemand::at_rest(50),
+            // Until the controller's first signal, which comes at once.
+            demand: DriveDemand::at_rest(Registers::defaults().get(Reg::LoopEndDelay)),
             served_setups: 0,
             excited: false,
             settled_at: Instant::from_ticks(0),
@@ -336,6 +338,7 @@ impl<'a, P: Rs485> DriveLink<'a, P> {
         let unit = self.settings.accel_unit;
         let member = |speed: i32, accel: u32| {
             let accel = unit.field(accel);
+            // Signed speeds go on the wire as two's complement.
             [self.settings.operation_type, speed as u32, accel, accel, 1]
         };
         let left = member(rpm.left, command.left_accel);
