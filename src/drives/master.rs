@@ -42,15 +42,6 @@ impl<P: Rs485> Master<P> {
         }
     }
 
-    /// Sends a request that gets no reply (broadcast).
-    pub async fn send(&mut self, request: &[u8]) -> Result<(), TransferError> {
-        Timer::at(self.quiet_from).await;
-        self.drain_stale_input().await;
-        let sent = self.write(request).await;
-        self.quiet_from = Instant::now() + self.silent_interval;
-        sent
-    }
-
     /// Sends `request` and collects the reply into `reply`.
     ///
     /// The reply ends when `expected_len` bytes arrived (and then up to two more, the
