@@ -48,7 +48,6 @@ pub struct VirtualRobot {
     pub watchdog: SimWatchdog,
     /// Whether the next boot reports a watchdog reset.
     pub reset_by_watchdog: bool,
-    drives_port: std::cell::RefCell<Option<DrivesPort>>,
 }
 
 impl Default for VirtualRobot {
@@ -65,7 +64,8 @@ impl VirtualRobot {
     }
 
     pub fn with_drives(config: DrivesConfig) -> Self {
-        let (port, drives) = DrivesPort::new(config);
+        // Each boot takes its own end of the line from the handle.
+        let (_, drives) = DrivesPort::new(config);
         Self {
             settings: Settings::DEFAULT,
             drives,
@@ -78,7 +78,6 @@ impl VirtualRobot {
             load_cell: SimLoadCell::new(8_000, 100.0),
             watchdog: SimWatchdog::new(WATCHDOG_TIMEOUT),
             reset_by_watchdog: false,
-            drives_port: std::cell::RefCell::new(Some(port)),
         }
     }
 
@@ -86,11 +85,7 @@ impl VirtualRobot {
     /// the CAN bus; returns what the script returns.
     pub fn run<T>(&self, script: impl AsyncFnOnce(&Pc) -> T) -> T {
         let (can_rx, can_tx, peer) = VirtualCan::new();
-        let drives = self
-            .drives_port
-            .borrow_mut()
-            .take()
-            .unwrap_or_else(|| self.drives.port());
+        let drives = self.drives.port();
         let hardware = Hardware {
             can_rx,
             can_tx,
@@ -195,37 +190,36 @@ impl Pc {
             .collect()
     }
 
-    /// The last position (x, y) in mm.
-    pub fn position(&self) -> Option<(i32, i32)> {
-        self.reports(id::POSITION)
+    /// The newest report with this ID that `pick` accepts.
+    fn last<T>(&self, frame_id: u16, pick: impl Fn(Report) -> Option<T>) -> Option<T> {
+        self.reports(frame_id)
             .into_iter()
             .rev()
-            .find_map(|(_, report)| match report {
-                Report::Position { x_mm, y_mm } => Some((x_mm, y_mm)),
-                _ => None,
-            })
+            .find_map(|(_, report)| pick(report))
+    }
+
+    /// The last position (x, y) in mm.
+    pub fn position(&self) -> Option<(i32, i32)> {
+        self.last(id::POSITION, |report| match report {
+            Report::Position { x_mm, y_mm } => Some((x_mm, y_mm)),
+            _ => None,
+        })
     }
 
     /// The last heading in mrad.
     pub fn heading(&self) -> Option<i32> {
-        self.reports(id::HEADING)
-            .into_iter()
-            .rev()
-            .find_map(|(_, report)| match report {
-                Report::Heading { heading_mrad } => Some(heading_mrad),
-                _ => None,
-            })
+        self.last(id::HEADING, |report| match report {
+            Report::Heading { heading_mrad } => Some(heading_mrad),
+            _ => None,
+        })
     }
 
     /// The last status frame.
     pub fn status(&self) -> Option<Status> {
-        self.reports(id::STATUS)
-            .into_iter()
-            .rev()
-            .find_map(|(_, report)| match report {
-                Report::Status(status) => Some(status),
-                _ => None,
-            })
+        self.last(id::STATUS, |report| match report {
+            Report::Status(status) => Some(status),
+            _ => None,
+        })
     }
 
     /// Waits (up to `timeout_ms`) for a status frame that satisfies `check`.

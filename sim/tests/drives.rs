@@ -57,13 +57,18 @@ async fn send(port: &mut DrivesPort, request: &[u8]) {
     port.flush().await.unwrap();
 }
 
-async fn transact(port: &mut DrivesPort, request: &[u8]) -> Vec<u8> {
-    send(port, request).await;
+/// The bytes of [`receive_timed`], without their instants.
+async fn receive(port: &mut DrivesPort) -> Vec<u8> {
     receive_timed(port)
         .await
         .into_iter()
         .map(|(_, byte)| byte)
         .collect()
+}
+
+async fn transact(port: &mut DrivesPort, request: &[u8]) -> Vec<u8> {
+    send(port, request).await;
+    receive(port).await
 }
 
 async fn write(port: &mut DrivesPort, slave: u8, start: u16, values: &[u32]) {
@@ -680,11 +685,7 @@ fn a_request_sent_over_a_reply_collides() {
         // The reply starts after 3.3 ms; talk into it.
         Timer::after_millis(4).await;
         send(&mut port, &modbus::read_items(LEFT, 0x0080, 1)).await;
-        let reply: Vec<u8> = receive_timed(&mut port)
-            .await
-            .into_iter()
-            .map(|(_, b)| b)
-            .collect();
+        let reply = receive(&mut port).await;
         assert!(parse_share_reply(&reply, GID, modbus::READ_HOLDING, 2, ITEMS).is_err());
         assert_ne!(reply.len(), 9, "the alarm read was not answered");
     });
@@ -701,11 +702,7 @@ fn two_drives_answering_at_once_garble_each_other() {
         // and the two replies overlap on the line.
         Timer::after_micros(500).await;
         send(&mut port, &modbus::read_items(RIGHT, 0x0080, 1)).await;
-        let reply: Vec<u8> = receive_timed(&mut port)
-            .await
-            .into_iter()
-            .map(|(_, b)| b)
-            .collect();
+        let reply = receive(&mut port).await;
         assert_eq!(reply.len(), 41 + 9);
         assert!(parse_share_reply(&reply[..41], GID, modbus::READ_HOLDING, 2, ITEMS).is_err());
         assert!(parse_read(&reply[41..], RIGHT, 1).is_err());
