@@ -171,6 +171,31 @@ fn to_mv(value: f32) -> u16 {
     libm::roundf(value).clamp(0.0, f32::from(u16::MAX)) as u16
 }
 
+/// The resistor divider between the battery and the ADC pin.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct VoltageDivider {
+    /// From the battery to the pin, Ω.
+    pub top_ohms: u32,
+    /// From the pin to ground, Ω.
+    pub bottom_ohms: u32,
+}
+
+impl VoltageDivider {
+    /// The battery voltage that puts `pin_mv` on the pin, rounded, saturating at
+    /// `u16::MAX`.
+    pub const fn battery_mv(&self, pin_mv: u16) -> u16 {
+        let total = self.top_ohms as u64 + self.bottom_ohms as u64;
+        let bottom = self.bottom_ohms as u64;
+        let battery = (pin_mv as u64 * total + bottom / 2) / bottom;
+        if battery > u16::MAX as u64 {
+            u16::MAX
+        } else {
+            battery as u16
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -336,5 +361,26 @@ mod tests {
         filter.update(ms(0), 24_000);
         filter.reset();
         assert_eq!(filter.update(ms(100), 26_000), 26_000);
+    }
+
+    #[test]
+    fn the_divider_scales_the_pin_voltage_up_to_the_battery() {
+        let divider = VoltageDivider {
+            top_ohms: 120_000,
+            bottom_ohms: 10_000,
+        };
+        assert_eq!(divider.battery_mv(0), 0);
+        assert_eq!(divider.battery_mv(2_000), 26_000);
+        // 1 mV on the pin is 13 mV at the battery; the result is rounded.
+        assert_eq!(divider.battery_mv(1), 13);
+    }
+
+    #[test]
+    fn the_divider_saturates_instead_of_wrapping() {
+        let divider = VoltageDivider {
+            top_ohms: 1_000_000,
+            bottom_ohms: 1_000,
+        };
+        assert_eq!(divider.battery_mv(3_300), u16::MAX);
     }
 }

@@ -4,6 +4,10 @@
 //! robot in `sim/` implements them in memory for the whole-system tests.
 #![cfg_attr(not(test), no_std)]
 
+// First, so that every module below can log.
+#[macro_use]
+mod fmt;
+
 pub mod app;
 pub mod battery;
 pub mod calibration;

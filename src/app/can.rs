@@ -51,8 +51,10 @@ pub async fn run_tx<T: CanTx>(mut tx: T, channels: &Channels) -> ! {
 }
 
 async fn recover<T: CanTx>(tx: &mut T, channels: &Channels) {
+    warn!("CAN bus-off: recovering");
     channels.inputs.send(Input::CanBusFault).await;
     tx.recover().await;
+    info!("CAN back on the bus");
 }
 
 /// A standard data frame as the codec's frame; `None` for anything else.

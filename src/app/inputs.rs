@@ -28,7 +28,8 @@ pub struct InputSettings {
     pub safety_zone_debounce_ms: u32,
     /// Contact bounce of a push button lasts up to ~20 ms.
     pub button_debounce_ms: u32,
-    /// E-stop loops are normally closed: an open loop (low with a pull-up) is pressed.
+    /// E-stop loops are normally closed to 3.3 V: an open loop or a broken wire reads
+    /// low through the board's pull-down, which counts as pressed.
     pub estop_active: ActiveLevel,
     pub safety_zone_active: ActiveLevel,
     pub button_active: ActiveLevel,

@@ -97,6 +97,10 @@ where
 {
     let mut store = RegisterStore::new(hardware.flash, hardware.flash_range);
     let (registers, report) = store.load().await;
+    info!(
+        "registers: {=u16} stored, {=u16} rejected, {=u16} dropped, blank store: {=bool}",
+        report.applied, report.rejected, report.dropped, report.blank
+    );
     let now = control::core_now();
     let controller = Controller::new(now, registers);
     let mut boot_inputs = heapless::Vec::<Input, 2>::new();
@@ -104,6 +108,7 @@ where
         let _ = boot_inputs.push(Input::FlashFault);
     }
     if hardware.reset_by_watchdog {
+        warn!("the watchdog reset the chip");
         let _ = boot_inputs.push(Input::WatchdogReset);
     }
     let ((never, ..), ..) = join(

@@ -3,6 +3,7 @@
 //! modules report; test tools, the simulator and the PC-side CLI use the same code.
 
 mod command;
+pub mod filter;
 mod report;
 mod status;
 

@@ -106,10 +106,12 @@ impl<'a, P: Rs485> DriveLink<'a, P> {
         loop {
             self.served_setups = self.demand.setup_requests;
             self.poll_until_both_answer().await;
-            if self.set_up().await.is_err() {
+            if let Err(error) = self.set_up().await {
+                warn!("drive setup failed: {}", error);
                 self.pause().await;
                 continue;
             }
+            info!("drives set up");
             self.report(Input::DrivesReady).await;
             self.cycle().await;
             if !self.setup_requested() {
@@ -263,6 +265,10 @@ impl<'a, P: Rs485> DriveLink<'a, P> {
             self.write(slave, reg::ALARM_RESET, &[0]).await?;
             let code = self.read_alarm(slave).await?;
             if code != 0 {
+                warn!(
+                    "{} drive alarm {=u32:#x} stays after the reset",
+                    wheel, code
+                );
                 self.report(Input::DriveAlarm {
                     wheel,
                     code: alarm_byte(code),
@@ -389,6 +395,7 @@ impl<'a, P: Rs485> DriveLink<'a, P> {
         let mut lost = false;
         for wheel in WHEELS {
             if self.probe(wheel).await != Probe::Ready {
+                warn!("{} drive lost", wheel);
                 lost = true;
                 self.report(Input::DriveSilent(wheel)).await;
             }
