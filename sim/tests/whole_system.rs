@@ -376,6 +376,16 @@ fn the_watchdog_is_fed_while_every_task_runs() {
     assert!(robot.watchdog.feeds() >= 8);
 }
 
+/// The drives' power-up wait is a commissioning setting; however long it is, the drive
+/// link keeps checking in, so the watchdog (2 s) is fed through it.
+#[test]
+fn a_long_drive_power_up_wait_does_not_starve_the_watchdog() {
+    let mut robot = VirtualRobot::new();
+    robot.settings.drives.power_up_wait_ms = 5_000;
+    robot.run(async |_pc| wait_ms(6_000).await);
+    assert_eq!(robot.watchdog.bitten_at(), None);
+}
+
 #[test]
 fn a_drive_alarm_stops_the_base_is_reported_and_reset_by_the_recovery() {
     let robot = VirtualRobot::new();

@@ -101,7 +101,7 @@ impl<'a, P: Rs485> DriveLink<'a, P> {
     }
 
     async fn run(&mut self) -> ! {
-        Timer::after_millis(u64::from(self.settings.power_up_wait_ms)).await;
+        self.wait_for_power_up().await;
         // Each round serves boot or one setup request.
         loop {
             self.served_setups = self.demand.setup_requests;
@@ -139,6 +139,18 @@ impl<'a, P: Rs485> DriveLink<'a, P> {
 
     async fn report(&self, input: Input) {
         self.channels.inputs.send(input).await;
+    }
+
+    /// Gives the drives their power-up time, checking in every poll interval: the wait
+    /// is a commissioning setting and may be longer than the watchdog's timeout.
+    async fn wait_for_power_up(&mut self) {
+        let powered_up =
+            Instant::now() + Duration::from_millis(u64::from(self.settings.power_up_wait_ms));
+        let poll = Duration::from_millis(u64::from(self.settings.poll_interval_ms));
+        while Instant::now() < powered_up {
+            self.channels.liveness.check_in(CriticalTask::DriveLink);
+            Timer::at(powered_up.min(Instant::now() + poll)).await;
+        }
     }
 
     /// Waits one poll interval, checking in and taking a new demand.
