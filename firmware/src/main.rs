@@ -1,0 +1,105 @@
+//! The base controller's firmware: initialises the chip, hands every peripheral to its
+//! implementation of the library's hardware traits, and runs the library's tasks. The
+//! board files (`board/`) say which pin does what.
+#![no_std]
+#![no_main]
+
+use base_controller::app::{self, Hardware, Settings, channels::Channels};
+use base_controller::hx711::{Gain, Hx711};
+use defmt::{error, info, warn};
+use esp_backtrace as _;
+use esp_hal::delay::Delay;
+use esp_hal::gpio::{Input, InputConfig, Level, Output, OutputConfig, Pull};
+use esp_hal::timer::timg::TimerGroup;
+use esp_println as _;
+use static_cell::StaticCell;
+
+use base_controller_firmware::board::{self, BUTTON_PULL, ESTOP_PULL, SAFETY_ZONE_PULL};
+use base_controller_firmware::flash::{self, SharedFlash};
+use base_controller_firmware::rs485::Rs485Port;
+use base_controller_firmware::watchdog::LivenessWatchdog;
+use base_controller_firmware::{can, watchdog};
+
+// The application descriptor the ESP-IDF bootloader checks before it starts the image.
+esp_bootloader_esp_idf::esp_app_desc!();
+
+static CHANNELS: Channels = Channels::new();
+static FLASH: StaticCell<SharedFlash> = StaticCell::new();
+
+#[esp_rtos::main]
+async fn main(_spawner: embassy_executor::Spawner) {
+    let peripherals = esp_hal::init(esp_hal::Config::default());
+    let reset_reason = esp_hal::system::reset_reason();
+    let mut board = board::take(peripherals);
+    esp_rtos::start(
+        TimerGroup::new(board.timg0).timer0,
+        board.scheduler_interrupt,
+    );
+    info!(
+        "base controller {} on {}, CAN at {} kbit/s, reset reason {}",
+        env!("CARGO_PKG_VERSION"),
+        board::CHIP,
+        can::BIT_RATE_KBIT,
+        defmt::Debug2Format(&reset_reason)
+    );
+
+    let settings = Settings {
+        inputs: board::INPUTS,
+        ..Settings::DEFAULT
+    };
+
+    let registers = flash::find_registers(&mut board.flash);
+    if registers.is_none() {
+        error!(
+            "no `{}` partition: flash with firmware/partitions.csv; running on defaults",
+            flash::REGISTERS_LABEL
+        );
+    }
+    let shared_flash = FLASH.init(SharedFlash::new(
+        embassy_embedded_hal::adapter::BlockingAsync::new(board.flash),
+    ));
+    let (flash, flash_range) = flash::registers_partition(shared_flash, registers);
+
+    let (can_rx, can_tx) = can::start(board.twai, board.can_tx, board.can_rx);
+    let drives = match Rs485Port::new(
+        board.drives_uart,
+        board.drives_tx,
+        board.drives_rx,
+        board.drives_de,
+        &settings.drives.line,
+    ) {
+        Ok(port) => port,
+        // Only an impossible baud rate fails, and DriveSettings fixes the rate at build
+        // time: a build error in all but name.
+        Err(error) => panic!("drive UART: {:?}", error),
+    };
+
+    let input = |pin, pull: Pull| Input::new(pin, InputConfig::default().with_pull(pull));
+    let hardware = Hardware {
+        can_rx,
+        can_tx,
+        drives,
+        flash,
+        flash_range,
+        estop: input(board.estop, ESTOP_PULL),
+        safety_zone: input(board.safety_zone, SAFETY_ZONE_PULL),
+        button: input(board.button, BUTTON_PULL),
+        pc_switch: Output::new(board.pc_switch, Level::Low, OutputConfig::default()),
+        battery: board.battery,
+        load_cell: Hx711::new(
+            Input::new(board.hx711_dout, InputConfig::default()),
+            Output::new(board.hx711_sck, Level::Low, OutputConfig::default()),
+            Delay::new(),
+            Gain::ChannelA128,
+        ),
+        watchdog: LivenessWatchdog::start(board.rtc, board.status_led),
+        reset_by_watchdog: board::reset_by_watchdog(reset_reason),
+    };
+    if hardware.reset_by_watchdog {
+        warn!(
+            "last reset by a watchdog (timeout {} ms)",
+            watchdog::TIMEOUT.as_millis()
+        );
+    }
+    app::run(hardware, settings, &CHANNELS).await
+}
