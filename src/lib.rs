@@ -16,6 +16,7 @@ pub mod controller;
 pub mod debounce;
 pub mod drives;
 pub mod feedback;
+pub mod gamepad;
 pub mod hw;
 pub mod hx711;
 pub mod kinematics;
