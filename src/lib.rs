@@ -24,6 +24,7 @@ pub mod modbus;
 pub mod odometry;
 pub mod power;
 pub mod registers;
+pub mod remote;
 pub mod scale;
 pub mod store;
 pub mod supervisor;
