@@ -11,10 +11,12 @@ use crate::calibration::scale::{ScaleCalibration, ScaleUpdate};
 use crate::can::{Command, FrameError, RawFrame, Report};
 use crate::can::{Faults, Status, StatusFlags};
 use crate::feedback::{FeedbackPeriods, FeedbackSchedule};
+use crate::gamepad::GamepadState;
 use crate::kinematics::{self, KinematicsParams, MotorRpm, SafetyLimits, Twist, WheelCommand};
 use crate::odometry::{EncoderCounts, Odometry, OdometryParams};
 use crate::power::{PowerControl, PowerEvent, PowerParams, SwitchLevel};
 use crate::registers::{Reg, RegisterError, Registers, WriteOutcome};
+use crate::remote::{Control, Remote, RemoteEvent, RemoteParams};
 use crate::scale::{self, RawAverage};
 use crate::supervisor::{Event, Setpoint, Supervisor, SupervisorParams, Wheel};
 use crate::time::Instant;
@@ -41,16 +43,12 @@ pub enum Input {
     SafetyZone(bool),
     /// Debounced front button (true = held down).
     Button(bool),
-    /// A decoded gamepad report.
-    Remote {
-        dead_man: bool,
-        twist: Twist,
-    },
-    /// The gamepad asks for an odometry reset (L2 + Options).
-    RemoteResetOdometry,
-    /// The gamepad link is gone.
-    RemoteLinkLost,
-    /// Whether a gamepad is bonded and whether it is connected, for the status frame.
+    /// The connected pad's state from the HID decoder, sent on every report (pads
+    /// report only when something changed). [`crate::remote`] says what it means.
+    Gamepad(GamepadState),
+    /// The Bluetooth link, sent at boot and on every change: whether a pad is bonded,
+    /// and whether the bonded pad is connected (link encrypted, reports flowing).
+    /// `connected: false` is a link loss: a held dead-man brakes with `Contr_acc_high`.
     RemoteLink {
         bonded: bool,
         connected: bool,
@@ -114,6 +112,10 @@ pub struct Output {
     /// Close or open the PC power switch.
     pub pc_switch: Option<SwitchLevel>,
     pub persist: Persist,
+    /// Disconnect the gamepad (L2 + Home, or no input for `PS_afk_time`), keeping its
+    /// bond, then report [`Input::RemoteLink`] with `connected: false`. Repeated while a
+    /// pad asked to go keeps reporting.
+    pub disconnect_remote: bool,
 }
 
 /// Counts and remembers rejected inputs for the status frame.
@@ -167,7 +169,9 @@ pub struct Controller {
     commanded: MotorRpm,
     rejections: Rejections,
     faults: ShellFaults,
-    remote: RemoteLink,
+    /// The link as the BLE task reports it, for the status frame.
+    remote_link: RemoteLink,
+    remote: Remote,
     modbus_errors: u8,
 }
 
@@ -193,7 +197,8 @@ impl Controller {
             commanded: MotorRpm { left: 0, right: 0 },
             rejections: Rejections::default(),
             faults: ShellFaults::default(),
-            remote: RemoteLink::default(),
+            remote_link: RemoteLink::default(),
+            remote: Remote::new(),
             modbus_errors: 0,
         }
     }
@@ -228,16 +233,15 @@ impl Controller {
                 };
                 self.power_event(now, event, &mut out);
             }
-            Input::Remote { dead_man, twist } => {
-                self.supervise(now, Event::Remote { dead_man, twist }, &mut out)
-            }
-            Input::RemoteResetOdometry => self.odometry.reset(),
-            Input::RemoteLinkLost => {
-                self.remote.connected = false;
-                self.supervise(now, Event::RemoteLinkLost, &mut out);
-            }
+            Input::Gamepad(pad) => self.remote_step(now, RemoteEvent::Report(pad), None, &mut out),
             Input::RemoteLink { bonded, connected } => {
-                self.remote = RemoteLink { bonded, connected }
+                self.remote_link = RemoteLink { bonded, connected };
+                let event = if connected {
+                    RemoteEvent::Connected
+                } else {
+                    RemoteEvent::Disconnected
+                };
+                self.remote_step(now, event, None, &mut out);
             }
             Input::DriveFeedback { counts, rpm } => self.drive_feedback(now, counts, rpm, &mut out),
             Input::DrivesReady => {
@@ -264,7 +268,7 @@ impl Controller {
             Input::FlashFault => self.faults.flash = true,
             Input::WatchdogReset => self.faults.watchdog_reset = true,
             Input::Tick => {
-                self.supervise(now, Event::Tick, &mut out);
+                self.remote_step(now, RemoteEvent::Tick, Some(Event::Tick), &mut out);
                 self.power_event(now, PowerEvent::Tick, &mut out);
             }
         }
@@ -283,8 +287,8 @@ impl Controller {
                 enable_fresh: supervisor.enable_fresh(now, &self.supervisor_params()),
                 pc_on: self.power.pc_on(now),
                 safety_zone: supervisor.safety_zone(),
-                remote_bonded: self.remote.bonded,
-                remote_connected: self.remote.connected,
+                remote_bonded: self.remote_link.bonded,
+                remote_connected: self.remote_link.connected,
                 remote_in_control: supervisor.remote_in_control(),
                 estop_pressed: supervisor.estop_pressed(),
                 brakes_applied: supervisor.brakes_applied(),
@@ -402,8 +406,10 @@ impl Controller {
             self.power.set_params(power_params(&self.registers));
             // Without a step a lowered max_motor_vel (or a new gear ratio, radius,
             // motor_dir or safety limit) would wait for the next change of the twist,
-            // which never comes while the PC repeats the same velocity.
-            self.supervise(now, Event::Tick, out);
+            // which never comes while the PC repeats the same velocity or the gamepad's
+            // stick is held still. The remote maps a held stick again first (a new
+            // wheel_dist or speed-level limit changes its twist).
+            self.remote_step(now, RemoteEvent::ParamsChanged, Some(Event::Tick), out);
         }
         match outcome {
             Ok(WriteOutcome::Changed { address, value }) => {
@@ -457,6 +463,32 @@ impl Controller {
             out.excite = effects.excite;
         }
         out.setup_drives |= effects.setup_drives;
+    }
+
+    /// Runs the remote and gives the supervisor what it asks for. `otherwise` is the
+    /// supervisor step the caller needs anyway (a tick); a remote event replaces it,
+    /// since every step checks the timeouts, and a second step for the same input would
+    /// start the wheel ramp from a command the drives were never sent.
+    fn remote_step(
+        &mut self,
+        now: Instant,
+        event: RemoteEvent,
+        otherwise: Option<Event>,
+        out: &mut Output,
+    ) {
+        let effects = self.remote.step(now, event, &self.remote_params());
+        if effects.reset_odometry {
+            self.odometry.reset();
+        }
+        out.disconnect_remote |= effects.disconnect;
+        let step = match effects.control {
+            Some(Control::Drive { dead_man, twist }) => Some(Event::Remote { dead_man, twist }),
+            Some(Control::Lost) => Some(Event::RemoteLinkLost),
+            None => otherwise,
+        };
+        if let Some(step) = step {
+            self.supervise(now, step, out);
+        }
     }
 
     fn power_event(&mut self, now: Instant, event: PowerEvent, out: &mut Output) {
@@ -543,6 +575,16 @@ impl Controller {
                 linear_mm_s: r.get(Reg::SecLinVel),
                 rotation_mrad_s: r.get(Reg::SecTurnVel),
             },
+        }
+    }
+
+    fn remote_params(&self) -> RemoteParams {
+        let r = &self.registers;
+        RemoteParams {
+            start_level_mm_s: r.get(Reg::PsRelMaxVel),
+            max_level_mm_s: r.get(Reg::PsAbsMaxVel),
+            wheel_distance_mm: r.get(Reg::WheelDist),
+            afk_timeout_ms: u32::from(r.get(Reg::PsAfkTime)),
         }
     }
 

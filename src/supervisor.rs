@@ -48,7 +48,9 @@ pub enum Event {
     CanEnable { refresh: bool },
     /// CAN 0x0C8, already decoded.
     CanVelocity(Twist),
-    /// One decoded gamepad report: the dead-man button and the twist the sticks ask for.
+    /// From the remote mapping ([`crate::remote`]): the dead-man button and the twist
+    /// the sticks ask for, on every gamepad report and when a register change alters
+    /// the twist of a held stick.
     Remote { dead_man: bool, twist: Twist },
     /// The gamepad link dropped (or the pad was switched off).
     RemoteLinkLost,

@@ -1,5 +1,6 @@
 //! The controller's safety invariants as properties over random event sequences: CAN
-//! frames (well-formed and garbage), inputs, remote reports, drive feedback and ticks are
+//! frames (well-formed and garbage), inputs, gamepad reports and links, drive feedback
+//! and ticks are
 //! fed to `Controller::handle` with time moving forward, and every invariant is checked
 //! after every event. The module `model` holds the contract's rules for who may drive
 //! (spec §5.1, §6, the supervisor's rules), tracked from the inputs alone.
@@ -7,11 +8,13 @@
 use base_controller::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
 use base_controller::can::{Command, ControlSource, Mode, RawFrame, Report, Status, id};
 use base_controller::controller::{Controller, Input, Output};
+use base_controller::gamepad::{Buttons, Dpad, GamepadState};
 use base_controller::kinematics::{self, KinematicsParams, MotorRpm, SafetyLimits, Twist};
 use base_controller::odometry::{EncoderCounts, Pose};
 use base_controller::registers::{
     MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, RESTORE_DEFAULTS_KEY, Reg, Registers,
 };
+use base_controller::remote::MODIFIER_THRESHOLD;
 use base_controller::supervisor::Wheel;
 use base_controller::time::Instant;
 use proptest::prelude::*;
@@ -65,24 +68,58 @@ fn velocity_frame() -> impl Strategy<Value = RawFrame> {
     })
 }
 
-fn remote_speed() -> impl Strategy<Value = i32> {
+/// A stick axis as the HID decoder reports it, now and then garbage from a broken one.
+fn stick() -> impl Strategy<Value = f32> {
     prop_oneof![
-        4 => -1500i32..=1500,
-        1 => any::<i32>(),
-        1 => prop::sample::select(vec![i32::MIN, i32::MAX, i32::MIN + 1, 0, 1, -1]),
+        4 => -1.0f32..=1.0,
+        2 => prop::sample::select(vec![-1.0f32, -0.5, 0.0, 0.5, 1.0]),
+        1 => prop::sample::select(vec![f32::NAN, f32::INFINITY, f32::NEG_INFINITY, 1.5, -3.0]),
     ]
 }
 
-fn twist() -> impl Strategy<Value = Twist> {
-    (remote_speed(), remote_speed()).prop_map(|(linear_mm_s, rotation_mrad_s)| Twist {
-        linear_mm_s,
-        rotation_mrad_s,
-    })
+/// Any gamepad state: the dead-man half of the time, L2 pulled (or not quite) with
+/// Menu or Home now and then, D-pad presses.
+fn gamepad() -> impl Strategy<Value = GamepadState> {
+    let trigger = prop::sample::select(vec![0.0f32, 0.3, MODIFIER_THRESHOLD, 0.8, 1.0, f32::NAN]);
+    let other_buttons = prop_oneof![
+        12 => Just(Buttons::NONE),
+        2 => Just(Buttons::MENU),
+        2 => Just(Buttons::HOME),
+        1 => Just(Buttons::A),
+    ];
+    let dpad = prop_oneof![
+        5 => Just(Dpad::default()),
+        2 => Just(Dpad { up: true, ..Dpad::default() }),
+        1 => Just(Dpad { down: true, ..Dpad::default() }),
+    ];
+    (
+        stick(),
+        stick(),
+        any::<bool>(),
+        trigger,
+        other_buttons,
+        dpad,
+    )
+        .prop_map(
+            |(left_y, right_x, dead_man, left_trigger, other, dpad)| GamepadState {
+                left_y,
+                right_x,
+                left_trigger,
+                buttons: if dead_man {
+                    other.with(Buttons::RIGHT_BUMPER)
+                } else {
+                    other
+                },
+                dpad,
+                ..GamepadState::default()
+            },
+        )
 }
 
 /// Registers worth changing mid-sequence: limits, geometry, accelerations, timeouts and
-/// periods (what the wheels are told and when), and the PC button hold times.
-const DRIVING_REGISTERS: [Reg; 21] = [
+/// periods (what the wheels are told and when), the remote's speed levels and AFK time,
+/// and the PC button hold times.
+const DRIVING_REGISTERS: [Reg; 24] = [
     Reg::MaxMotorVel,
     Reg::GearRatio,
     Reg::RadL,
@@ -104,6 +141,9 @@ const DRIVING_REGISTERS: [Reg; 21] = [
     Reg::StatusTime,
     Reg::StartPc,
     Reg::ShutdownPc,
+    Reg::PsAbsMaxVel,
+    Reg::PsRelMaxVel,
+    Reg::PsAfkTime,
 ];
 
 /// The registers the motor speeds of a twist depend on.
@@ -250,10 +290,8 @@ fn input() -> impl Strategy<Value = Input> {
         3 => any::<bool>().prop_map(Input::Estop),
         2 => any::<bool>().prop_map(Input::SafetyZone),
         3 => any::<bool>().prop_map(Input::Button),
-        6 => (any::<bool>(), twist()).prop_map(|(dead_man, twist)| Input::Remote { dead_man, twist }),
-        1 => Just(Input::RemoteResetOdometry),
-        1 => Just(Input::RemoteLinkLost),
-        1 => (any::<bool>(), any::<bool>())
+        7 => gamepad().prop_map(Input::Gamepad),
+        2 => (any::<bool>(), prop_oneof![3 => Just(true), 1 => Just(false)])
             .prop_map(|(bonded, connected)| Input::RemoteLink { bonded, connected }),
         4 => drive_feedback(),
         3 => Just(Input::DrivesReady),
@@ -275,7 +313,11 @@ fn input() -> impl Strategy<Value = Input> {
 /// A few events that belong together and rarely line up by chance.
 fn episode() -> impl Strategy<Value = Vec<(u64, Input)>> {
     let enable = Input::CanFrame(Command::Enable { refresh: true }.encode());
-    let remote = |dead_man, twist| Input::Remote { dead_man, twist };
+    let connect = Input::RemoteLink {
+        bonded: true,
+        connected: true,
+    };
+    let released = Input::Gamepad(GamepadState::default());
     prop_oneof![
         // CAN drives: a refresh, then a velocity while it is fresh.
         (0..=50u64, velocity_frame().prop_map(Input::CanFrame))
@@ -294,9 +336,13 @@ fn episode() -> impl Strategy<Value = Vec<(u64, Input)>> {
                     (write_gap, Input::CanFrame(write)),
                 ]
             }),
-        // The dead-man released, then held with a twist.
-        (0..=200u64, twist()).prop_map(move |(gap, twist)| {
-            vec![(0, remote(false, Twist::ZERO)), (gap, remote(true, twist))]
+        // A pad connects, reports the dead-man released, then held with the sticks.
+        (0..=200u64, gamepad()).prop_map(move |(gap, pad)| {
+            let held = GamepadState {
+                buttons: pad.buttons.with(Buttons::RIGHT_BUMPER),
+                ..pad
+            };
+            vec![(0, connect), (0, released), (gap, Input::Gamepad(held))]
         }),
         // Leaving an emergency: release, a short press, the drives set up again.
         (0..=500u64, 0..=2000u64, 0..=300u64).prop_map(|(release, hold, ready)| {
@@ -361,6 +407,50 @@ mod model {
         session: u32,
     }
 
+    /// The gamepad's connection as §13 describes it.
+    #[derive(Debug, Clone, Copy, Default)]
+    enum Pad {
+        #[default]
+        Offline,
+        Connected {
+            level_mm_s: u16,
+            /// The latest report since the connection.
+            last: Option<GamepadState>,
+            /// The latest report, or the connection: "no input" counts from here.
+            last_input: Instant,
+        },
+        /// L2 + Home or AFK asked for the disconnect; nothing from the pad counts.
+        SwitchingOff,
+    }
+
+    /// §13 speed levels: 50 mm/s steps within 50 … `PS_abs_max_vel`.
+    fn level_within(level_mm_s: u16, registers: &Registers) -> u16 {
+        level_mm_s.min(registers.get(Reg::PsAbsMaxVel)).max(50)
+    }
+
+    fn dead_man(pad: &GamepadState) -> bool {
+        pad.buttons.contains(Buttons::RIGHT_BUMPER)
+    }
+
+    /// §13: full left stick forward is the speed level forward, full right stick right
+    /// is level · 2 / wheel_dist rad/s clockwise; a stick value outside −1 … 1 counts as
+    /// the end it is beyond, garbage (NaN, infinite) as centred.
+    fn stick_twist(pad: &GamepadState, level_mm_s: u16, registers: &Registers) -> Twist {
+        let axis = |value: f32| {
+            if value.is_finite() {
+                value.clamp(-1.0, 1.0)
+            } else {
+                0.0
+            }
+        };
+        let level = f32::from(level_mm_s);
+        let full_turn_mrad_s = level * 2000.0 / f32::from(registers.get(Reg::WheelDist));
+        Twist {
+            linear_mm_s: (axis(pad.left_y) * level).round() as i32,
+            rotation_mrad_s: (axis(pad.right_x) * full_turn_mrad_s).round() as i32,
+        }
+    }
+
     /// What the contract says about the sources, from the inputs and the mode each
     /// input met. It is never stricter than the contract: where the controller may
     /// legitimately have forgotten a command already (a lapse it noticed at some input
@@ -373,6 +463,7 @@ mod model {
         enable_refreshed: Option<Instant>,
         session: u32,
         can: Option<CanVelocity>,
+        pad: Pad,
         /// A gamepad report arrived since boot or since the link was lost: until then
         /// the dead-man's state is unknown, not "released".
         remote_reported: bool,
@@ -382,7 +473,9 @@ mod model {
         /// that connects with the button held, or a button held through an e-stop,
         /// does not drive.
         remote_armed: bool,
-        remote_twist: Twist,
+        /// §13 asks for the pad's disconnect with the input just observed: L2 + Home,
+        /// AFK, or a report from a pad already asked to go.
+        pub disconnect_due: bool,
     }
 
     fn may_drive(mode: Mode) -> bool {
@@ -423,10 +516,104 @@ mod model {
             if self.estop_pressed {
                 None
             } else if self.remote_in_control() {
-                Some((ControlSource::Remote, self.remote_twist))
+                Some((ControlSource::Remote, self.remote_twist(registers)))
             } else {
                 self.can_twist(now, registers)
                     .map(|twist| (ControlSource::Can, twist))
+            }
+        }
+
+        /// The twist the pad's sticks ask for at its speed level.
+        fn remote_twist(&self, registers: &Registers) -> Twist {
+            match self.pad {
+                Pad::Connected {
+                    level_mm_s,
+                    last: Some(pad),
+                    ..
+                } => stick_twist(&pad, level_mm_s, registers),
+                _ => Twist::ZERO,
+            }
+        }
+
+        /// The connected pad's speed level.
+        pub fn remote_level_mm_s(&self) -> Option<u16> {
+            match self.pad {
+                Pad::Connected { level_mm_s, .. } => Some(level_mm_s),
+                _ => None,
+            }
+        }
+
+        fn switch_off(&mut self) {
+            self.pad = Pad::SwitchingOff;
+            self.disconnect_due = true;
+            self.remote_lost();
+        }
+
+        /// The remote stops counting: the link is down or the pad is being switched off.
+        fn remote_lost(&mut self) {
+            self.remote_reported = false;
+            self.remote_held = false;
+            self.remote_armed = false;
+        }
+
+        /// After every input: registers that changed (the register write itself)
+        /// clamp the speed level into the new range at once.
+        pub fn registers_now(&mut self, registers: &Registers) {
+            if let Pad::Connected { level_mm_s, .. } = &mut self.pad {
+                *level_mm_s = level_within(*level_mm_s, registers);
+            }
+        }
+
+        /// A report from a connected pad: L2 + Home switches it off; otherwise the D-pad
+        /// steps the level, and the dead-man and sticks go to the supervisor.
+        fn gamepad(
+            &mut self,
+            pad: GamepadState,
+            now: Instant,
+            before: Mode,
+            registers: &Registers,
+        ) {
+            let Pad::Connected {
+                level_mm_s, last, ..
+            } = self.pad
+            else {
+                // The BLE task has not dropped it yet: ask again.
+                self.disconnect_due = matches!(self.pad, Pad::SwitchingOff);
+                return;
+            };
+            let previous = last.unwrap_or_default();
+            let pressed = |button: Buttons| {
+                pad.buttons.contains(button) && !previous.buttons.contains(button)
+            };
+            if pad.left_trigger > MODIFIER_THRESHOLD && pressed(Buttons::HOME) {
+                self.switch_off();
+                return;
+            }
+            let mut level_mm_s = level_within(level_mm_s, registers);
+            match (
+                pad.dpad.up && !previous.dpad.up,
+                pad.dpad.down && !previous.dpad.down,
+            ) {
+                (true, false) => level_mm_s += 50,
+                (false, true) => level_mm_s -= 50,
+                _ => {}
+            }
+            self.pad = Pad::Connected {
+                level_mm_s: level_within(level_mm_s, registers),
+                last: Some(pad),
+                last_input: now,
+            };
+
+            let dead_man = dead_man(&pad);
+            let was_in_control = self.remote_in_control();
+            if !dead_man && may_drive(before) {
+                self.remote_armed = true;
+            }
+            self.remote_reported = true;
+            self.remote_held = dead_man;
+            if self.remote_in_control() && !was_in_control {
+                // The remote takes over: CAN needs a fresh velocity afterwards.
+                self.can = None;
             }
         }
 
@@ -438,6 +625,7 @@ mod model {
             before: Mode,
             registers: &Registers,
         ) {
+            self.disconnect_due = false;
             match *input {
                 Input::CanFrame(frame) => match Command::decode(frame.id(), frame.data()) {
                     Ok(Some(Command::Enable { refresh: true })) => {
@@ -469,24 +657,38 @@ mod model {
                     }
                     _ => {}
                 },
-                Input::Remote { dead_man, twist } => {
-                    let was_in_control = self.remote_in_control();
-                    if !dead_man && may_drive(before) {
-                        self.remote_armed = true;
-                    }
-                    self.remote_reported = true;
-                    self.remote_held = dead_man;
-                    self.remote_twist = twist;
-                    if self.remote_in_control() && !was_in_control {
-                        // The remote takes over: CAN needs a fresh velocity afterwards.
-                        self.can = None;
+                Input::Gamepad(pad) => self.gamepad(pad, now, before, registers),
+                Input::RemoteLink {
+                    connected: true, ..
+                } => {
+                    if let Pad::Offline = self.pad {
+                        self.pad = Pad::Connected {
+                            level_mm_s: level_within(registers.get(Reg::PsRelMaxVel), registers),
+                            last: None,
+                            last_input: now,
+                        };
                     }
                 }
-                Input::RemoteLinkLost => {
-                    self.remote_reported = false;
-                    self.remote_held = false;
-                    self.remote_armed = false;
-                    self.remote_twist = Twist::ZERO;
+                Input::RemoteLink {
+                    connected: false, ..
+                } => {
+                    self.pad = Pad::Offline;
+                    self.remote_lost();
+                }
+                // §13: no input for PS_afk_time switches the pad off; a held dead-man is
+                // input (checked on the tick).
+                Input::Tick => {
+                    if let Pad::Connected {
+                        last, last_input, ..
+                    } = self.pad
+                    {
+                        let afk_ms = u64::from(registers.get(Reg::PsAfkTime));
+                        if !last.is_some_and(|pad| dead_man(&pad))
+                            && now.millis_since(last_input) >= afk_ms
+                        {
+                            self.switch_off();
+                        }
+                    }
                 }
                 Input::Estop(pressed) => {
                     self.estop_pressed = pressed;
@@ -593,6 +795,7 @@ fn run(
             excited = excite;
         }
         model.observe(input, now, before.mode, &before.registers);
+        model.registers_now(&after.registers);
 
         check(&Step {
             now,
@@ -666,8 +869,9 @@ fn never_commands_wheels(input: &Input) -> bool {
                     | Command::OdometryCalibration(_)
             ))
         ),
-        Input::RemoteResetOdometry
-        | Input::RemoteLink { .. }
+        Input::RemoteLink {
+            connected: true, ..
+        }
         | Input::ModbusError
         | Input::ScaleSample(_)
         | Input::ScaleMissing
@@ -688,8 +892,9 @@ fn supervisor_sees(input: &Input) -> bool {
         ),
         Input::Estop(_)
         | Input::SafetyZone(_)
-        | Input::Remote { .. }
-        | Input::RemoteLinkLost
+        | Input::RemoteLink {
+            connected: false, ..
+        }
         | Input::DriveFeedback { .. }
         | Input::DrivesReady
         | Input::DriveSilent(_)
@@ -1057,6 +1262,32 @@ proptest! {
 }
 
 // ---------------------------------------------------------------------------------------
+// Invariant 7: the gamepad is switched off when §13 says so, and only then
+// ---------------------------------------------------------------------------------------
+
+proptest! {
+    #![proptest_config(proptest_config(CASES))]
+
+    /// The BLE task is asked to disconnect the pad exactly when L2 + Home is pressed,
+    /// when no input came for `PS_afk_time` with the dead-man up, and for each report
+    /// the pad still sends after that; from then on the remote is not in control.
+    #[test]
+    fn the_gamepad_is_switched_off_by_l2_home_or_afk_only(events in sequence()) {
+        run(&events, |step| {
+            prop_assert_eq!(
+                step.out.disconnect_remote, step.model.disconnect_due,
+                "after {:?}: {:?}", step.input, step.model
+            );
+            if step.out.disconnect_remote {
+                prop_assert!(!step.after.status.flags.remote_in_control);
+                prop_assert_ne!(step.after.status.control, ControlSource::Remote);
+            }
+            Ok(())
+        })?;
+    }
+}
+
+// ---------------------------------------------------------------------------------------
 // The strategies reach what the properties are about
 // ---------------------------------------------------------------------------------------
 
@@ -1078,12 +1309,20 @@ type Situation = (&'static str, fn(&Step) -> bool);
 /// pass vacuously. Each must occur in at least a fifth of the sequences.
 #[test]
 fn event_sequences_reach_every_situation_checked() {
-    let situations: [Situation; 12] = [
+    let situations: [Situation; 14] = [
         ("CAN drives", |step| {
             moving_command(step).is_some() && step.after.status.control == ControlSource::Can
         }),
         ("remote drives", |step| {
             moving_command(step).is_some() && step.after.status.control == ControlSource::Remote
+        }),
+        ("remote drives above its start level", |step| {
+            step.after.status.control == ControlSource::Remote
+                && moving_command(step).is_some()
+                && step.model.remote_level_mm_s() > Some(step.after.registers.get(Reg::PsRelMaxVel))
+        }),
+        ("gamepad asked to disconnect", |step| {
+            step.out.disconnect_remote
         }),
         ("speed limited to max_motor_vel", |step| {
             let max = i32::from(step.after.registers.get(Reg::MaxMotorVel));
@@ -1122,13 +1361,13 @@ fn event_sequences_reach_every_situation_checked() {
     let mut runner = TestRunner::deterministic();
     let strategy = sequence();
     let sequences = 200;
-    let mut counts = [0u32; 12];
+    let mut counts = [0u32; 14];
     for _ in 0..sequences {
         let events = strategy
             .new_tree(&mut runner)
             .expect("the strategy generates")
             .current();
-        let mut seen = [false; 12];
+        let mut seen = [false; 14];
         run(&events, |step| {
             for (seen, (_, occurs)) in seen.iter_mut().zip(&situations) {
                 *seen |= occurs(step);

@@ -6,7 +6,8 @@
 use base_controller::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
 use base_controller::can::{Command, ControlSource, Mode, RawFrame, Report, id};
 use base_controller::controller::{Controller, Input, Output};
-use base_controller::kinematics::{MotorRpm, Twist};
+use base_controller::gamepad::{Buttons, Dpad, GamepadState};
+use base_controller::kinematics::MotorRpm;
 use base_controller::odometry::EncoderCounts;
 use base_controller::power::SwitchLevel;
 use base_controller::registers::{Reg, Registers};
@@ -56,6 +57,9 @@ enum Check {
         heading_mrad: i32,
     },
     PcOn(bool),
+    /// The output asks the BLE task to disconnect the gamepad.
+    Disconnect,
+    NoDisconnect,
 }
 
 use Check::*;
@@ -81,14 +85,60 @@ fn velocity(linear_mm_s: i16, rotation_mrad_s: i16) -> Input {
     })
 }
 
-fn remote(dead_man: bool, linear_mm_s: i32, rotation_mrad_s: i32) -> Input {
-    Input::Remote {
-        dead_man,
-        twist: Twist {
-            linear_mm_s,
-            rotation_mrad_s,
-        },
+/// The BLE task reports the bonded gamepad connected, or its link down.
+fn pad_link(connected: bool) -> Input {
+    Input::RemoteLink {
+        bonded: true,
+        connected,
     }
+}
+
+fn pad(state: GamepadState) -> Input {
+    Input::Gamepad(state)
+}
+
+/// A gamepad report with these buttons held and the sticks and triggers at rest.
+fn buttons(buttons: Buttons) -> Input {
+    pad(GamepadState {
+        buttons,
+        ..GamepadState::default()
+    })
+}
+
+/// The same with L2 pulled fully.
+fn l2_and(buttons: Buttons) -> Input {
+    pad(GamepadState {
+        buttons,
+        left_trigger: 1.0,
+        ..GamepadState::default()
+    })
+}
+
+/// The dead-man (RB) held, the left stick at `forward` and the right stick at `right`
+/// (−1 … 1; + is forward and right).
+fn dead_man(forward: f32, right: f32) -> Input {
+    pad(held(forward, right))
+}
+
+fn held(forward: f32, right: f32) -> GamepadState {
+    GamepadState {
+        left_y: forward,
+        right_x: right,
+        buttons: Buttons::RIGHT_BUMPER,
+        ..GamepadState::default()
+    }
+}
+
+/// The dead-man held at full stick forward with the D-pad pressed up or down.
+fn level_press(up: bool) -> Input {
+    pad(GamepadState {
+        dpad: Dpad {
+            up,
+            down: !up,
+            ..Dpad::default()
+        },
+        ..held(1.0, 0.0)
+    })
 }
 
 /// Drive feedback with both wheels turning at `rpm` (as measured, any sign).
@@ -230,6 +280,8 @@ fn check(controller: &Controller, now: Instant, out: &Output, check: Check, row:
             );
         }
         PcOn(on) => assert_eq!(status.flags.pc_on, on, "row {row}: PC on"),
+        Disconnect => assert!(out.disconnect_remote, "row {row}: no disconnect request"),
+        NoDisconnect => assert!(!out.disconnect_remote, "row {row}: unexpected disconnect"),
     }
 }
 
@@ -362,10 +414,11 @@ fn estop_while_driving_stops_at_once_and_needs_release_confirm_and_setup() {
             // CAN and remote are ignored, nothing is buffered.
             (60, enable(), &[NoWheels, NoFeedback]),
             (70, velocity(300, 0), &[NoWheels, NoExcite, NoFeedback]),
-            (80, remote(false, 0, 0), &[NoWheels]),
+            (75, pad_link(true), &[NoWheels]),
+            (80, buttons(Buttons::NONE), &[NoWheels]),
             (
                 90,
-                remote(true, 250, 0),
+                dead_man(1.0, 0.0),
                 &[NoWheels, Control(ControlSource::None)],
             ),
             // The drives lose power: expected, not a fault.
@@ -389,6 +442,8 @@ fn estop_while_driving_stops_at_once_and_needs_release_confirm_and_setup() {
                         mode: Mode::Emergency,
                         control: ControlSource::None,
                         flags: base_controller::can::StatusFlags {
+                            remote_bonded: true,
+                            remote_connected: true,
                             estop_pressed: true,
                             brakes_applied: true,
                             ..Default::default()
@@ -448,15 +503,17 @@ fn remote_dead_man_overrides_can_and_its_release_brakes_hard() {
                 velocity(500, 0),
                 &[FORWARD_500, Control(ControlSource::Can)],
             ),
+            (5, pad_link(true), &[NoWheels, Control(ControlSource::Can)]),
             (
                 10,
-                remote(false, 0, 0),
+                buttons(Buttons::NONE),
                 &[NoWheels, Control(ControlSource::Can)],
             ),
-            // Dead-man held: the remote takes over with Contr_acc_norm.
+            // Dead-man held: the remote takes over with Contr_acc_norm (full stick is
+            // the speed level PS_rel_max_vel, 250 mm/s).
             (
                 20,
-                remote(true, 250, 0),
+                dead_man(1.0, 0.0),
                 &[
                     Wheels {
                         left: 168,
@@ -476,7 +533,7 @@ fn remote_dead_man_overrides_can_and_its_release_brakes_hard() {
             // Released: brake with Contr_acc_high; the CAN command was dropped on takeover.
             (
                 50,
-                remote(false, 0, 0),
+                buttons(Buttons::NONE),
                 &[Stop { accel: 500 }, Control(ControlSource::None)],
             ),
             (60, enable(), &[NoWheels]),
@@ -494,13 +551,322 @@ fn remote_link_loss_while_driving_brakes_with_contr_acc_high() {
     run(
         defaults(),
         &[
-            (0, remote(false, 0, 0), &[]),
-            (10, remote(true, 250, 0), &[Control(ControlSource::Remote)]),
+            (0, pad_link(true), &[]),
+            (0, buttons(Buttons::NONE), &[]),
+            (10, dead_man(1.0, 0.0), &[Control(ControlSource::Remote)]),
             (
                 20,
-                Input::RemoteLinkLost,
+                pad_link(false),
                 &[Stop { accel: 500 }, Control(ControlSource::None)],
             ),
+            // Back with the dead-man still held: it must be seen released first.
+            (30, pad_link(true), &[NoWheels]),
+            (
+                40,
+                dead_man(1.0, 0.0),
+                &[NoWheels, Control(ControlSource::None)],
+            ),
+        ],
+    );
+}
+
+/// Full stick forward under remote control at a speed level of `mm_s`, both wheels
+/// ramping with Contr_acc_norm.
+fn remote_forward(mm_s: u16) -> Check {
+    // The motor r/min of the speed levels at r = 142 mm, gear ratio 10.
+    let rpm = match mm_s {
+        50 => 34,
+        100 => 67,
+        150 => 101,
+        200 => 134,
+        250 => 168,
+        300 => 202,
+        350 => 235,
+        400 => 269,
+        _ => panic!("no r/min worked out for {mm_s} mm/s"),
+    };
+    Wheels {
+        left: rpm,
+        right: -rpm,
+        left_accel: 350,
+        right_accel: 350,
+    }
+}
+
+#[test]
+fn dead_man_drives_with_contr_acc_norm_and_its_release_brakes_then_closes_the_brakes() {
+    run(
+        defaults(),
+        &[
+            (0, pad_link(true), &[NoWheels, Control(ControlSource::None)]),
+            // Sticks without the dead-man do nothing.
+            (
+                10,
+                pad(GamepadState {
+                    buttons: Buttons::NONE,
+                    ..held(1.0, 1.0)
+                }),
+                &[NoWheels],
+            ),
+            (
+                20,
+                dead_man(1.0, 0.0),
+                &[
+                    remote_forward(250),
+                    Excite(true),
+                    Control(ControlSource::Remote),
+                ],
+            ),
+            // Right stick right turns clockwise on the spot (contract §2: + clockwise):
+            // the left wheel forward, the right one backward (its motor is mirrored, so
+            // both motors turn positive), each at the level's 250 mm/s.
+            (
+                30,
+                dead_man(0.0, 1.0),
+                &[Wheels {
+                    left: 168,
+                    right: 168,
+                    left_accel: 350,
+                    right_accel: 350,
+                }],
+            ),
+            (40, moving(168), &[NoWheels]),
+            (
+                50,
+                buttons(Buttons::NONE),
+                &[Stop { accel: 500 }, Control(ControlSource::None), NoExcite],
+            ),
+            // disable_time (300 ms) from the measured standstill, as under CAN.
+            (60, moving(0), &[NoExcite]),
+            (359, Input::Tick, &[NoExcite]),
+            (360, Input::Tick, &[Excite(false), Mode(Mode::Standby)]),
+        ],
+    );
+}
+
+#[test]
+fn gamepad_reports_drive_only_from_a_connected_pad_seen_released_first() {
+    run(
+        defaults(),
+        &[
+            // The BLE task has not reported a connection: reports are dropped.
+            (0, buttons(Buttons::NONE), &[NoWheels]),
+            (
+                10,
+                dead_man(1.0, 0.0),
+                &[NoWheels, Control(ControlSource::None)],
+            ),
+            // Connected with the dead-man already down: not a press, no driving.
+            (20, pad_link(true), &[NoWheels]),
+            (
+                30,
+                dead_man(1.0, 0.0),
+                &[NoWheels, Control(ControlSource::None)],
+            ),
+            (40, buttons(Buttons::NONE), &[NoWheels]),
+            (50, dead_man(1.0, 0.0), &[remote_forward(250)]),
+        ],
+    );
+}
+
+#[test]
+fn dpad_steps_the_speed_level_within_its_limits_and_each_connection_starts_over() {
+    let mut registers = defaults();
+    registers
+        .write(Reg::PsAbsMaxVel.address(), 400)
+        .expect("400 mm/s is a valid PS_abs_max_vel");
+    let rows: &[Row] = &[
+        (0, pad_link(true), &[]),
+        (0, buttons(Buttons::NONE), &[]),
+        // PS_rel_max_vel (250 mm/s) after the connection.
+        (10, dead_man(1.0, 0.0), &[remote_forward(250)]),
+        // Each press is one step of 50 mm/s; holding the D-pad is no second press.
+        (20, level_press(true), &[remote_forward(300)]),
+        (30, dead_man(1.0, 0.0), &[NoWheels]),
+        (40, level_press(true), &[remote_forward(350)]),
+        (50, dead_man(1.0, 0.0), &[]),
+        (60, level_press(true), &[remote_forward(400)]),
+        (70, dead_man(1.0, 0.0), &[]),
+        // PS_abs_max_vel is the top.
+        (80, level_press(true), &[NoWheels]),
+        (90, dead_man(1.0, 0.0), &[]),
+        (100, level_press(false), &[remote_forward(350)]),
+        (110, dead_man(1.0, 0.0), &[]),
+        (120, level_press(false), &[remote_forward(300)]),
+        (130, dead_man(1.0, 0.0), &[]),
+        (140, level_press(false), &[remote_forward(250)]),
+        (150, dead_man(1.0, 0.0), &[]),
+        (160, level_press(false), &[remote_forward(200)]),
+        (170, dead_man(1.0, 0.0), &[]),
+        (180, level_press(false), &[remote_forward(150)]),
+        (190, dead_man(1.0, 0.0), &[]),
+        (200, level_press(false), &[remote_forward(100)]),
+        (210, dead_man(1.0, 0.0), &[]),
+        (220, level_press(false), &[remote_forward(50)]),
+        (230, dead_man(1.0, 0.0), &[]),
+        // 50 mm/s is the bottom.
+        (240, level_press(false), &[NoWheels]),
+        (250, dead_man(1.0, 0.0), &[]),
+        (260, level_press(true), &[remote_forward(100)]),
+        (270, buttons(Buttons::NONE), &[Stop { accel: 500 }]),
+        // A new connection starts at PS_rel_max_vel again.
+        (280, pad_link(false), &[]),
+        (290, pad_link(true), &[]),
+        (300, buttons(Buttons::NONE), &[]),
+        (310, dead_man(1.0, 0.0), &[remote_forward(250)]),
+    ];
+    run(registers, rows);
+}
+
+#[test]
+fn lowering_ps_abs_max_vel_below_the_level_slows_the_held_stick_at_once() {
+    run(
+        defaults(),
+        &[
+            (0, pad_link(true), &[]),
+            (0, buttons(Buttons::NONE), &[]),
+            (10, level_press(true), &[remote_forward(300)]),
+            (20, dead_man(1.0, 0.0), &[]),
+            (30, level_press(true), &[remote_forward(350)]),
+            (40, dead_man(1.0, 0.0), &[]),
+            // PS_rel_max_vel must stay ≤ PS_abs_max_vel: lower it first.
+            (50, raw(id::REGISTER_WRITE, &[8, 0x00, 0x64]), &[NoWheels]),
+            (
+                60,
+                raw(id::REGISTER_WRITE, &[7, 0x01, 0x2C]),
+                &[remote_forward(300), Persists(Reg::PsAbsMaxVel, 300)],
+            ),
+            (70, level_press(true), &[NoWheels]),
+            // Raised again: the level stays where the clamp put it until a press.
+            (80, raw(id::REGISTER_WRITE, &[7, 0x04, 0xB0]), &[NoWheels]),
+            (90, dead_man(1.0, 0.0), &[NoWheels]),
+            (100, level_press(true), &[remote_forward(350)]),
+        ],
+    );
+}
+
+#[test]
+fn l2_with_menu_resets_the_odometry_menu_alone_does_not_also_in_an_emergency() {
+    let at_1000 = Pose {
+        x_mm: 1000,
+        y_mm: 0,
+        heading_mrad: 0,
+    };
+    let at_0 = Pose {
+        x_mm: 0,
+        y_mm: 0,
+        heading_mrad: 0,
+    };
+    run(
+        uncorrected(),
+        &[
+            (0, counts(0, 0), &[]),
+            (10, counts(403_491, -403_491), &[at_1000]),
+            (20, pad_link(true), &[]),
+            (30, buttons(Buttons::MENU), &[at_1000]),
+            (40, buttons(Buttons::NONE), &[]),
+            (50, l2_and(Buttons::NONE), &[at_1000]),
+            (60, l2_and(Buttons::MENU), &[at_0, NoWheels]),
+            // Menu held first, then L2: no press while L2 was held.
+            (70, counts(806_982, -806_982), &[at_1000]),
+            (80, buttons(Buttons::MENU), &[]),
+            (90, l2_and(Buttons::MENU), &[at_1000]),
+            // In an emergency too (contract §6).
+            (100, Input::Estop(true), &[Mode(Mode::Emergency)]),
+            (110, l2_and(Buttons::NONE), &[]),
+            (120, l2_and(Buttons::MENU), &[at_0]),
+        ],
+    );
+}
+
+#[test]
+fn l2_with_home_asks_for_the_disconnect_and_brakes_a_held_dead_man() {
+    let l2_home = GamepadState {
+        left_trigger: 1.0,
+        buttons: Buttons::RIGHT_BUMPER.with(Buttons::HOME),
+        ..held(1.0, 0.0)
+    };
+    run(
+        defaults(),
+        &[
+            (0, pad_link(true), &[]),
+            (0, buttons(Buttons::NONE), &[]),
+            (10, dead_man(1.0, 0.0), &[remote_forward(250)]),
+            // Home alone is the pad's own button: nothing.
+            (
+                20,
+                pad(GamepadState {
+                    left_trigger: 0.0,
+                    ..l2_home
+                }),
+                &[NoDisconnect, NoWheels],
+            ),
+            (30, dead_man(1.0, 0.0), &[]),
+            (
+                40,
+                pad(GamepadState {
+                    buttons: Buttons::RIGHT_BUMPER,
+                    ..l2_home
+                }),
+                &[NoDisconnect],
+            ),
+            (
+                50,
+                pad(l2_home),
+                &[
+                    Disconnect,
+                    Stop { accel: 500 },
+                    Control(ControlSource::None),
+                ],
+            ),
+            // The pad keeps reporting until the BLE task drops it: nothing drives and
+            // the request is repeated.
+            (60, buttons(Buttons::NONE), &[Disconnect, NoWheels]),
+            (70, dead_man(1.0, 0.0), &[Disconnect, NoWheels]),
+            (80, pad_link(false), &[NoDisconnect]),
+        ],
+    );
+}
+
+#[test]
+fn no_input_for_ps_afk_time_switches_the_pad_off_and_not_before() {
+    run(
+        defaults(),
+        &[
+            (0, pad_link(true), &[]),
+            (1_000, buttons(Buttons::A), &[NoDisconnect]),
+            (2_000, Input::Tick, &[NoDisconnect]),
+            // PS_afk_time is 30 s from the last report.
+            (30_999, Input::Tick, &[NoDisconnect]),
+            (31_000, Input::Tick, &[Disconnect]),
+            (31_010, Input::Tick, &[NoDisconnect]),
+            (31_020, dead_man(1.0, 0.0), &[Disconnect, NoWheels]),
+            (31_100, pad_link(false), &[NoDisconnect]),
+            // Connected again: the time counts from the connection.
+            (40_000, pad_link(true), &[]),
+            (69_999, Input::Tick, &[NoDisconnect]),
+            (70_000, Input::Tick, &[Disconnect]),
+        ],
+    );
+}
+
+#[test]
+fn a_held_dead_man_counts_as_input_so_a_long_straight_drive_is_not_cut_off() {
+    run(
+        defaults(),
+        &[
+            (0, pad_link(true), &[]),
+            (0, buttons(Buttons::NONE), &[]),
+            // Full stick ahead for two minutes: the pad sends nothing meanwhile.
+            (10, dead_man(1.0, 0.0), &[remote_forward(250)]),
+            (
+                120_000,
+                Input::Tick,
+                &[NoDisconnect, NoWheels, Control(ControlSource::Remote)],
+            ),
+            (120_010, buttons(Buttons::NONE), &[Stop { accel: 500 }]),
+            (150_009, Input::Tick, &[NoDisconnect]),
+            (150_010, Input::Tick, &[Disconnect]),
         ],
     );
 }
@@ -1046,9 +1412,11 @@ fn odometry_reports_clockwise_heading_and_resets_over_can_and_from_the_remote() 
                     heading_mrad: 0,
                 }],
             ),
+            (125, pad_link(true), &[]),
+            (126, l2_and(Buttons::NONE), &[]),
             (
                 130,
-                Input::RemoteResetOdometry,
+                l2_and(Buttons::MENU),
                 &[Pose {
                     x_mm: 0,
                     y_mm: 0,
