@@ -16,7 +16,7 @@ use crate::kinematics::{self, KinematicsParams, MotorRpm, SafetyLimits, Twist, W
 use crate::odometry::{EncoderCounts, Odometry, OdometryParams};
 use crate::power::{PowerControl, PowerEvent, PowerParams, SwitchLevel};
 use crate::registers::{Reg, RegisterError, Registers, WriteOutcome};
-use crate::remote::{Control, Remote, RemoteEvent, RemoteParams};
+use crate::remote::{Control, PairingWindow, Remote, RemoteEvent, RemoteParams};
 use crate::scale::{self, RawAverage};
 use crate::supervisor::{Event, Setpoint, Supervisor, SupervisorParams, Wheel};
 use crate::time::Instant;
@@ -53,6 +53,8 @@ pub enum Input {
         bonded: bool,
         connected: bool,
     },
+    /// The BLE task bonded a new pad: the pairing window closes, one new pad per opening.
+    RemotePaired,
     /// One cycle of drive feedback: raw position counters and measured motor speeds.
     DriveFeedback {
         counts: EncoderCounts,
@@ -116,6 +118,10 @@ pub struct Output {
     /// bond, then report [`Input::RemoteLink`] with `connected: false`. Repeated while a
     /// pad asked to go keeps reporting.
     pub disconnect_remote: bool,
+    /// The pairing window opened (`true`; again for each opening command, which
+    /// restarts it) or closed (`false`). It is closed at boot. While it is closed the
+    /// BLE task connects only to the bonded pad and accepts no pairing request.
+    pub pairing_window: Option<bool>,
 }
 
 /// Counts and remembers rejected inputs for the status frame.
@@ -172,6 +178,7 @@ pub struct Controller {
     /// The link as the BLE task reports it, for the status frame.
     remote_link: RemoteLink,
     remote: Remote,
+    pairing: PairingWindow,
     modbus_errors: u8,
 }
 
@@ -199,6 +206,7 @@ impl Controller {
             faults: ShellFaults::default(),
             remote_link: RemoteLink::default(),
             remote: Remote::new(),
+            pairing: PairingWindow::Closed,
             modbus_errors: 0,
         }
     }
@@ -243,6 +251,15 @@ impl Controller {
                 };
                 self.remote_step(now, event, None, &mut out);
             }
+            Input::RemotePaired => {
+                if self.pairing.close() {
+                    out.pairing_window = Some(false);
+                } else {
+                    // The BLE task must not pair without the window; nothing here can
+                    // undo a bond, but the log shows it.
+                    warn!("a gamepad was paired while the pairing window was closed");
+                }
+            }
             Input::DriveFeedback { counts, rpm } => self.drive_feedback(now, counts, rpm, &mut out),
             Input::DrivesReady => {
                 // The counters restarted with the drives' power: the next sample is a
@@ -268,6 +285,10 @@ impl Controller {
             Input::FlashFault => self.faults.flash = true,
             Input::WatchdogReset => self.faults.watchdog_reset = true,
             Input::Tick => {
+                if self.pairing.expire(now) {
+                    info!("pairing window closed: time is up");
+                    out.pairing_window = Some(false);
+                }
                 self.remote_step(now, RemoteEvent::Tick, Some(Event::Tick), &mut out);
                 self.power_event(now, PowerEvent::Tick, &mut out);
             }
@@ -419,6 +440,11 @@ impl Controller {
             }
             Ok(WriteOutcome::Unchanged) => {}
             Ok(WriteOutcome::DefaultsRestored) => out.persist.defaults_restored = true,
+            Ok(WriteOutcome::PairingWindowRequested) => {
+                info!("pairing window open");
+                self.pairing.open(now);
+                out.pairing_window = Some(true);
+            }
             Err(error) => self.reject_register(address, error),
         }
     }

@@ -1,7 +1,8 @@
 //! The Bluetooth remote (contract §13): what the gamepad's sticks and buttons mean. The
 //! controller feeds it the BLE task's link reports, the decoded gamepad states and the
 //! time; it answers with the dead-man and twist for the supervisor, an odometry reset,
-//! and a request to disconnect the pad. No radio here.
+//! and a request to disconnect the pad. It also keeps the pairing window, which the
+//! `command` register opens. No radio here.
 //!
 //! ```text
 //!               Connected                  L2 + Home pressed, or no input for
@@ -24,14 +25,14 @@ use crate::gamepad::{Buttons, GamepadState};
 use crate::kinematics::Twist;
 use crate::time::Instant;
 
-/// The button that must be held for the remote to drive: RB [R1].
+/// The button that must be held for the remote to drive: RB \[R1\].
 pub const DEAD_MAN: Buttons = Buttons::RIGHT_BUMPER;
-/// Pressed while L2 is held: reset the odometry. Menu [Options].
+/// Pressed while L2 is held: reset the odometry. Menu \[Options\].
 pub const RESET_ODOMETRY: Buttons = Buttons::MENU;
-/// Pressed while L2 is held: switch the pad off (disconnect). Home [PS].
+/// Pressed while L2 is held: switch the pad off (disconnect). Home \[PS\].
 pub const SWITCH_OFF: Buttons = Buttons::HOME;
 
-/// L2 [LT] counts as held while the trigger is pulled further than this (0.0 … 1.0).
+/// LT \[L2\] counts as held while the trigger is pulled further than this (0.0 … 1.0).
 /// BLE pads report it as an analog axis, not a button: half way is a deliberate pull
 /// that a finger resting on the trigger does not reach, and it is far from both ends,
 /// where pads' calibrations differ. A pad with a digital trigger reports 0.0 or 1.0.
@@ -41,6 +42,11 @@ pub const MODIFIER_THRESHOLD: f32 = 0.5;
 pub const LEVEL_STEP_MM_S: u16 = 50;
 /// The lowest speed level (mm/s); the highest is `PS_abs_max_vel`.
 pub const MIN_LEVEL_MM_S: u16 = 50;
+
+/// How long the pairing window stays open after the command opened it (ms): time to
+/// walk to the pad and put it into pairing mode, short enough that the robot is not
+/// left open to any pad in range.
+pub const PAIRING_WINDOW_MS: u64 = 60_000;
 
 /// The registers the remote depends on, with their units in their names.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -285,6 +291,47 @@ fn stick(value: f32) -> f32 {
         value.clamp(-1.0, 1.0)
     } else {
         0.0
+    }
+}
+
+/// The pairing window (ext): while it is open, the BLE task may bond one new pad.
+/// Opened by the `command` register key [`crate::registers::OPEN_PAIRING_WINDOW_KEY`],
+/// closed after [`PAIRING_WINDOW_MS`] or by the first new bond. Closed at boot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum PairingWindow {
+    #[default]
+    Closed,
+    Open {
+        until: Instant,
+    },
+}
+
+impl PairingWindow {
+    pub fn is_open(&self) -> bool {
+        matches!(self, PairingWindow::Open { .. })
+    }
+
+    /// Opens the window for [`PAIRING_WINDOW_MS`] from `now`; an open one starts over.
+    pub fn open(&mut self, now: Instant) {
+        *self = PairingWindow::Open {
+            until: now.plus_millis(PAIRING_WINDOW_MS),
+        };
+    }
+
+    /// Closes the window; whether it was open.
+    pub fn close(&mut self) -> bool {
+        let was_open = self.is_open();
+        *self = PairingWindow::Closed;
+        was_open
+    }
+
+    /// Closes the window if its time is up at `now`; whether it closed.
+    pub fn expire(&mut self, now: Instant) -> bool {
+        match *self {
+            PairingWindow::Open { until } if now >= until => self.close(),
+            _ => false,
+        }
     }
 }
 
@@ -685,5 +732,21 @@ mod tests {
                 .step(at(130_000), RemoteEvent::Tick, &PARAMS)
                 .disconnect
         );
+    }
+
+    #[test]
+    fn pairing_window_opens_for_a_minute_restarts_and_closes() {
+        let mut window = PairingWindow::default();
+        assert!(!window.is_open());
+        assert!(!window.expire(at(0)));
+        window.open(at(1_000));
+        assert!(!window.expire(at(60_999)));
+        window.open(at(30_000));
+        assert!(!window.expire(at(89_999)));
+        assert!(window.expire(at(90_000)));
+        assert!(!window.is_open());
+        window.open(at(100_000));
+        assert!(window.close());
+        assert!(!window.close());
     }
 }

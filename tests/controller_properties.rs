@@ -12,9 +12,10 @@ use base_controller::gamepad::{Buttons, Dpad, GamepadState};
 use base_controller::kinematics::{self, KinematicsParams, MotorRpm, SafetyLimits, Twist};
 use base_controller::odometry::{EncoderCounts, Pose};
 use base_controller::registers::{
-    MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, RESTORE_DEFAULTS_KEY, Reg, Registers,
+    MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, OPEN_PAIRING_WINDOW_KEY, RESTORE_DEFAULTS_KEY,
+    Reg, Registers,
 };
-use base_controller::remote::MODIFIER_THRESHOLD;
+use base_controller::remote::{MODIFIER_THRESHOLD, PAIRING_WINDOW_MS};
 use base_controller::supervisor::Wheel;
 use base_controller::time::Instant;
 use proptest::prelude::*;
@@ -175,6 +176,7 @@ fn register_write() -> impl Strategy<Value = RawFrame> {
         8 => targeted,
         2 => (any::<u8>(), any::<u16>()),
         1 => Just((Reg::Command.address(), RESTORE_DEFAULTS_KEY)),
+        1 => Just((Reg::Command.address(), OPEN_PAIRING_WINDOW_KEY)),
     ]
     .prop_map(|(address, value)| Command::RegisterWrite { address, value }.encode())
 }
@@ -293,6 +295,7 @@ fn input() -> impl Strategy<Value = Input> {
         7 => gamepad().prop_map(Input::Gamepad),
         2 => (any::<bool>(), prop_oneof![3 => Just(true), 1 => Just(false)])
             .prop_map(|(bonded, connected)| Input::RemoteLink { bonded, connected }),
+        1 => Just(Input::RemotePaired),
         4 => drive_feedback(),
         3 => Just(Input::DrivesReady),
         1 => wheel().prop_map(Input::DriveSilent),
@@ -317,7 +320,6 @@ fn episode() -> impl Strategy<Value = Vec<(u64, Input)>> {
         bonded: true,
         connected: true,
     };
-    let released = Input::Gamepad(GamepadState::default());
     prop_oneof![
         // CAN drives: a refresh, then a velocity while it is fresh.
         (0..=50u64, velocity_frame().prop_map(Input::CanFrame))
@@ -336,13 +338,37 @@ fn episode() -> impl Strategy<Value = Vec<(u64, Input)>> {
                     (write_gap, Input::CanFrame(write)),
                 ]
             }),
-        // A pad connects, reports the dead-man released, then held with the sticks.
-        (0..=200u64, gamepad()).prop_map(move |(gap, pad)| {
+        // A pad connects, reports the dead-man released (perhaps with a speed level
+        // step up), then held with the sticks.
+        (0..=200u64, any::<bool>(), gamepad()).prop_map(move |(gap, level_up, pad)| {
+            let released = GamepadState {
+                dpad: Dpad {
+                    up: level_up,
+                    ..Dpad::default()
+                },
+                ..GamepadState::default()
+            };
             let held = GamepadState {
                 buttons: pad.buttons.with(Buttons::RIGHT_BUMPER),
                 ..pad
             };
-            vec![(0, connect), (0, released), (gap, Input::Gamepad(held))]
+            vec![
+                (0, connect),
+                (0, Input::Gamepad(released)),
+                (gap, Input::Gamepad(held)),
+            ]
+        }),
+        // The pairing window opens, then a new bond or its minute ends it.
+        prop_oneof![
+            6 => (0..=2000u64, Just(Input::RemotePaired)),
+            1 => (PAIRING_WINDOW_MS - 100..=PAIRING_WINDOW_MS + 100, Just(Input::Tick)),
+        ]
+        .prop_map(|(gap, close)| {
+            let open = Command::RegisterWrite {
+                address: Reg::Command.address(),
+                value: OPEN_PAIRING_WINDOW_KEY,
+            };
+            vec![(0, Input::CanFrame(open.encode())), (gap, close)]
         }),
         // Leaving an emergency: release, a short press, the drives set up again.
         (0..=500u64, 0..=2000u64, 0..=300u64).prop_map(|(release, hold, ready)| {
@@ -476,6 +502,11 @@ mod model {
         /// §13 asks for the pad's disconnect with the input just observed: L2 + Home,
         /// AFK, or a report from a pad already asked to go.
         pub disconnect_due: bool,
+        /// The pairing window is open until then.
+        pairing_until: Option<Instant>,
+        /// The pairing window opened (`true`) or closed (`false`) with the input just
+        /// observed.
+        pub pairing_change: Option<bool>,
     }
 
     fn may_drive(mode: Mode) -> bool {
@@ -626,6 +657,7 @@ mod model {
             registers: &Registers,
         ) {
             self.disconnect_due = false;
+            self.pairing_change = None;
             match *input {
                 Input::CanFrame(frame) => match Command::decode(frame.id(), frame.data()) {
                     Ok(Some(Command::Enable { refresh: true })) => {
@@ -637,6 +669,13 @@ mod model {
                     Ok(Some(Command::Enable { refresh: false })) => {
                         self.enable_refreshed = None;
                         self.session += 1;
+                    }
+                    Ok(Some(Command::RegisterWrite {
+                        address: 40,
+                        value: OPEN_PAIRING_WINDOW_KEY,
+                    })) => {
+                        self.pairing_until = Some(now.plus_millis(PAIRING_WINDOW_MS));
+                        self.pairing_change = Some(true);
                     }
                     // Stored only when it may drive, as the supervisor's rules say.
                     Ok(Some(Command::Velocity {
@@ -675,9 +714,19 @@ mod model {
                     self.pad = Pad::Offline;
                     self.remote_lost();
                 }
+                // One new bond per opening of the window.
+                Input::RemotePaired => {
+                    if self.pairing_until.take().is_some() {
+                        self.pairing_change = Some(false);
+                    }
+                }
                 // §13: no input for PS_afk_time switches the pad off; a held dead-man is
                 // input (checked on the tick).
                 Input::Tick => {
+                    if self.pairing_until.is_some_and(|until| now >= until) {
+                        self.pairing_until = None;
+                        self.pairing_change = Some(false);
+                    }
                     if let Pad::Connected {
                         last, last_input, ..
                     } = self.pad
@@ -1126,6 +1175,8 @@ proptest! {
             prop_assert_eq!(out.excite, None);
             prop_assert!(!out.setup_drives);
             prop_assert_eq!(out.pc_switch, None);
+            prop_assert!(!out.disconnect_remote);
+            prop_assert_eq!(out.pairing_window, None);
             prop_assert_eq!(&out.persist, &Default::default());
             prop_assert_eq!(&step.after.registers, &step.before.registers);
             prop_assert_eq!(step.after.mode, step.before.mode);
@@ -1262,7 +1313,8 @@ proptest! {
 }
 
 // ---------------------------------------------------------------------------------------
-// Invariant 7: the gamepad is switched off when §13 says so, and only then
+// Invariant 7: the gamepad is switched off when §13 says so, and only then; the
+// pairing window opens only on its key
 // ---------------------------------------------------------------------------------------
 
 proptest! {
@@ -1282,6 +1334,20 @@ proptest! {
                 prop_assert!(!step.after.status.flags.remote_in_control);
                 prop_assert_ne!(step.after.status.control, ControlSource::Remote);
             }
+            Ok(())
+        })?;
+    }
+
+    /// The pairing window opens only on its `command` key and closes only when its
+    /// minute is up (seen on a tick) or on the first new bond; the output says so with
+    /// exactly those inputs, and no other input touches it.
+    #[test]
+    fn the_pairing_window_opens_only_on_its_key_and_closes_on_time_or_a_bond(events in sequence()) {
+        run(&events, |step| {
+            prop_assert_eq!(
+                step.out.pairing_window, step.model.pairing_change,
+                "after {:?} at {:?}", step.input, step.now
+            );
             Ok(())
         })?;
     }
@@ -1309,7 +1375,7 @@ type Situation = (&'static str, fn(&Step) -> bool);
 /// pass vacuously. Each must occur in at least a fifth of the sequences.
 #[test]
 fn event_sequences_reach_every_situation_checked() {
-    let situations: [Situation; 14] = [
+    let situations: [Situation; 15] = [
         ("CAN drives", |step| {
             moving_command(step).is_some() && step.after.status.control == ControlSource::Can
         }),
@@ -1323,6 +1389,9 @@ fn event_sequences_reach_every_situation_checked() {
         }),
         ("gamepad asked to disconnect", |step| {
             step.out.disconnect_remote
+        }),
+        ("pairing window closed", |step| {
+            step.out.pairing_window == Some(false)
         }),
         ("speed limited to max_motor_vel", |step| {
             let max = i32::from(step.after.registers.get(Reg::MaxMotorVel));
@@ -1361,13 +1430,13 @@ fn event_sequences_reach_every_situation_checked() {
     let mut runner = TestRunner::deterministic();
     let strategy = sequence();
     let sequences = 200;
-    let mut counts = [0u32; 14];
+    let mut counts = [0u32; 15];
     for _ in 0..sequences {
         let events = strategy
             .new_tree(&mut runner)
             .expect("the strategy generates")
             .current();
-        let mut seen = [false; 14];
+        let mut seen = [false; 15];
         run(&events, |step| {
             for (seen, (_, occurs)) in seen.iter_mut().zip(&situations) {
                 *seen |= occurs(step);

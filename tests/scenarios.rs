@@ -60,6 +60,9 @@ enum Check {
     /// The output asks the BLE task to disconnect the gamepad.
     Disconnect,
     NoDisconnect,
+    /// The output says the pairing window opened (`true`) or closed (`false`).
+    PairingWindow(bool),
+    NoPairingChange,
 }
 
 use Check::*;
@@ -282,6 +285,10 @@ fn check(controller: &Controller, now: Instant, out: &Output, check: Check, row:
         PcOn(on) => assert_eq!(status.flags.pc_on, on, "row {row}: PC on"),
         Disconnect => assert!(out.disconnect_remote, "row {row}: no disconnect request"),
         NoDisconnect => assert!(!out.disconnect_remote, "row {row}: unexpected disconnect"),
+        PairingWindow(open) => {
+            assert_eq!(out.pairing_window, Some(open), "row {row}: pairing window")
+        }
+        NoPairingChange => assert_eq!(out.pairing_window, None, "row {row}: pairing window"),
     }
 }
 
@@ -867,6 +874,50 @@ fn a_held_dead_man_counts_as_input_so_a_long_straight_drive_is_not_cut_off() {
             (120_010, buttons(Buttons::NONE), &[Stop { accel: 500 }]),
             (150_009, Input::Tick, &[NoDisconnect]),
             (150_010, Input::Tick, &[Disconnect]),
+        ],
+    );
+}
+
+#[test]
+fn pairing_window_opens_on_its_command_and_closes_after_a_minute_or_on_a_new_bond() {
+    let open = || raw(id::REGISTER_WRITE, &[40, 0xB1, 0xE0]);
+    run(
+        defaults(),
+        &[
+            (0, Input::Tick, &[NoPairingChange]),
+            // Closed at boot: a bond reported now was not allowed and opens nothing.
+            (5, Input::RemotePaired, &[NoPairingChange]),
+            (
+                10,
+                open(),
+                &[PairingWindow(true), NothingPersisted, RejectedCount(0)],
+            ),
+            (60_009, Input::Tick, &[NoPairingChange]),
+            (60_010, Input::Tick, &[PairingWindow(false)]),
+            (60_020, Input::Tick, &[NoPairingChange]),
+            // The first new bond closes it: one pad per opening.
+            (70_000, open(), &[PairingWindow(true)]),
+            (80_000, Input::RemotePaired, &[PairingWindow(false)]),
+            (80_010, Input::RemotePaired, &[NoPairingChange]),
+            (130_000, Input::Tick, &[NoPairingChange]),
+            // Opening an open window starts its minute over.
+            (200_000, open(), &[PairingWindow(true)]),
+            (250_000, open(), &[PairingWindow(true)]),
+            (260_000, Input::Tick, &[NoPairingChange]),
+            (309_999, Input::Tick, &[NoPairingChange]),
+            (310_000, Input::Tick, &[PairingWindow(false)]),
+            // Only the exact key opens it.
+            (
+                320_000,
+                raw(id::REGISTER_WRITE, &[40, 0xB1, 0xE1]),
+                &[
+                    NoPairingChange,
+                    Rejected {
+                        code: 0x12,
+                        subject: 40,
+                    },
+                ],
+            ),
         ],
     );
 }

@@ -19,7 +19,8 @@ mod table;
 pub use record::{RECORD_LEN, RecordError, SCHEMA_VERSION, decode_record, encode_record, migrate};
 pub use table::{
     ADDRESS_COUNT, Access, FW_VERSION, LAST_MANUAL_ADDRESS, MOTOR_DIR_INVERT_LEFT,
-    MOTOR_DIR_INVERT_RIGHT, REGMAP_VERSION, RESTORE_DEFAULTS_KEY, Reg, RegisterInfo, TABLE, info,
+    MOTOR_DIR_INVERT_RIGHT, OPEN_PAIRING_WINDOW_KEY, REGMAP_VERSION, RESTORE_DEFAULTS_KEY, Reg,
+    RegisterInfo, TABLE, info,
 };
 
 /// Why a register read or write was refused. The code goes on CAN (register-read error
@@ -57,6 +58,9 @@ pub enum WriteOutcome {
     /// [`Registers::iter`] (rewrite rather than erase, so the next boot finds a full
     /// store and does not report a blank one).
     DefaultsRestored,
+    /// `command` got [`OPEN_PAIRING_WINDOW_KEY`]: no register changed, nothing to
+    /// persist; the controller opens the pairing window.
+    PairingWindowRequested,
 }
 
 /// What [`Registers::load`] made of the stored records.
@@ -158,9 +162,15 @@ impl Registers {
             return Err(RegisterError::OutOfRange);
         }
         if info.access == Access::WriteOnly {
-            // `command`: its range admits only RESTORE_DEFAULTS_KEY.
-            *self = Self::defaults();
-            return Ok(WriteOutcome::DefaultsRestored);
+            // `command`: `accepts` let only its keys through.
+            return match value {
+                RESTORE_DEFAULTS_KEY => {
+                    *self = Self::defaults();
+                    Ok(WriteOutcome::DefaultsRestored)
+                }
+                OPEN_PAIRING_WINDOW_KEY => Ok(WriteOutcome::PairingWindowRequested),
+                _ => Err(RegisterError::OutOfRange),
+            };
         }
         let index = usize::from(address);
         if self.values[index] == value {

@@ -82,7 +82,8 @@ pub enum Reg {
     FwVersion = 38,
     /// (ext) `regmap_version`, read-only: version of this register map.
     RegmapVersion = 39,
-    /// (ext) `command`, write-only, reads 0: [`RESTORE_DEFAULTS_KEY`] restores defaults.
+    /// (ext) `command`, write-only, reads 0: [`RESTORE_DEFAULTS_KEY`] restores defaults,
+    /// [`OPEN_PAIRING_WINDOW_KEY`] opens the Bluetooth remote's pairing window.
     Command = 40,
 }
 
@@ -172,6 +173,12 @@ pub const ADDRESS_COUNT: usize = 41;
 /// A key rather than 1 so that a stray or mistyped write cannot wipe a calibration.
 pub const RESTORE_DEFAULTS_KEY: u16 = 0xDEF0;
 
+/// Writing this to [`Reg::Command`] opens the Bluetooth remote's pairing window
+/// ([`crate::remote::PairingWindow`]): the deliberate act on the robot without which no
+/// new gamepad is bonded. A key, like [`RESTORE_DEFAULTS_KEY`], so that no stray write
+/// lets a stranger's pad in.
+pub const OPEN_PAIRING_WINDOW_KEY: u16 = 0xB1E0;
+
 /// [`Reg::MotorDir`] bit: invert the left motor's direction.
 pub const MOTOR_DIR_INVERT_LEFT: u16 = 0b01;
 /// [`Reg::MotorDir`] bit: invert the right motor's direction.
@@ -179,7 +186,8 @@ pub const MOTOR_DIR_INVERT_RIGHT: u16 = 0b10;
 
 /// Version of the register map ([`Reg::RegmapVersion`]). Bump it when an extension
 /// register is added, removed or changes meaning, so PC software can tell.
-pub const REGMAP_VERSION: u16 = 1;
+/// 1: the first map. 2: `command` also takes [`OPEN_PAIRING_WINDOW_KEY`].
+pub const REGMAP_VERSION: u16 = 2;
 
 /// [`Reg::FwVersion`]: `(major << 8) | minor` of the crate version, fixed at compile time.
 pub const FW_VERSION: u16 = ((parse_version_part(env!("CARGO_PKG_VERSION_MAJOR")) as u16) << 8)
@@ -230,9 +238,10 @@ pub struct RegisterInfo {
     /// The value after a blank boot or a restore; for a read-only register its fixed
     /// value; `command` reads 0.
     pub default: u16,
-    /// Smallest accepted value (apart from 0 when `zero_is_off`).
+    /// Smallest accepted value (apart from 0 when `zero_is_off`). For `command`, its
+    /// smallest key: it accepts only its keys, nothing between them.
     pub min: u16,
-    /// Largest accepted value.
+    /// Largest accepted value; for `command`, its largest key.
     pub max: u16,
     /// 0 is accepted too and switches the function off ("0 = off or min..=max").
     pub zero_is_off: bool,
@@ -246,7 +255,12 @@ impl RegisterInfo {
     /// Whether a write of `value` passes this register's own range (cross-register
     /// rules are checked separately).
     pub const fn accepts(&self, value: u16) -> bool {
-        (self.zero_is_off && value == 0) || (value >= self.min && value <= self.max)
+        match self.access {
+            Access::WriteOnly => matches!(value, RESTORE_DEFAULTS_KEY | OPEN_PAIRING_WINDOW_KEY),
+            Access::ReadWrite | Access::ReadOnly => {
+                (self.zero_is_off && value == 0) || (value >= self.min && value <= self.max)
+            }
+        }
     }
 }
 
@@ -322,7 +336,7 @@ pub static TABLE: [RegisterInfo; 37] = [
     row(Reg::PcSwitchPulse, "pc_switch_pulse", "ms", 500, (50, 2000), ReadWrite, "how long the PC power switch is closed"),
     row(Reg::FwVersion, "fw_version", "major.minor", FW_VERSION, (FW_VERSION, FW_VERSION), ReadOnly, "firmware version"),
     row(Reg::RegmapVersion, "regmap_version", "", REGMAP_VERSION, (REGMAP_VERSION, REGMAP_VERSION), ReadOnly, "register map version"),
-    row(Reg::Command, "command", "key", 0, (RESTORE_DEFAULTS_KEY, RESTORE_DEFAULTS_KEY), WriteOnly, "0xDEF0 restores every writable register to its default"),
+    row(Reg::Command, "command", "key", 0, (OPEN_PAIRING_WINDOW_KEY, RESTORE_DEFAULTS_KEY), WriteOnly, "0xDEF0 restores every writable register to its default; 0xB1E0 opens the remote's pairing window"),
 ];
 
 /// The description of the register at `address`, or `None` if it is not assigned.

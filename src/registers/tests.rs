@@ -116,7 +116,8 @@ fn version_registers_read_the_build_and_map_versions() {
     let minor: u16 = parts.next().unwrap().parse().unwrap();
     let registers = Registers::defaults();
     assert_eq!(registers.read(38), Ok((major << 8) | minor));
-    assert_eq!(registers.read(39), Ok(1));
+    // 2 since `command` takes the pairing-window key.
+    assert_eq!(registers.read(39), Ok(2));
 }
 
 #[test]
@@ -258,6 +259,26 @@ fn restore_key_brings_back_every_default() {
         Ok(WriteOutcome::DefaultsRestored)
     );
     assert_eq!(registers, Registers::defaults());
+}
+
+#[test]
+fn pairing_key_changes_no_register_and_command_takes_no_other_value() {
+    let mut registers = Registers::defaults();
+    registers.write(0, 150).unwrap();
+    let before = registers.clone();
+    assert_eq!(
+        registers.write(40, OPEN_PAIRING_WINDOW_KEY),
+        Ok(WriteOutcome::PairingWindowRequested)
+    );
+    assert_eq!(registers, before);
+    for value in [0, 1, 0xB1E1, 0xC000, 0xDEEF, 0xDEF1, u16::MAX] {
+        assert_eq!(
+            registers.write(40, value),
+            Err(RegisterError::OutOfRange),
+            "{value:#06X}"
+        );
+    }
+    assert_eq!(registers, before);
 }
 
 #[test]
@@ -473,6 +494,10 @@ proptest! {
                 }
                 Ok(WriteOutcome::Unchanged) => prop_assert_eq!(&registers, &before),
                 Ok(WriteOutcome::DefaultsRestored) => prop_assert_eq!(&registers, &Registers::defaults()),
+                Ok(WriteOutcome::PairingWindowRequested) => {
+                    prop_assert_eq!((address, value), (40, OPEN_PAIRING_WINDOW_KEY));
+                    prop_assert_eq!(&registers, &before);
+                }
                 Err(_) => prop_assert_eq!(&registers, &before),
             }
             assert_valid(&registers);
