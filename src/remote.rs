@@ -601,6 +601,25 @@ mod tests {
     }
 
     #[test]
+    fn buttons_down_in_the_first_report_of_a_connection_count_as_pressed() {
+        // Pads report only changes: the first report is usually the operator's first
+        // press, and must not be swallowed as a baseline.
+        let mut remote = connected();
+        let first = GamepadState {
+            left_trigger: 1.0,
+            buttons: DEAD_MAN.with(Buttons::MENU),
+            dpad: Dpad {
+                up: true,
+                ..Dpad::default()
+            },
+            ..sticks(1.0, 0.0)
+        };
+        let effects = report(&mut remote, 10, first);
+        assert!(effects.reset_odometry);
+        assert_eq!(effects.control, driving(300, 0));
+    }
+
+    #[test]
     fn l2_with_menu_resets_the_odometry_menu_alone_does_not() {
         let mut remote = connected();
         assert!(!report(&mut remote, 10, held(Buttons::MENU)).reset_odometry);
