@@ -68,6 +68,8 @@ pub enum DescriptorError {
     TooManyFields,
     /// More usages than [`MAX_USAGES`].
     TooManyUsages,
+    /// A valid map without a stick, trigger, hat or named button in any input report.
+    NotAGamepad,
 }
 
 /// A usage: the usage page in the high 16 bits, the usage ID in the low 16 bits (the
@@ -212,6 +214,12 @@ impl Usages<'_> {
     pub fn of_element(&self, element: u16) -> Option<Usage> {
         self.get(u32::from(element))
             .or_else(|| self.0.last().map(|range| range.last))
+    }
+
+    pub fn contains(&self, usage: Usage) -> bool {
+        self.0
+            .iter()
+            .any(|range| (range.first..=range.last).contains(&usage))
     }
 }
 
