@@ -17,6 +17,7 @@ pub mod debounce;
 pub mod drives;
 pub mod feedback;
 pub mod gamepad;
+pub mod hid;
 pub mod hw;
 pub mod hx711;
 pub mod kinematics;
