@@ -4,15 +4,21 @@
 #![no_std]
 #![no_main]
 
-use base_controller::app::{self, Hardware, Settings, channels::Channels};
+use base_controller::app::{self, Hardware, Settings, channels::Channels, remote};
 use base_controller::hx711::{Gain, Hx711};
 use defmt::{error, info, warn};
+use embassy_embedded_hal::adapter::BlockingAsync;
+use embassy_futures::join::join;
 use esp_backtrace as _;
+use esp_hal::clock::CpuClock;
 use esp_hal::delay::Delay;
+use esp_hal::efuse::{self, InterfaceMacAddress};
 use esp_hal::gpio::{Input, InputConfig, Level, Output, OutputConfig, Pull};
 use esp_hal::timer::timg::TimerGroup;
 use esp_println as _;
+use esp_radio::ble::controller::BleConnector;
 use static_cell::StaticCell;
+use trouble_host::prelude::ExternalController;
 
 use base_controller_firmware::board::{self, BUTTON_PULL, ESTOP_PULL, SAFETY_ZONE_PULL};
 use base_controller_firmware::flash::{self, SharedFlash};
@@ -23,12 +29,20 @@ use base_controller_firmware::{can, watchdog};
 // The application descriptor the ESP-IDF bootloader checks before it starts the image.
 esp_bootloader_esp_idf::esp_app_desc!();
 
+/// The heap the radio's driver allocates from (nothing else allocates). trouble's
+/// examples use 72 KiB on these chips.
+const HEAP_SIZE: usize = 72 * 1024;
+/// HCI command slots between trouble-host and the radio.
+const HCI_SLOTS: usize = 20;
+
 static CHANNELS: Channels = Channels::new();
 static FLASH: StaticCell<SharedFlash> = StaticCell::new();
 
 #[esp_rtos::main]
 async fn main(_spawner: embassy_executor::Spawner) {
-    let peripherals = esp_hal::init(esp_hal::Config::default());
+    // The radio wants the fastest clock.
+    let peripherals = esp_hal::init(esp_hal::Config::default().with_cpu_clock(CpuClock::max()));
+    esp_alloc::heap_allocator!(size: HEAP_SIZE);
     let reset_reason = esp_hal::system::reset_reason();
     let mut board = board::take(peripherals);
     esp_rtos::start(
@@ -48,17 +62,19 @@ async fn main(_spawner: embassy_executor::Spawner) {
         ..Settings::DEFAULT
     };
 
-    let registers = flash::find_registers(&mut board.flash);
-    if registers.is_none() {
-        error!(
-            "no `{}` partition: flash with firmware/partitions.csv; running on defaults",
-            flash::REGISTERS_LABEL
-        );
+    let registers = flash::find(&mut board.flash, flash::REGISTERS);
+    let bonds = flash::find(&mut board.flash, flash::BONDS);
+    for (spec, found) in [(flash::REGISTERS, &registers), (flash::BONDS, &bonds)] {
+        if found.is_none() {
+            error!(
+                "no `{}` partition: flash with firmware/partitions.csv",
+                spec.label
+            );
+        }
     }
-    let shared_flash = FLASH.init(SharedFlash::new(
-        embassy_embedded_hal::adapter::BlockingAsync::new(board.flash),
-    ));
-    let (flash, flash_range) = flash::registers_partition(shared_flash, registers);
+    let shared_flash = FLASH.init(SharedFlash::new(BlockingAsync::new(board.flash)));
+    let (flash, flash_range) = flash::partition(shared_flash, flash::REGISTERS, registers);
+    let (bond_flash, bond_range) = flash::partition(shared_flash, flash::BONDS, bonds);
 
     let (can_rx, can_tx) = can::start(board.twai, board.can_tx, board.can_rx);
     let drives = match Rs485Port::new(
@@ -101,5 +117,24 @@ async fn main(_spawner: embassy_executor::Spawner) {
             watchdog::TIMEOUT.as_millis()
         );
     }
-    app::run(hardware, settings, &CHANNELS).await
+
+    let remote = async {
+        match BleConnector::new(board.bt, Default::default()) {
+            Ok(connector) => {
+                let controller: ExternalController<_, HCI_SLOTS> =
+                    ExternalController::new(connector);
+                let mac = efuse::interface_mac_address(InterfaceMacAddress::Bluetooth);
+                let address = remote::random_static_address(mac.as_bytes());
+                remote::run(controller, address, bond_flash, bond_range, &CHANNELS).await
+            }
+            Err(error) => {
+                // Without the radio the base still drives over CAN; the status frame
+                // shows no remote.
+                error!("Bluetooth radio: {}", defmt::Debug2Format(&error));
+                core::future::pending::<()>().await
+            }
+        }
+    };
+    let (never, ()) = join(app::run(hardware, settings, &CHANNELS), remote).await;
+    never
 }

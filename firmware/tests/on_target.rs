@@ -7,6 +7,9 @@
 #![no_main]
 
 use defmt_rtt as _;
+// The radio driver in the firmware's dependencies needs a global allocator to link;
+// these tests allocate nothing.
+use esp_alloc as _;
 use esp_backtrace as _;
 
 esp_bootloader_esp_idf::esp_app_desc!();
@@ -37,10 +40,10 @@ mod tests {
     fn a_register_written_to_the_partition_survives_a_reload(peripherals: Peripherals) {
         static FLASH: StaticCell<SharedFlash> = StaticCell::new();
         let mut board = board::take(peripherals);
-        let found = flash::find_registers(&mut board.flash);
+        let found = flash::find(&mut board.flash, flash::REGISTERS);
         assert!(found.is_some(), "no registers partition");
         let shared = FLASH.init(SharedFlash::new(BlockingAsync::new(board.flash)));
-        let (partition, range) = flash::registers_partition(shared, found);
+        let (partition, range) = flash::partition(shared, flash::REGISTERS, found);
 
         block_on(async {
             let mut store = RegisterStore::new(partition.clone(), range.clone());

@@ -44,6 +44,10 @@ pub struct Channels {
     pub pending_writes: PendingWrites,
     /// Critical tasks → liveness task: check-in marks behind the watchdog.
     pub liveness: Liveness,
+    /// Controller → Bluetooth remote task. A signal (latest value wins): the request is
+    /// a state (is the pairing window open, how many disconnects were asked for), and
+    /// the remote task acts on the newest.
+    pub remote_requests: Signal<RawMutex, RemoteRequest>,
     can_tx_dropped: Mutex<RawMutex, Cell<u32>>,
 }
 
@@ -55,6 +59,7 @@ impl Channels {
             drive_demand: Signal::new(),
             pending_writes: PendingWrites::new(),
             liveness: Liveness::new(),
+            remote_requests: Signal::new(),
             can_tx_dropped: Mutex::new(Cell::new(0)),
         }
     }
@@ -71,6 +76,17 @@ impl Channels {
     pub fn can_tx_dropped(&self) -> u32 {
         self.can_tx_dropped.lock(Cell::get)
     }
+}
+
+/// What the controller asks of the Bluetooth remote task.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct RemoteRequest {
+    /// A new pad may be paired (and replace the bonded one) while this is true.
+    pub pairing_open: bool,
+    /// Counts the controller's requests to switch the pad off; a change means "drop the
+    /// link now" (a counter, so two requests in a row are not merged into one state).
+    pub disconnects: u16,
 }
 
 impl Default for Channels {

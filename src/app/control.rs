@@ -10,7 +10,7 @@ use crate::power::SwitchLevel;
 use crate::registers::Reg;
 use crate::time;
 
-use super::channels::{Channels, CriticalTask, DriveDemand};
+use super::channels::{Channels, CriticalTask, DriveDemand, RemoteRequest};
 
 /// Timeouts and periodic frames are checked this often (the controller's contract).
 pub const TICK: Duration = Duration::from_millis(10);
@@ -26,12 +26,16 @@ pub async fn run<S: OutputPin>(
     mut pc_switch: S,
     boot_inputs: &[Input],
 ) -> ! {
-    let mut demand = DriveDemand::at_rest(controller.registers().get(Reg::LoopEndDelay));
+    let demand = DriveDemand::at_rest(controller.registers().get(Reg::LoopEndDelay));
     // The drive link starts from the defaults; this gives it the stored cycle time.
     channels.drive_demand.signal(demand);
+    let mut state = Dispatched {
+        demand,
+        remote: RemoteRequest::default(),
+    };
     for input in boot_inputs {
         let out = controller.handle(core_now(), *input);
-        dispatch(&controller, out, channels, &mut demand, &mut pc_switch);
+        dispatch(&controller, out, channels, &mut state, &mut pc_switch);
     }
     let mut next_tick = Instant::now() + TICK;
     loop {
@@ -44,17 +48,24 @@ pub async fn run<S: OutputPin>(
             }
         };
         let out = controller.handle(core_now(), input);
-        dispatch(&controller, out, channels, &mut demand, &mut pc_switch);
+        dispatch(&controller, out, channels, &mut state, &mut pc_switch);
     }
+}
+
+/// What the controller last asked of the drive link and of the remote task.
+struct Dispatched {
+    demand: DriveDemand,
+    remote: RemoteRequest,
 }
 
 fn dispatch<S: OutputPin>(
     controller: &Controller,
     out: Output,
     channels: &Channels,
-    demand: &mut DriveDemand,
+    state: &mut Dispatched,
     pc_switch: &mut S,
 ) {
+    let demand = &mut state.demand;
     for frame in out.frames {
         channels.send_frame(frame);
     }
@@ -82,4 +93,16 @@ fn dispatch<S: OutputPin>(
         };
     }
     channels.pending_writes.record(&out.persist);
+
+    let mut remote = state.remote;
+    if let Some(open) = out.pairing_window {
+        remote.pairing_open = open;
+    }
+    if out.disconnect_remote {
+        remote.disconnects = remote.disconnects.wrapping_add(1);
+    }
+    if remote != state.remote {
+        state.remote = remote;
+        channels.remote_requests.signal(remote);
+    }
 }

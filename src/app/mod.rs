@@ -20,6 +20,8 @@ pub mod channels;
 pub mod control;
 pub mod inputs;
 pub mod liveness;
+#[cfg(feature = "ble")]
+pub mod remote;
 pub mod sensors;
 
 use embassy_futures::join::{join, join4, join5};

@@ -55,6 +55,7 @@ pub fn take(p: Peripherals) -> Board {
         status_led: p.GPIO22.into(),
         // The second core is not started, but a flash write must never run while it
         // fetches from flash: park it if it ever runs.
+        bt: p.BT,
         flash: FlashStorage::new(p.FLASH).multicore_auto_park(),
         rtc: p.RTC_TIMER,
         timg0: p.TIMG0,

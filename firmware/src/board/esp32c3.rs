@@ -47,6 +47,7 @@ pub fn take(p: Peripherals) -> Board {
         button: p.GPIO6.into(),
         pc_switch: p.GPIO7.into(),
         status_led: p.GPIO9.into(),
+        bt: p.BT,
         flash: FlashStorage::new(p.FLASH),
         rtc: p.RTC_TIMER,
         timg0: p.TIMG0,

@@ -41,6 +41,7 @@ pub fn take(p: Peripherals) -> Board {
         button: p.GPIO20.into(),
         pc_switch: p.GPIO21.into(),
         status_led: p.GPIO6.into(),
+        bt: p.BT,
         flash: FlashStorage::new(p.FLASH),
         rtc: p.RTC_TIMER,
         timg0: p.TIMG0,

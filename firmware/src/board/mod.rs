@@ -20,7 +20,7 @@ pub use chip::{Battery, CHIP, reset_by_watchdog, take};
 use base_controller::app::{ActiveLevel, InputSettings};
 use base_controller::battery::VoltageDivider;
 use esp_hal::gpio::{AnyPin, Pull};
-use esp_hal::peripherals::{FROM_CPU_INTR0, RTC_TIMER, TIMG0, TWAI0, UART1};
+use esp_hal::peripherals::{BT, FROM_CPU_INTR0, RTC_TIMER, TIMG0, TWAI0, UART1};
 use esp_storage::FlashStorage;
 
 /// The board with its pins and peripherals sorted by job. [`take`] fills it from the
@@ -48,6 +48,8 @@ pub struct Board {
     pub pc_switch: AnyPin<'static>,
     /// Blinks while the watchdog is fed (see `watchdog.rs`).
     pub status_led: AnyPin<'static>,
+    /// The radio, for the Bluetooth remote.
+    pub bt: BT<'static>,
     /// The flash, set up for this chip's cores.
     pub flash: FlashStorage<'static>,
     /// The RTC block, for its watchdog.

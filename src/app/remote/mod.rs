@@ -1,0 +1,609 @@
+//! The Bluetooth remote's task: a BLE central (trouble-host) that keeps one bonded HID
+//! gamepad (HID over GATT) connected and hands its reports to the controller.
+//!
+//! ```text
+//!   boot: bond from flash ──▶ reconnect loop ──▶ encrypted? ──▶ HID discovery ──▶ reports ──▶ Input::Gamepad
+//!   pairing window open ──▶ scan for gamepads ──▶ connect ──▶ pair + bond ──▶ bond to flash, Input::RemotePaired
+//! ```
+//!
+//! Security: a pad drives only over an encrypted link with the stored bond. A new pad
+//! is paired only while the controller holds the pairing window open (a deliberate
+//! act on the robot); outside it the task connects to the bonded address alone and
+//! refuses to pair. One bond is kept: pairing a new pad replaces the old one.
+//!
+//! Link loss is the supervision timeout (500 ms, asked for at connection), reported as
+//! [`Input::RemoteLink`] with `connected: false`; pads send reports only on change, so
+//! silence is not loss.
+
+use core::ops::Range;
+
+use bt_hci::cmd::le::LeSetScanParams;
+use bt_hci::controller::ControllerCmdSync;
+use embassy_futures::select::{Either, Either4, select, select4};
+use embassy_time::{Duration, with_timeout};
+use embedded_storage_async::nor_flash::NorFlash;
+use heapless::Vec;
+use sequential_storage::cache::Cache;
+use sequential_storage::map::{MapConfig, MapStorage};
+use trouble_host::advertise::AdStructure;
+use trouble_host::prelude::*;
+
+use crate::controller::Input;
+use crate::hid::{GamepadLayout, VidPid};
+
+use super::channels::{Channels, RemoteRequest};
+
+mod bond;
+
+pub use bond::{BOND_RECORD_LEN, decode_bond, encode_bond};
+
+/// One gamepad, and the L2CAP channels the host needs for it (signalling, ATT, SMP).
+const CONNECTIONS: usize = 1;
+const L2CAP_CHANNELS: usize = 3;
+/// GATT services the client remembers (HID, Device Information, and a few others).
+const MAX_SERVICES: usize = 8;
+/// Characteristics of the HID service: a Report Map, up to a dozen Reports, control.
+const MAX_CHARACTERISTICS: usize = 24;
+/// The longest Report Map we read (the Xbox Elite 2's is about 1 KiB).
+const MAX_REPORT_MAP: usize = 1_536;
+
+const HID_SERVICE: u16 = 0x1812;
+const REPORT_MAP: u16 = 0x2A4B;
+const REPORT: u16 = 0x2A4D;
+const REPORT_REFERENCE: u16 = 0x2908;
+const DEVICE_INFORMATION: u16 = 0x180A;
+const PNP_ID: u16 = 0x2A50;
+const GAMEPAD_APPEARANCE: u16 = 0x03C4;
+/// Report Reference type of an input report.
+const INPUT_REPORT: u8 = 1;
+
+/// The connection the dead-man needs: a short interval for a responsive stick, and a
+/// supervision timeout that turns a dead link into a stop within half a second.
+fn connection_params() -> RequestedConnParams {
+    RequestedConnParams {
+        min_connection_interval: Duration::from_micros(7_500),
+        max_connection_interval: Duration::from_millis(15),
+        max_latency: 0,
+        min_event_length: Duration::from_secs(0),
+        max_event_length: Duration::from_secs(0),
+        supervision_timeout: Duration::from_millis(500),
+    }
+}
+
+/// How long one attempt to reach the bonded pad lasts before the task looks at the
+/// controller's requests again.
+const RECONNECT_ATTEMPT: Duration = Duration::from_secs(5);
+/// How long pairing may take once a pad is connected.
+const PAIRING_TIMEOUT: Duration = Duration::from_secs(15);
+
+/// Runs the remote forever. `address` is the chip's Bluetooth address (random static),
+/// `bond_flash` over `bond_range` holds the bond.
+pub async fn run<C, F>(
+    controller: C,
+    address: [u8; 6],
+    bond_flash: F,
+    bond_range: Range<u32>,
+    channels: &Channels,
+) -> !
+where
+    C: Controller + ControllerCmdSync<LeSetScanParams>,
+    F: NorFlash,
+{
+    let mut resources: HostResources<DefaultPacketPool, CONNECTIONS, L2CAP_CHANNELS> =
+        HostResources::new();
+    let stack = trouble_host::new(controller, &mut resources)
+        .set_random_address(Address::random(address))
+        .set_io_capabilities(IoCapabilities::NoInputNoOutput)
+        .build();
+    let mut bonds = BondStore::new(bond_flash, bond_range);
+    let mut bonded = bonds.load().await;
+    if let Some(bond) = &bonded {
+        // A bond that the stack refuses cannot be used: forget it.
+        if stack.add_bond_information(bond.clone()).is_err() {
+            bonded = None;
+        }
+    }
+    report(
+        channels,
+        Input::RemoteLink {
+            bonded: bonded.is_some(),
+            connected: false,
+        },
+    )
+    .await;
+
+    let finder = PadFinder::default();
+    let mut runner = stack.runner();
+    let mut central = stack.central();
+    let mut remote = Remote {
+        stack: &stack,
+        channels,
+        request: RemoteRequest::default(),
+    };
+    let never = select(runner.run_with_handler(&finder), async {
+        loop {
+            remote.refresh_request();
+            if remote.request.pairing_open {
+                if let Some((conn, bond)) = remote.pair_new_pad(&mut central, &finder).await {
+                    if let Some(old) = bonded.replace(bond.clone()) {
+                        // The stack holds the new bond already; drop the old pad's,
+                        // unless the same pad paired again.
+                        if old.identity.addr != bond.identity.addr {
+                            let _ = stack.remove_bond_information(old.identity);
+                        }
+                    }
+                    if bonds.store(&bond).await.is_err() {
+                        warn!("remote: the bond could not be stored; it lasts until reboot");
+                    }
+                    report(channels, Input::RemotePaired).await;
+                    remote.serve(&conn).await;
+                }
+            } else if let Some(bond) = &bonded {
+                remote.reconnect(&mut central, bond).await;
+            } else {
+                remote.wait_for_request().await;
+            }
+        }
+    })
+    .await;
+    match never {
+        Either::First(result) => {
+            // The runner only returns on a controller failure; nothing can be done
+            // without it, so keep the remote off and let the rest of the base run.
+            let _ = result;
+            error!("remote: the Bluetooth host stopped; the remote is off until reboot");
+            loop {
+                core::future::pending::<()>().await;
+            }
+        }
+        Either::Second(never) => never,
+    }
+}
+
+struct Remote<'s, 'r, C: Controller + ControllerCmdSync<LeSetScanParams>> {
+    stack: &'s Stack<'r, C, DefaultPacketPool>,
+    channels: &'s Channels,
+    request: RemoteRequest,
+}
+
+impl<C: Controller + ControllerCmdSync<LeSetScanParams>> Remote<'_, '_, C> {
+    fn refresh_request(&mut self) {
+        if let Some(request) = self.channels.remote_requests.try_take() {
+            self.request = request;
+        }
+    }
+
+    async fn wait_for_request(&mut self) {
+        self.request = self.channels.remote_requests.wait().await;
+    }
+
+    /// Scans for a gamepad while the pairing window is open, connects and pairs it;
+    /// returns the connection and the new bond.
+    async fn pair_new_pad<'c>(
+        &mut self,
+        central: &mut Central<'c, C, DefaultPacketPool>,
+        finder: &PadFinder,
+    ) -> Option<(Connection<'c, DefaultPacketPool>, BondInformation)> {
+        info!("remote: pairing window open, scanning for gamepads");
+        let found = {
+            let mut scanner = Scanner::new(central);
+            let config = ScanConfig {
+                active: true,
+                ..ScanConfig::default()
+            };
+            finder.found.reset();
+            let _session = scanner.scan(&config).await.ok()?;
+            match select(finder.found.wait(), self.channels.remote_requests.wait()).await {
+                Either::First(address) => address,
+                Either::Second(request) => {
+                    self.request = request;
+                    return None;
+                }
+            }
+        };
+        info!("remote: gamepad found, connecting");
+        let targets = [found];
+        let config = connect_config(&targets);
+        let conn = central.connect(&config).await.ok()?;
+        if conn.set_bondable(true).is_err() || conn.request_security().is_err() {
+            conn.disconnect();
+            return None;
+        }
+        let bond = with_timeout(PAIRING_TIMEOUT, async {
+            loop {
+                match conn.next().await {
+                    ConnectionEvent::PairingComplete { bond, .. } => return bond,
+                    ConnectionEvent::PairingFailed(_) | ConnectionEvent::Disconnected { .. } => {
+                        return None;
+                    }
+                    ConnectionEvent::RequestConnectionParams(request) => {
+                        let _ = request.accept(None, self.stack).await;
+                    }
+                    _ => {}
+                }
+            }
+        })
+        .await
+        .ok()
+        .flatten();
+        match bond {
+            Some(bond) => {
+                info!("remote: paired and bonded");
+                Some((conn, bond))
+            }
+            None => {
+                warn!("remote: pairing failed");
+                conn.disconnect();
+                None
+            }
+        }
+    }
+
+    /// One attempt to reach the bonded pad; serves it while it stays connected.
+    async fn reconnect(
+        &mut self,
+        central: &mut Central<'_, C, DefaultPacketPool>,
+        bond: &BondInformation,
+    ) {
+        let targets = [bond.identity.addr];
+        let config = connect_config(&targets);
+        let attempt = with_timeout(RECONNECT_ATTEMPT, central.connect(&config));
+        match select(attempt, self.channels.remote_requests.wait()).await {
+            Either::First(Ok(Ok(conn))) => {
+                // Encrypt with the stored bond before anything else; never pair here.
+                if conn.set_bondable(false).is_err() || conn.request_security().is_err() {
+                    conn.disconnect();
+                    return;
+                }
+                if self.wait_encrypted(&conn).await {
+                    self.serve(&conn).await;
+                } else {
+                    warn!("remote: the bonded pad did not encrypt; disconnected");
+                    conn.disconnect();
+                }
+            }
+            Either::First(_) => {}
+            Either::Second(request) => self.request = request,
+        }
+    }
+
+    async fn wait_encrypted(&self, conn: &Connection<'_, DefaultPacketPool>) -> bool {
+        with_timeout(PAIRING_TIMEOUT, async {
+            loop {
+                match conn.next().await {
+                    ConnectionEvent::Encrypted { .. } => return conn.is_bonded_peer(),
+                    ConnectionEvent::PairingFailed(_)
+                    | ConnectionEvent::BondLost
+                    | ConnectionEvent::Disconnected { .. } => return false,
+                    ConnectionEvent::RequestConnectionParams(request) => {
+                        let _ = request.accept(None, self.stack).await;
+                    }
+                    _ => {}
+                }
+            }
+        })
+        .await
+        .unwrap_or(false)
+    }
+
+    /// Discovers the pad's HID service, subscribes to its input reports and forwards
+    /// them until the link drops or the controller asks to disconnect.
+    async fn serve(&mut self, conn: &Connection<'_, DefaultPacketPool>) {
+        report(
+            self.channels,
+            Input::RemoteLink {
+                bonded: true,
+                connected: true,
+            },
+        )
+        .await;
+        let Ok(client) =
+            GattClient::<C, DefaultPacketPool, MAX_SERVICES>::new(self.stack, conn).await
+        else {
+            conn.disconnect();
+            report(
+                self.channels,
+                Input::RemoteLink {
+                    bonded: true,
+                    connected: false,
+                },
+            )
+            .await;
+            return;
+        };
+        let disconnects_before = self.request.disconnects;
+        let outcome = select4(
+            client.task(),
+            forward_reports(&client, self.channels),
+            watch_link(conn, self.stack),
+            async {
+                loop {
+                    let request = self.channels.remote_requests.wait().await;
+                    self.request = request;
+                    if request.disconnects != disconnects_before {
+                        return;
+                    }
+                }
+            },
+        )
+        .await;
+        match outcome {
+            Either4::Second(Err(error)) => warn!("remote: HID setup failed: {}", error),
+            Either4::Fourth(()) => info!("remote: switched off by the controller"),
+            _ => {}
+        }
+        conn.disconnect();
+        report(
+            self.channels,
+            Input::RemoteLink {
+                bonded: true,
+                connected: false,
+            },
+        )
+        .await;
+    }
+}
+
+/// Why the HID setup of a connected pad failed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+enum HidSetupError {
+    NoHidService,
+    NoReportMap,
+    /// The Report Map describes no gamepad we can read.
+    UnusableReportMap,
+    /// A GATT request failed (the link dropped, or the pad refused).
+    Gatt,
+}
+
+/// Reads the Report Map and the report IDs, subscribes to the input reports and sends
+/// each decoded report to the controller.
+async fn forward_reports<C: Controller>(
+    client: &GattClient<'_, C, DefaultPacketPool, MAX_SERVICES>,
+    channels: &Channels,
+) -> Result<(), HidSetupError> {
+    let ids = read_vid_pid(client).await;
+    let services = client
+        .services_by_uuid(&Uuid::new_short(HID_SERVICE))
+        .await
+        .map_err(|_| HidSetupError::Gatt)?;
+    let hid = services.first().ok_or(HidSetupError::NoHidService)?;
+    let characteristics = client
+        .characteristics::<MAX_CHARACTERISTICS>(hid)
+        .await
+        .map_err(|_| HidSetupError::Gatt)?;
+
+    let report_map = characteristics
+        .iter()
+        .find(|c| c.uuid == Uuid::new_short(REPORT_MAP))
+        .ok_or(HidSetupError::NoReportMap)?;
+    let mut map = [0u8; MAX_REPORT_MAP];
+    let len = client
+        .read_characteristic(report_map, &mut map)
+        .await
+        .map_err(|_| HidSetupError::Gatt)?;
+    let mut layout = GamepadLayout::parse(&map[..len.min(MAX_REPORT_MAP)], ids)
+        .map_err(|_| HidSetupError::UnusableReportMap)?;
+
+    // HOGP notifications carry no report ID: the Report Reference descriptor of each
+    // Report characteristic says which one it is.
+    let mut inputs: Vec<(u16, u8), MAX_CHARACTERISTICS> = Vec::new();
+    for report in characteristics
+        .iter()
+        .filter(|c| c.uuid == Uuid::new_short(REPORT))
+    {
+        let Some(cccd) = report.cccd_handle else {
+            continue;
+        };
+        let reference = client
+            .descriptor_by_uuid::<_, [u8]>(report, &Uuid::new_short(REPORT_REFERENCE))
+            .await
+            .map_err(|_| HidSetupError::Gatt)?;
+        let mut value = [0u8; 2];
+        client
+            .read_descriptor(&reference, &mut value)
+            .await
+            .map_err(|_| HidSetupError::Gatt)?;
+        let [report_id, kind] = value;
+        if kind != INPUT_REPORT {
+            continue;
+        }
+        client
+            .write_handle(cccd, &[0x01, 0x00])
+            .await
+            .map_err(|_| HidSetupError::Gatt)?;
+        let _ = inputs.push((report.handle, report_id));
+    }
+
+    let mut listener = client.listen_all().map_err(|_| HidSetupError::Gatt)?;
+    info!(
+        "remote: gamepad ready, {=usize} input reports",
+        inputs.len()
+    );
+    loop {
+        let notification = listener.next().await;
+        let Some(&(_, report_id)) = inputs
+            .iter()
+            .find(|(handle, _)| *handle == notification.handle())
+        else {
+            continue;
+        };
+        // A report that does not decode is dropped: the next one carries the whole
+        // state again.
+        if let Ok(Some(state)) = layout.decode(report_id, notification.as_ref()) {
+            channels.inputs.send(Input::Gamepad(state)).await;
+        }
+    }
+}
+
+/// The pad's USB vendor and product ID from the Device Information service, which
+/// refines the button map of pads the generic map gets wrong.
+async fn read_vid_pid<C: Controller>(
+    client: &GattClient<'_, C, DefaultPacketPool, MAX_SERVICES>,
+) -> Option<VidPid> {
+    let services = client
+        .services_by_uuid(&Uuid::new_short(DEVICE_INFORMATION))
+        .await
+        .ok()?;
+    let info = services.first()?;
+    let pnp = client
+        .characteristic_by_uuid::<[u8]>(info, &Uuid::new_short(PNP_ID))
+        .await
+        .ok()?;
+    let mut value = [0u8; 7];
+    let len = client.read_characteristic(&pnp, &mut value).await.ok()?;
+    // Vendor ID source (1 byte), vendor ID, product ID, product version (LE u16s).
+    (len >= 5).then(|| {
+        VidPid::new(
+            u16::from_le_bytes([value[1], value[2]]),
+            u16::from_le_bytes([value[3], value[4]]),
+        )
+    })
+}
+
+/// Answers the pad's connection parameter requests and returns when the link drops.
+async fn watch_link<C: Controller>(
+    conn: &Connection<'_, DefaultPacketPool>,
+    stack: &Stack<'_, C, DefaultPacketPool>,
+) {
+    loop {
+        match conn.next().await {
+            ConnectionEvent::Disconnected { .. } => return,
+            ConnectionEvent::RequestConnectionParams(request) => {
+                // Accept what the pad asks, but the supervision timeout stays ours.
+                let _ = request.accept(Some(&connection_params()), stack).await;
+            }
+            _ => {}
+        }
+    }
+}
+
+fn connect_config(targets: &[Address]) -> ConnectConfig<'_> {
+    ConnectConfig {
+        scan_config: ScanConfig {
+            filter_accept_list: targets,
+            ..ScanConfig::default()
+        },
+        connect_params: connection_params(),
+    }
+}
+
+async fn report(channels: &Channels, input: Input) {
+    channels.inputs.send(input).await;
+}
+
+/// Watches advertising reports while scanning and signals the first gamepad: one that
+/// shows the gamepad appearance or lists the HID service.
+#[derive(Default)]
+struct PadFinder {
+    found: embassy_sync::signal::Signal<super::channels::RawMutex, Address>,
+}
+
+impl EventHandler for PadFinder {
+    fn on_adv_reports(&self, mut reports: LeAdvReportsIter<'_>) {
+        while let Some(Ok(report)) = reports.next() {
+            if advertises_gamepad(report.data) {
+                self.found.signal(Address {
+                    kind: report.addr_kind,
+                    addr: report.addr,
+                });
+            }
+        }
+    }
+}
+
+/// Whether advertising data announces a HID gamepad.
+pub fn advertises_gamepad(data: &[u8]) -> bool {
+    AdStructure::decode(data)
+        .flatten()
+        .any(|structure| match structure {
+            AdStructure::IncompleteServiceUuids16(uuids)
+            | AdStructure::CompleteServiceUuids16(uuids) => uuids
+                .iter()
+                .any(|uuid| u16::from_le_bytes(*uuid) == HID_SERVICE),
+            AdStructure::Unknown { ty: 0x19, data } => data == GAMEPAD_APPEARANCE.to_le_bytes(),
+            _ => false,
+        })
+}
+
+/// The bond in its partition: one sequential-storage map item, key 0.
+struct BondStore<F: NorFlash> {
+    flash: F,
+    range: Range<u32>,
+}
+
+const BOND_KEY: u8 = 0;
+/// sequential-storage's work buffer: the record, its key and the item header.
+const BOND_BUFFER: usize = BOND_RECORD_LEN + 16;
+
+enum BondStoreError {
+    /// The partition is not whole pages.
+    Misconfigured,
+    Flash,
+}
+
+impl<F: NorFlash> BondStore<F> {
+    fn new(flash: F, range: Range<u32>) -> Self {
+        Self { flash, range }
+    }
+
+    /// The stored bond; `None` for none, or for a record that does not decode (it is
+    /// then as if no pad were bonded: pairing again replaces it).
+    async fn load(&mut self) -> Option<BondInformation> {
+        let mut buffer = [0u8; BOND_BUFFER];
+        let config = MapConfig::try_new(self.range.clone()).ok()?;
+        let mut map = MapStorage::<u8, _, _>::new(&mut self.flash, config, Cache::new_uncached());
+        let record: [u8; BOND_RECORD_LEN] = map.fetch_item(&mut buffer, &BOND_KEY).await.ok()??;
+        decode_bond(&record)
+    }
+
+    async fn store(&mut self, bond: &BondInformation) -> Result<(), BondStoreError> {
+        let mut buffer = [0u8; BOND_BUFFER];
+        let config =
+            MapConfig::try_new(self.range.clone()).map_err(|_| BondStoreError::Misconfigured)?;
+        let mut map = MapStorage::<u8, _, _>::new(&mut self.flash, config, Cache::new_uncached());
+        map.store_item(&mut buffer, &BOND_KEY, &encode_bond(bond))
+            .await
+            .map_err(|_| BondStoreError::Flash)
+    }
+}
+
+/// A random static Bluetooth address from the chip's MAC (6 bytes, most significant
+/// first): the MAC's bytes in the little-endian order of the air, with the two top
+/// bits set as random static addresses require. Stable across reboots, so a pad's
+/// bond stays valid.
+pub fn random_static_address(mac: &[u8]) -> [u8; 6] {
+    let mut address = [0u8; 6];
+    for (to, from) in address.iter_mut().zip(mac.iter().rev()) {
+        *to = *from;
+    }
+    address[5] |= 0xC0;
+    address
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_address_is_the_mac_reversed_with_the_random_static_bits() {
+        let address = random_static_address(&[0x10, 0x20, 0x30, 0x40, 0x50, 0x60]);
+        assert_eq!(address, [0x60, 0x50, 0x40, 0x30, 0x20, 0xD0]);
+    }
+
+    #[test]
+    fn gamepads_are_recognised_by_appearance_or_hid_service() {
+        // Flags, then appearance 0x03C4 (gamepad).
+        assert!(advertises_gamepad(&[
+            0x02, 0x01, 0x06, 0x03, 0x19, 0xC4, 0x03
+        ]));
+        // Complete list of 16-bit service UUIDs with 0x180F and 0x1812.
+        assert!(advertises_gamepad(&[0x05, 0x03, 0x0F, 0x18, 0x12, 0x18]));
+        // A keyboard appearance (0x03C1) and the battery service only.
+        assert!(!advertises_gamepad(&[
+            0x03, 0x19, 0xC1, 0x03, 0x03, 0x03, 0x0F, 0x18
+        ]));
+        // Garbage that claims more bytes than there are.
+        assert!(!advertises_gamepad(&[0x09, 0x19, 0xC4]));
+    }
+}
