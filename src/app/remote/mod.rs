@@ -289,55 +289,43 @@ impl<C: Controller + ControllerCmdSync<LeSetScanParams>> Remote<'_, '_, C> {
     /// Discovers the pad's HID service, subscribes to its input reports and forwards
     /// them until the link drops or the controller asks to disconnect.
     async fn serve(&mut self, conn: &Connection<'_, DefaultPacketPool>) {
-        report(
-            self.channels,
-            Input::RemoteLink {
-                bonded: true,
-                connected: true,
-            },
-        )
-        .await;
-        let Ok(client) =
+        self.report_link(true).await;
+        if let Ok(client) =
             GattClient::<C, DefaultPacketPool, MAX_SERVICES>::new(self.stack, conn).await
-        else {
-            conn.disconnect();
-            report(
-                self.channels,
-                Input::RemoteLink {
-                    bonded: true,
-                    connected: false,
+        {
+            let disconnects_before = self.request.disconnects;
+            let outcome = select4(
+                client.task(),
+                forward_reports(&client, self.channels),
+                watch_link(conn, self.stack),
+                async {
+                    loop {
+                        let request = self.channels.remote_requests.wait().await;
+                        self.request = request;
+                        if request.disconnects != disconnects_before {
+                            return;
+                        }
+                    }
                 },
             )
             .await;
-            return;
-        };
-        let disconnects_before = self.request.disconnects;
-        let outcome = select4(
-            client.task(),
-            forward_reports(&client, self.channels),
-            watch_link(conn, self.stack),
-            async {
-                loop {
-                    let request = self.channels.remote_requests.wait().await;
-                    self.request = request;
-                    if request.disconnects != disconnects_before {
-                        return;
-                    }
-                }
-            },
-        )
-        .await;
-        match outcome {
-            Either4::Second(Err(error)) => warn!("remote: HID setup failed: {}", error),
-            Either4::Fourth(()) => info!("remote: switched off by the controller"),
-            _ => {}
+            match outcome {
+                Either4::Second(Err(error)) => warn!("remote: HID setup failed: {}", error),
+                Either4::Fourth(()) => info!("remote: switched off by the controller"),
+                _ => {}
+            }
         }
         conn.disconnect();
+        self.report_link(false).await;
+    }
+
+    /// The link of the bonded pad came up or went down (down brakes a held dead-man).
+    async fn report_link(&self, connected: bool) {
         report(
             self.channels,
             Input::RemoteLink {
                 bonded: true,
-                connected: false,
+                connected,
             },
         )
         .await;
