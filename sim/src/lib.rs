@@ -12,3 +12,4 @@ pub mod flash;
 pub mod io;
 pub mod robot;
 pub mod runtime;
+pub mod slcan;
