@@ -339,9 +339,11 @@ async fn demo(demo: Demo, view: &View<'_>) {
         let telemetry = view.refresh();
         let (x, y) = telemetry.position_mm.unwrap_or_default();
         let heading = telemetry.heading_mrad.unwrap_or_default();
-        let mode = telemetry.status.map(|status| status.mode);
+        let mode = telemetry
+            .status
+            .map_or("-".to_owned(), |status| format!("{:?}", status.mode));
         view.output.message(&format!(
-            "demo {:6.2} s  {what:<28} x {x:5} mm  y {y:5} mm  heading {heading:5} mrad  {mode:?}",
+            "demo {:6.2} s  {what:<28} x {x:5} mm  y {y:5} mm  heading {heading:5} mrad  {mode}",
             now().as_millis() as f64 / 1000.0
         ));
     };
