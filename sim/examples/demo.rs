@@ -2,7 +2,7 @@
 //! PC would send, and what the base controller reports back. Runs in virtual time, so
 //! it finishes at once. `cargo run -p virtual-robot --example demo`
 //!
-//! The interactive simulator with a CAN endpoint for real PC software is issue 6.
+//! The live simulator with an SLCAN endpoint for real PC software: `cargo run -p virtual-robot`.
 
 use base_controller::can::Mode;
 use embassy_time::Instant;

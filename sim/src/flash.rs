@@ -123,6 +123,18 @@ impl RamFlash {
         Self::from_bytes(vec![0xFF; size])
     }
 
+    /// A flash holding `image`, e.g. bytes saved from an earlier run.
+    ///
+    /// # Panics
+    /// If `image` is not a whole number of pages.
+    pub fn from_image(image: Vec<u8>) -> Self {
+        assert!(
+            image.len().is_multiple_of(ERASE_SIZE),
+            "flash size must be whole pages"
+        );
+        Self::from_bytes(image)
+    }
+
     fn from_bytes(bytes: Vec<u8>) -> Self {
         Self {
             chip: Rc::new(RefCell::new(Chip {

@@ -8,7 +8,10 @@
 
 pub mod can;
 pub mod drives;
+pub mod file_flash;
 pub mod flash;
 pub mod io;
 pub mod robot;
 pub mod runtime;
+pub mod simulator;
+pub mod slcan;

@@ -1,0 +1,167 @@
+//! The simulator binary end to end: a PC opens its SLCAN serial port, drives the robot
+//! over it and reads the odometry back; registers written over CAN survive a restart.
+
+use std::fs::File;
+use std::io::{BufRead, BufReader, Read, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc::{Receiver, channel};
+use std::thread;
+use std::time::{Duration, Instant};
+
+use nix::sys::termios::{SetArg, cfmakeraw, tcgetattr, tcsetattr};
+
+struct Simulator {
+    child: Child,
+    link: PathBuf,
+}
+
+impl Simulator {
+    fn start(directory: &Path) -> Self {
+        let link = directory.join("slcan");
+        let mut child = Command::new(env!("CARGO_BIN_EXE_virtual-base-controller"))
+            .arg("--link")
+            .arg(&link)
+            .arg("--flash")
+            .arg(directory.join("flash.bin"))
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("the simulator starts");
+        // Drain stdout so the simulator never blocks on a full pipe.
+        let stdout = child.stdout.take().unwrap();
+        thread::spawn(move || for _ in BufReader::new(stdout).lines() {});
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while std::fs::read_link(&link).is_err() {
+            assert!(Instant::now() < deadline, "no serial port link appeared");
+            thread::sleep(Duration::from_millis(20));
+        }
+        Self { child, link }
+    }
+
+    /// Opens the port as a PC program does (raw mode) and starts reading its lines.
+    fn connect(&self) -> (File, Receiver<String>) {
+        let port = File::options()
+            .read(true)
+            .write(true)
+            .open(&self.link)
+            .expect("the serial port opens");
+        let mut termios = tcgetattr(&port).unwrap();
+        cfmakeraw(&mut termios);
+        tcsetattr(&port, SetArg::TCSANOW, &termios).unwrap();
+        let mut reader = port.try_clone().unwrap();
+        let (sender, lines) = channel();
+        thread::spawn(move || {
+            let mut line = String::new();
+            let mut byte = [0];
+            while reader.read_exact(&mut byte).is_ok() {
+                match byte[0] {
+                    b'\r' | b'\x07' => {
+                        line.push(char::from(byte[0]));
+                        if sender.send(std::mem::take(&mut line)).is_err() {
+                            return;
+                        }
+                    }
+                    other => line.push(char::from(other)),
+                }
+            }
+        });
+        (port, lines)
+    }
+
+    fn quit(mut self) {
+        writeln!(self.child.stdin.as_mut().unwrap(), "quit").unwrap();
+        let status = self.child.wait().unwrap();
+        assert!(status.success(), "{status}");
+    }
+}
+
+fn scratch_directory(name: &str) -> PathBuf {
+    let directory =
+        std::env::temp_dir().join(format!("virtual-robot-sim-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&directory);
+    std::fs::create_dir_all(&directory).unwrap();
+    directory
+}
+
+/// Sends SLCAN lines, each with its CR.
+fn send(port: &mut File, lines: &[&str]) {
+    for line in lines {
+        port.write_all(format!("{line}\r").as_bytes()).unwrap();
+    }
+}
+
+/// The x of a position frame line `t0EC8XXXXXXXXYYYYYYYY\r`.
+fn position_x(line: &str) -> Option<i32> {
+    let data = line.strip_prefix("t0EC8")?.get(..8)?;
+    let bytes: Vec<u8> = (0..4)
+        .map(|i| u8::from_str_radix(&data[2 * i..2 * i + 2], 16).unwrap())
+        .collect();
+    Some(i32::from_le_bytes(bytes.try_into().unwrap()))
+}
+
+#[test]
+fn a_pc_on_the_slcan_port_drives_the_robot_and_sees_the_position_grow() {
+    let simulator = Simulator::start(&scratch_directory("drive"));
+    let (mut port, lines) = simulator.connect();
+    send(&mut port, &["C", "S6", "O"]);
+    let opened: Vec<String> = (0..3)
+        .map(|_| lines.recv_timeout(Duration::from_secs(5)).unwrap())
+        .collect();
+    assert_eq!(opened, ["\r", "\r", "\r"]);
+
+    // Enable + 300 mm/s every 50 ms for 3 s: the drives boot in the first second.
+    let mut positions = Vec::new();
+    let end = Instant::now() + Duration::from_secs(3);
+    while Instant::now() < end {
+        send(&mut port, &["t2E484000000000000000", "t0C852C01000003"]);
+        thread::sleep(Duration::from_millis(50));
+        positions.extend(lines.try_iter().filter_map(|line| position_x(&line)));
+    }
+    let last_x = *positions.last().expect("position frames arrive");
+    assert!(positions.len() > 20, "{} position frames", positions.len());
+    assert!(last_x > 150, "x = {last_x} mm after driving at 300 mm/s");
+    simulator.quit();
+}
+
+#[test]
+fn a_closed_channel_refuses_frames_and_malformed_lines_get_bel() {
+    let simulator = Simulator::start(&scratch_directory("refuse"));
+    let (mut port, lines) = simulator.connect();
+    send(&mut port, &["t0050", "t0EC9", "S6", "O", "t0050"]);
+    let replies: Vec<String> = (0..5)
+        .map(|_| lines.recv_timeout(Duration::from_secs(5)).unwrap())
+        .collect();
+    assert_eq!(replies, ["\x07", "\x07", "\r", "\r", "z\r"]);
+    simulator.quit();
+}
+
+#[test]
+fn a_register_written_over_slcan_is_still_there_after_a_restart() {
+    let directory = scratch_directory("registers");
+    let simulator = Simulator::start(&directory);
+    let (mut port, lines) = simulator.connect();
+    // Register 9, sec_lin_vel, to 321 mm/s (0x0141).
+    send(&mut port, &["O", "t0033090141"]);
+    // The store writes the flash within a moment; give it a second.
+    thread::sleep(Duration::from_secs(1));
+    drop(lines);
+    drop(port);
+    simulator.quit();
+
+    let simulator = Simulator::start(&directory);
+    let (mut port, lines) = simulator.connect();
+    send(&mut port, &["O", "t00420109"]);
+    let deadline = Instant::now() + Duration::from_secs(5);
+    let reply = loop {
+        let line = lines
+            .recv_timeout(deadline.saturating_duration_since(Instant::now()))
+            .expect("a register reply arrives");
+        if line.starts_with("t0043") {
+            break line;
+        }
+    };
+    assert_eq!(reply, "t0043000141\r");
+    simulator.quit();
+}
