@@ -147,7 +147,8 @@ pub struct DrivesConfig {
     pub brake_decel_rpm_per_s: f64,
     /// Left (local ID 1 in the spec's examples) and right drive.
     pub slaves: [SlaveConfig; 2],
-    /// Request frames kept for [`DrivesHandle::requests`]; older ones are dropped.
+    /// Request and reply frames kept for [`DrivesHandle::requests`] and
+    /// [`DrivesHandle::replies`]; older ones are dropped.
     pub log_capacity: usize,
 }
 
@@ -269,9 +270,10 @@ impl DriveView {
     }
 }
 
-/// A frame the master put on the line, stamped with the end of its last byte.
+/// A frame on the line: its bytes, the start of the first and the end of the last.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct RequestRecord {
+pub struct FrameRecord {
+    pub started: Instant,
     pub at: Instant,
     pub bytes: Vec<u8>,
 }
@@ -419,10 +421,19 @@ impl DrivesHandle {
     }
 
     /// The request frames seen on the line, oldest first (at most `log_capacity`).
-    pub fn requests(&self) -> Vec<RequestRecord> {
+    pub fn requests(&self) -> Vec<FrameRecord> {
         let mut bus = self.bus.borrow_mut();
         bus.advance(Instant::now());
         bus.log.iter().cloned().collect()
+    }
+
+    /// The replies the drives put on the line, oldest first (at most `log_capacity`),
+    /// each logged whole when it starts: one that power-off or silencing cuts short, or
+    /// that collides with a request, is logged as the drives meant to send it.
+    pub fn replies(&self) -> Vec<FrameRecord> {
+        let mut bus = self.bus.borrow_mut();
+        bus.advance(Instant::now());
+        bus.reply_log.iter().cloned().collect()
     }
 
     /// Request frames seen on the line since the start, including dropped log entries.
@@ -477,7 +488,8 @@ struct Bus {
     /// Reply bytes not yet read, by arrival.
     replies: VecDeque<ReplyByte>,
     garble_replies: usize,
-    log: VecDeque<RequestRecord>,
+    log: VecDeque<FrameRecord>,
+    reply_log: VecDeque<FrameRecord>,
     request_count: usize,
     collisions: usize,
     /// Bumped by every handle change, so a waiting reader looks again.
@@ -499,6 +511,7 @@ impl Bus {
             replies: VecDeque::new(),
             garble_replies: 0,
             log: VecDeque::new(),
+            reply_log: VecDeque::new(),
             request_count: 0,
             collisions: 0,
             generation: 0,
@@ -595,11 +608,16 @@ impl Bus {
 
     fn process(&mut self, frame: &[WireByte], at: Instant) {
         let bytes: Vec<u8> = frame.iter().map(|wire| wire.byte).collect();
+        let char_time = self.config.char_time();
+        let started = frame.first().map_or(at, |first| first.end - char_time);
         let ended = frame.last().map_or(at, |last| last.end);
-        self.record(RequestRecord {
+        self.request_count += 1;
+        let request = FrameRecord {
+            started,
             at: ended,
             bytes: bytes.clone(),
-        });
+        };
+        push_bounded(&mut self.log, request, self.config.log_capacity);
         for drive in &mut self.drives {
             drive.advance_to(at, &self.config);
         }
@@ -653,17 +671,6 @@ impl Bus {
         if let Some(reply) = reply {
             self.send(reply, at);
         }
-    }
-
-    fn record(&mut self, record: RequestRecord) {
-        self.request_count += 1;
-        if self.config.log_capacity == 0 {
-            return;
-        }
-        if self.log.len() >= self.config.log_capacity {
-            self.log.pop_front();
-        }
-        self.log.push_back(record);
     }
 
     fn broadcast(&mut self, request: &Request, listeners: &[usize], at: Instant) {
@@ -827,6 +834,12 @@ impl Bus {
         for pending in &mut self.replies {
             pending.wire.collided |= pending.wire.end > start;
         }
+        let reply = FrameRecord {
+            started: start,
+            at: start + char_time * bytes.len() as u32,
+            bytes: bytes.iter().map(|&(_, byte)| byte).collect(),
+        };
+        push_bounded(&mut self.reply_log, reply, self.config.log_capacity);
         let mut end = start;
         for (from, byte) in bytes {
             end += char_time;
@@ -845,6 +858,17 @@ impl Bus {
                 .sort_by_key(|reply| reply.wire.end);
         }
     }
+}
+
+/// Appends `record`, dropping the oldest once the log holds `capacity`.
+fn push_bounded(log: &mut VecDeque<FrameRecord>, record: FrameRecord, capacity: usize) {
+    if capacity == 0 {
+        return;
+    }
+    if log.len() >= capacity {
+        log.pop_front();
+    }
+    log.push_back(record);
 }
 
 /// The address and PDU (function code and data) of a frame whose CRC is right.

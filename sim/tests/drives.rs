@@ -646,6 +646,32 @@ fn request_log_shows_the_setup_frames_with_their_times() {
     assert_eq!(log[1].bytes[0], RIGHT);
     assert_eq!(log[0].at, flushed[0]);
     assert_eq!(log[1].at, flushed[1]);
+    let config = DrivesConfig::default();
+    assert_eq!(log[0].at - log[0].started, config.char_time() * 21);
+}
+
+#[test]
+fn reply_log_shows_each_echo_as_the_master_read_it() {
+    let (mut port, handle) = drives();
+    let mut received = Vec::new();
+    block_on(async {
+        Timer::after_secs(1).await;
+        for slave in [LEFT, RIGHT] {
+            let request = modbus::write_items(slave, 0x0980, &[15, 2, u32::from(slave)]);
+            send(&mut port, &request).await;
+            received.push(receive_timed(&mut port).await);
+        }
+    });
+    let config = DrivesConfig::default();
+    let requests = handle.requests();
+    let replies = handle.replies();
+    assert_eq!(replies.len(), 2);
+    for ((reply, request), read) in replies.iter().zip(&requests).zip(&received) {
+        let bytes: Vec<u8> = read.iter().map(|&(_, byte)| byte).collect();
+        assert_eq!(reply.bytes, bytes);
+        assert_eq!(reply.started, request.at + config.response_delay());
+        assert_eq!(Some(reply.at), read.last().map(|&(at, _)| at));
+    }
 }
 
 #[test]
