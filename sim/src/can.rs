@@ -160,8 +160,9 @@ fn bit_time(bits: u32) -> Duration {
     Duration::from_micros((u64::from(bits) * 1_000_000).div_ceil(u64::from(BITRATE_BPS)))
 }
 
-/// A frame the firmware sent, stamped with the virtual time its last bit left the
-/// wire (when the PC would have it).
+/// A frame on the bus. A frame the firmware sent is stamped with the virtual time its
+/// last bit left the wire (when the PC would have it); one the PC sent, with the time
+/// it sent it (its frames take no bus time, see the module doc).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct SentFrame {
     pub at: Instant,
@@ -178,6 +179,8 @@ struct Bus {
     peer_waiting: WakerRegistration,
     /// Every frame the firmware sent, until the test takes them.
     sent: Vec<SentFrame>,
+    /// Every frame the PC sent, filtered out or not: all of them occupy the bus.
+    sent_by_pc: Vec<SentFrame>,
     /// The receive acceptance filter; `None` accepts everything.
     filter: Option<Vec<Id>>,
     filtered_out: u32,
@@ -224,6 +227,7 @@ impl VirtualCan {
             to_peer: VecDeque::new(),
             peer_waiting: WakerRegistration::new(),
             sent: Vec::new(),
+            sent_by_pc: Vec::new(),
             filter: None,
             filtered_out: 0,
             lost_while_bus_off: 0,
@@ -370,7 +374,17 @@ impl CanPeer {
     /// Sends any frame (extended, remote) to the firmware; it arrives at once unless
     /// the acceptance filter drops it or the firmware's controller is bus-off.
     pub fn send_frame(&self, frame: SimFrame) {
-        self.bus.borrow_mut().deliver_to_firmware(frame);
+        let mut bus = self.bus.borrow_mut();
+        bus.sent_by_pc.push(SentFrame {
+            at: Instant::now(),
+            frame,
+        });
+        bus.deliver_to_firmware(frame);
+    }
+
+    /// Every frame the PC sent, oldest first, whether the firmware took it or not.
+    pub fn sent_by_pc(&self) -> Vec<SentFrame> {
+        self.bus.borrow().sent_by_pc.clone()
     }
 
     /// The next frame from the firmware, waiting for one if none is queued.

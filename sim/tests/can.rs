@@ -133,6 +133,33 @@ fn pc_frames_reach_the_firmware_when_sent() {
 }
 
 #[test]
+fn pc_frames_are_logged_with_their_send_time_even_when_filtered_out() {
+    let (mut rx, _tx, peer) = VirtualCan::new();
+    rx.accept_only_standard(&[id::HEARTBEAT]);
+    let start = now();
+    block_on(async {
+        peer.send(id::HEARTBEAT, &[1]);
+        Timer::after_millis(3).await;
+        peer.send(id::WEIGHT, &[2]);
+    });
+    let logged: Vec<_> = peer
+        .sent_by_pc()
+        .iter()
+        .map(|sent| (sent.at - start, sent.frame))
+        .collect();
+    assert_eq!(
+        logged,
+        [
+            (Duration::from_millis(0), frame(id::HEARTBEAT, &[1])),
+            (Duration::from_millis(3), frame(id::WEIGHT, &[2])),
+        ]
+    );
+    assert_eq!(peer.filtered_out(), 1);
+    // The firmware's log holds only what the firmware sent.
+    assert_eq!(peer.sent(), vec![]);
+}
+
+#[test]
 fn sent_frames_can_be_picked_by_id() {
     let (_rx, mut tx, peer) = VirtualCan::new();
     block_on(async {
