@@ -1,0 +1,419 @@
+//! The figures the README quotes, measured on the virtual robot in one run (virtual
+//! time; Modbus bytes timed at the configured baud rate, 8E1; CAN frames at 500 kbit/s
+//! with the stuff bits the virtual bus counts):
+//!
+//! - latency: CAN velocity frame → both drives have the new speed (the base is
+//!   driving), and e-stop edge → zero speed on the wire, each at many phases of the
+//!   control cycle;
+//! - the periods of the feedback frames while driving, and their jitter;
+//! - the Modbus bytes of a control cycle and how busy they keep the RS-485 line, at
+//!   115200 and at 230400 baud;
+//! - CAN frames per second by ID and the bus load, in standby and while driving.
+//!
+//! Run with `cargo run -p virtual-robot --example figures`.
+
+use std::collections::{BTreeMap, BTreeSet};
+
+use base_controller::can::id;
+use base_controller::registers::Reg;
+use embassy_futures::join::join;
+use embassy_time::{Duration, Instant, Timer};
+use virtual_robot::can::{BITRATE_BPS, SentFrame};
+use virtual_robot::drives::{DrivesConfig, FrameRecord};
+use virtual_robot::robot::{Pc, VirtualRobot, wait_ms};
+
+/// Phases spread over one 50 ms control cycle.
+const TRIALS: u64 = 50;
+/// Until the drives are set up and the sensors have a first reading.
+const BOOT_MS: u64 = 1_500;
+/// Standby: the controller reports, the PC sends nothing.
+const STANDBY_MS: u64 = 10_000;
+/// Driving before the measurement starts, so the base is at speed.
+const WARM_UP_MS: u64 = 2_000;
+/// Steady driving: a dozen periods of the slowest feedback frame (`volt_time`, 5 s).
+const DRIVING_MS: u64 = 60_000;
+/// The robot PC's velocity period; it sends the enable with every second velocity.
+const VELOCITY_PERIOD_MS: u64 = 50;
+const DRIVING_SPEED_MM_S: i16 = 300;
+/// The faster line the drives support, for the headroom comparison.
+const FAST_BAUD: u32 = 230_400;
+/// Modbus RTU ends a frame with 3.5 character times of silence; the next frame may
+/// start only after it.
+const FRAME_GAP_CHARS: f64 = 3.5;
+
+fn main() {
+    let (velocity, estop) = measure_latencies(&VirtualRobot::new());
+    report_latency(
+        "CAN velocity frame → both drives have the new speed",
+        &velocity,
+    );
+    report_latency("e-stop edge → zero speed on the wire", &estop);
+
+    let recording = record_buses(&VirtualRobot::new());
+    println!();
+    report_feedback_periods(&recording);
+    println!();
+    let cycle_ms = f64::from(Reg::LoopEndDelay.info().default);
+    report_line(&recording, cycle_ms);
+    report_line(&record_buses(&robot_at_baud(FAST_BAUD)), cycle_ms);
+    println!();
+    report_can(&recording);
+}
+
+/// A robot whose controller and drives both talk at `baud`.
+fn robot_at_baud(baud: u32) -> VirtualRobot {
+    let mut robot = VirtualRobot::with_drives(DrivesConfig {
+        baud,
+        ..DrivesConfig::default()
+    });
+    robot.settings.drives.line.baud = baud;
+    robot
+}
+
+fn measure_latencies(robot: &VirtualRobot) -> (Vec<Duration>, Vec<Duration>) {
+    robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        pc.drive(300, 0, 500).await;
+        let mut velocity = Vec::new();
+        for trial in 0..TRIALS {
+            let speed = if trial % 2 == 0 { 400 } else { 300 };
+            pc.enable();
+            let sent = Instant::now();
+            pc.velocity(speed, 0);
+            // Longer than a cycle, and 1 ms more each trial: the next command lands
+            // at a new phase of the drive link's own 50 ms cycle, sometimes while its
+            // transaction is on the wire.
+            Timer::after(Duration::from_millis(50) + Duration::from_micros(trial * 1_000)).await;
+            let applied =
+                [1, 2].map(|slave| robot.drives.drive(slave).last_new_speed_at.expect("speed"));
+            velocity.push(applied.into_iter().max().expect("two drives") - sent);
+        }
+
+        let mut estop = Vec::new();
+        for trial in 0..TRIALS / 2 {
+            pc.drive(300, 0, 300).await;
+            Timer::after(Duration::from_micros(trial * 2_000)).await;
+            let pressed = Instant::now();
+            robot.press_estop();
+            wait_ms(60).await;
+            let stopped =
+                [1, 2].map(|slave| robot.drives.drive(slave).last_new_speed_at.expect("speed"));
+            estop.push(stopped.into_iter().max().expect("two drives") - pressed);
+            robot.release_estop();
+            wait_ms(100).await;
+            robot.press_button(200).await;
+            wait_ms(800).await;
+        }
+        (velocity, estop)
+    })
+}
+
+fn report_latency(what: &str, samples: &[Duration]) {
+    let min = samples.iter().copied().min().expect("samples");
+    let max = samples.iter().copied().max().expect("samples");
+    let mean = samples.iter().map(|&d| ms(d)).sum::<f64>() / samples.len() as f64;
+    println!(
+        "{what}: min {:.1} ms, mean {mean:.1} ms, max {:.1} ms ({} samples)",
+        ms(min),
+        ms(max),
+        samples.len()
+    );
+}
+
+/// A stretch of virtual time, start included, end excluded.
+#[derive(Debug, Clone, Copy)]
+struct Window {
+    start: Instant,
+    end: Instant,
+}
+
+impl Window {
+    /// Waits `duration_ms` and returns the time it waited.
+    async fn lasting(duration_ms: u64) -> Window {
+        let start = Instant::now();
+        wait_ms(duration_ms).await;
+        Window {
+            start,
+            end: Instant::now(),
+        }
+    }
+
+    fn contains(&self, at: Instant) -> bool {
+        (self.start..self.end).contains(&at)
+    }
+
+    fn seconds(&self) -> f64 {
+        ms(self.end - self.start) / 1000.0
+    }
+}
+
+/// What one robot put on its buses in standby and then while driving steadily.
+struct BusRecording {
+    standby: Window,
+    driving: Window,
+    from_controller: Vec<SentFrame>,
+    from_pc: Vec<SentFrame>,
+    line_baud: u32,
+    requests: Vec<FrameRecord>,
+    replies: Vec<FrameRecord>,
+}
+
+fn record_buses(robot: &VirtualRobot) -> BusRecording {
+    robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        let standby = Window::lasting(STANDBY_MS).await;
+        let (_, driving) = join(drive_as_the_pc_does(pc, WARM_UP_MS + DRIVING_MS), async {
+            wait_ms(WARM_UP_MS).await;
+            Window::lasting(DRIVING_MS).await
+        })
+        .await;
+        let requests = robot.drives.requests();
+        assert!(
+            requests
+                .first()
+                .is_some_and(|first| first.at < driving.start),
+            "the drives' log must reach back before the driving window"
+        );
+        BusRecording {
+            standby,
+            driving,
+            from_controller: pc.peer.sent(),
+            from_pc: pc.peer.sent_by_pc(),
+            line_baud: robot.settings.drives.line.baud,
+            requests,
+            replies: robot.drives.replies(),
+        }
+    })
+}
+
+/// The robot PC while driving: a velocity every 50 ms and the enable with every second
+/// one (every 100 ms, well inside `enable_timeout`).
+async fn drive_as_the_pc_does(pc: &Pc, duration_ms: u64) {
+    let end = Instant::now() + Duration::from_millis(duration_ms);
+    let mut with_enable = true;
+    while Instant::now() < end {
+        if with_enable {
+            pc.enable();
+        }
+        with_enable = !with_enable;
+        pc.velocity(DRIVING_SPEED_MM_S, 0);
+        wait_ms(VELOCITY_PERIOD_MS).await;
+    }
+}
+
+/// The feedback frames' periods, from the times their last bit left the bus: each
+/// interval's deviation from the register's period.
+fn report_feedback_periods(recording: &BusRecording) {
+    let window = recording.driving;
+    println!(
+        "Feedback periods while driving ({:.0} s), from the time each frame left the bus:",
+        window.seconds()
+    );
+    println!(
+        "  {:<7}{:<16}{:>9}{:>12}{:>10}{:>10}{:>10}{:>11}",
+        "ID", "register", "set", "mean", "min dev", "max dev", "std dev", "intervals"
+    );
+    for (frame_id, period) in [
+        (id::POSITION, Reg::LoopEndDelay),
+        (id::BATTERY, Reg::VoltTime),
+        (id::WEIGHT, Reg::WeightTime),
+        (id::STATUS, Reg::StatusTime),
+    ] {
+        let set_ms = f64::from(period.info().default);
+        let times: Vec<Instant> = recording
+            .from_controller
+            .iter()
+            .filter(|sent| sent.frame.standard_id() == Some(frame_id) && window.contains(sent.at))
+            .map(|sent| sent.at)
+            .collect();
+        let intervals: Vec<f64> = times.windows(2).map(|pair| ms(pair[1] - pair[0])).collect();
+        let count = intervals.len() as f64;
+        let mean = intervals.iter().sum::<f64>() / count;
+        let variance = intervals.iter().map(|i| (i - mean).powi(2)).sum::<f64>() / count;
+        let deviation_us = |interval: f64| (interval - set_ms) * 1000.0;
+        let min_dev = intervals
+            .iter()
+            .copied()
+            .map(deviation_us)
+            .fold(f64::MAX, f64::min);
+        let max_dev = intervals
+            .iter()
+            .copied()
+            .map(deviation_us)
+            .fold(f64::MIN, f64::max);
+        println!(
+            "  {frame_id:#05X}  {:<16}{:>6} ms{:>9.3} ms{:>+7.0} µs{:>+7.0} µs{:>7.0} µs{:>11}",
+            period.info().name,
+            set_ms,
+            mean,
+            min_dev,
+            max_dev,
+            variance.sqrt() * 1000.0,
+            intervals.len()
+        );
+    }
+}
+
+/// One request on the RS-485 line and the reply it drew (none for a broadcast).
+struct Transaction<'a> {
+    request: &'a FrameRecord,
+    reply: Option<&'a FrameRecord>,
+}
+
+impl Transaction<'_> {
+    fn function_code(&self) -> u8 {
+        self.request.bytes.get(1).copied().unwrap_or_default()
+    }
+
+    /// How long one byte took on the line, from the request's own timing.
+    fn char_time_ms(&self) -> f64 {
+        ms(self.request.at - self.request.started) / self.request.bytes.len() as f64
+    }
+
+    /// From the request's first byte to the silence after the last frame, which the
+    /// line needs before it can carry the next one.
+    fn busy_ms(&self) -> f64 {
+        let last = self.reply.unwrap_or(self.request);
+        ms(last.at - self.request.started) + FRAME_GAP_CHARS * self.char_time_ms()
+    }
+}
+
+/// The driving window's requests, each with the first reply that started after it
+/// ended and before the next request.
+fn transactions(recording: &BusRecording) -> Vec<Transaction<'_>> {
+    let requests: Vec<&FrameRecord> = recording
+        .requests
+        .iter()
+        .filter(|request| recording.driving.contains(request.started))
+        .collect();
+    requests
+        .iter()
+        .enumerate()
+        .map(|(index, &request)| {
+            let next = requests.get(index + 1).map(|next| next.started);
+            let reply = recording.replies.iter().find(|reply| {
+                reply.started >= request.at && next.is_none_or(|next| reply.started < next)
+            });
+            Transaction { request, reply }
+        })
+        .collect()
+}
+
+/// Bytes per control cycle by function code, and the line's busy time: frames, the
+/// drives' response delay and the closing silence.
+fn report_line(recording: &BusRecording, cycle_ms: f64) {
+    let window = recording.driving;
+    let transactions = transactions(recording);
+    let cycles = window.seconds() * 1000.0 / cycle_ms;
+    let per_cycle = |total: f64| total / cycles;
+    let char_time = transactions.first().expect("traffic").char_time_ms();
+    println!(
+        "RS-485 at {} baud ({:.1} µs per byte), steady driving, per {cycle_ms:.0} ms cycle:",
+        recording.line_baud,
+        char_time * 1000.0
+    );
+    let mut by_function: BTreeMap<u8, Vec<&Transaction>> = BTreeMap::new();
+    for transaction in &transactions {
+        by_function
+            .entry(transaction.function_code())
+            .or_default()
+            .push(transaction);
+    }
+    for (function, group) in &by_function {
+        let count = group.len() as f64;
+        let mean = |measure: &dyn Fn(&Transaction) -> f64| {
+            group.iter().map(|&t| measure(t)).sum::<f64>() / count
+        };
+        let request_bytes = mean(&|t| t.request.bytes.len() as f64);
+        let reply_bytes = mean(&|t| t.reply.map_or(0.0, |reply| reply.bytes.len() as f64));
+        let response_delay = mean(&|t| {
+            t.reply
+                .map_or(0.0, |reply| ms(reply.started - t.request.at))
+        });
+        println!(
+            "  FC {function:02X}h, {:.2} per cycle: request {request_bytes:.0} B ({:.2} ms) + response \
+             delay {response_delay:.2} ms + reply {reply_bytes:.0} B ({:.2} ms) + gap {:.2} ms",
+            per_cycle(count),
+            request_bytes * char_time,
+            reply_bytes * char_time,
+            FRAME_GAP_CHARS * char_time,
+        );
+    }
+    let bytes: usize = transactions
+        .iter()
+        .map(|t| t.request.bytes.len() + t.reply.map_or(0, |reply| reply.bytes.len()))
+        .sum();
+    let busy_ms: f64 = transactions.iter().map(Transaction::busy_ms).sum();
+    println!(
+        "  total {:.1} B per cycle, line busy {:.2} ms per cycle = {:.1} % utilisation",
+        per_cycle(bytes as f64),
+        per_cycle(busy_ms),
+        100.0 * busy_ms / (window.seconds() * 1000.0)
+    );
+}
+
+/// Frames per second by ID and direction, and the share of the bus's bits they take.
+fn report_can(recording: &BusRecording) {
+    let windows = [
+        ("standby", recording.standby),
+        ("driving", recording.driving),
+    ];
+    let directions = [
+        ("PC → BC", &recording.from_pc),
+        ("BC → PC", &recording.from_controller),
+    ];
+    println!(
+        "CAN at {} kbit/s, frames per second; standby: the PC is silent, driving: it sends\n\
+         the velocity every 50 ms and the enable every 100 ms (bits: on the wire, stuffed):",
+        BITRATE_BPS / 1000
+    );
+    println!(
+        "  {:<7}{:<9}{:>5}{:>9}{:>9}",
+        "ID", "from", "bits", windows[0].0, windows[1].0
+    );
+    let mut totals = [(0usize, 0u64); 2];
+    for (direction, frames) in directions {
+        let ids: BTreeSet<u16> = frames
+            .iter()
+            .filter_map(|sent| sent.frame.standard_id())
+            .collect();
+        for frame_id in ids {
+            let wire_bits = frames
+                .iter()
+                .filter(|sent| sent.frame.standard_id() == Some(frame_id))
+                .map(|sent| sent.frame.wire_bits())
+                .max()
+                .unwrap_or_default();
+            let mut row = format!("  {frame_id:#05X}  {direction:<9}{wire_bits:>5}");
+            for ((_, window), total) in windows.iter().zip(&mut totals) {
+                let in_window: Vec<&SentFrame> = frames
+                    .iter()
+                    .filter(|sent| {
+                        sent.frame.standard_id() == Some(frame_id) && window.contains(sent.at)
+                    })
+                    .collect();
+                total.0 += in_window.len();
+                total.1 += in_window
+                    .iter()
+                    .map(|sent| u64::from(sent.frame.wire_bits()))
+                    .sum::<u64>();
+                row += &format!("{:>9.1}", in_window.len() as f64 / window.seconds());
+            }
+            println!("{row}");
+        }
+    }
+    let [standby, driving] = [0, 1].map(|index| {
+        let (frames, bits) = totals[index];
+        let seconds = windows[index].1.seconds();
+        (
+            frames as f64 / seconds,
+            100.0 * bits as f64 / (f64::from(BITRATE_BPS) * seconds),
+        )
+    });
+    println!("  {:<21}{:>9.1}{:>9.1}", "total", standby.0, driving.0);
+    println!("  {:<21}{:>8.2}%{:>8.2}%", "bus load", standby.1, driving.1);
+}
+
+fn ms(duration: Duration) -> f64 {
+    duration.as_micros() as f64 / 1000.0
+}
