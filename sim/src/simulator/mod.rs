@@ -247,7 +247,7 @@ async fn bridge_slcan(port: &SerialPort, view: &View<'_>) -> ! {
                 let timestamp_ms = channel
                     .timestamps()
                     .then(|| (now().as_millis() % 60_000) as u16);
-                let counter = if port.send(slcan::format_frame(&frame, timestamp_ms).as_bytes()) {
+                let counter = if port.send(::slcan::format_frame(&frame, timestamp_ms).as_bytes()) {
                     &counters.frames_out
                 } else {
                     &counters.frames_dropped

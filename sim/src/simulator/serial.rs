@@ -14,7 +14,7 @@ use nix::pty::openpty;
 use nix::sys::termios::{SetArg, cfmakeraw, tcgetattr, tcsetattr};
 
 use crate::runtime::{QueueReceiver, cross_thread_queue};
-use crate::slcan::LineAssembler;
+use ::slcan::LineAssembler;
 
 /// Chunks of output that may wait for the PC to read them. When the PC reads nothing
 /// (no program attached) the terminal's buffer and then this queue fill up, and

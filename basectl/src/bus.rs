@@ -1,0 +1,106 @@
+//! The CAN bus as basectl sees it: send a standard data frame, receive one with a
+//! timeout. Implementations: an SLCAN adapter on a tty (CANable, the simulator's
+//! pseudo-terminal) and, on Linux, a SocketCAN interface.
+
+use std::fmt;
+use std::time::Duration;
+
+use base_controller::can::RawFrame;
+
+mod slcan_port;
+#[cfg(target_os = "linux")]
+mod socketcan_bus;
+
+pub use slcan_port::SlcanPort;
+
+/// A CAN bus carrying the base controller's protocol (standard data frames only).
+pub trait Bus {
+    fn send(&mut self, frame: &RawFrame) -> Result<(), BusError>;
+    /// The next standard data frame, or `None` when `timeout` passed without one.
+    /// Extended and remote frames are skipped: the protocol uses neither.
+    fn receive(&mut self, timeout: Duration) -> Result<Option<RawFrame>, BusError>;
+}
+
+/// Which kind of adapter `--channel` names.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Interface {
+    /// A serial SLCAN adapter (CANable, the simulator): `--channel` is its tty path.
+    Slcan,
+    /// A Linux SocketCAN interface (`--channel can0`), already configured and up.
+    Socketcan,
+}
+
+/// Opens the bus `channel` names.
+pub fn open(
+    interface: Interface,
+    channel: &str,
+    bitrate_bps: u32,
+) -> Result<Box<dyn Bus>, BusError> {
+    match interface {
+        Interface::Slcan => Ok(Box::new(SlcanPort::open(channel, bitrate_bps)?)),
+        #[cfg(target_os = "linux")]
+        Interface::Socketcan => Ok(Box::new(socketcan_bus::SocketCanBus::open(channel)?)),
+        #[cfg(not(target_os = "linux"))]
+        Interface::Socketcan => Err(BusError::Unsupported("SocketCAN exists only on Linux")),
+    }
+}
+
+/// Why the bus could not be used.
+#[derive(Debug)]
+pub enum BusError {
+    /// The device or interface could not be opened, read or written.
+    Io {
+        what: String,
+        source: std::io::Error,
+    },
+    /// The SLCAN adapter answered a setup command with an error (BEL).
+    AdapterRefused { command: String, hint: String },
+    /// The SLCAN adapter did not answer a setup command.
+    AdapterSilent { command: String },
+    /// The bit rate is not one the adapter can set.
+    BadBitrate(u32),
+    #[cfg(not(target_os = "linux"))]
+    Unsupported(&'static str),
+}
+
+impl fmt::Display for BusError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            BusError::Io { what, source } => write!(f, "{what}: {source}"),
+            BusError::AdapterRefused { command, hint } => {
+                write!(f, "the SLCAN adapter refused {command:?} ({hint})")
+            }
+            BusError::AdapterSilent { command } => write!(
+                f,
+                "the SLCAN adapter did not answer {command:?} (is --channel an SLCAN device?)"
+            ),
+            BusError::BadBitrate(bps) => write!(
+                f,
+                "bit rate {bps} bit/s is not an SLCAN rate (allowed: {})",
+                slcan::BITRATES_BPS.map(|rate| rate.to_string()).join(", ")
+            ),
+            #[cfg(not(target_os = "linux"))]
+            BusError::Unsupported(why) => f.write_str(why),
+        }
+    }
+}
+
+impl std::error::Error for BusError {}
+
+/// A standard data frame as the library's codec wants it; `None` for extended and
+/// remote frames.
+pub(crate) fn to_raw_frame<F: embedded_can::Frame>(frame: &F) -> Option<RawFrame> {
+    match frame.id() {
+        embedded_can::Id::Standard(id) if !frame.is_remote_frame() => {
+            RawFrame::new(id.as_raw(), frame.data())
+        }
+        _ => None,
+    }
+}
+
+/// The frame type `F` for a library frame; every `RawFrame` has an 11-bit ID and at most
+/// 8 bytes, so this always succeeds for a correct `F`.
+pub(crate) fn from_raw_frame<F: embedded_can::Frame>(frame: &RawFrame) -> F {
+    let id = embedded_can::StandardId::new(frame.id()).expect("RawFrame IDs have 11 bits");
+    F::new(id, frame.data()).expect("RawFrame data has at most 8 bytes")
+}

@@ -1,0 +1,14 @@
+//! basectl, the base controller's commissioning CLI: the bus ([`bus`]), the controller
+//! behind it ([`controller`]) and one module per command. `main.rs` only parses the
+//! command line; the end-to-end tests (`sim/tests/basectl.rs`) call these functions
+//! against the simulator.
+
+pub mod bus;
+pub mod calibrate;
+pub mod cli;
+pub mod controller;
+pub mod drive;
+pub mod heartbeat;
+pub mod monitor;
+pub mod registers;
+pub mod rejection;

@@ -1,0 +1,167 @@
+//! `monitor`: every report of the base controller, decoded, one line per frame.
+
+use std::io::Write;
+use std::time::{Duration, Instant};
+
+use base_controller::can::{Report, Status};
+
+use crate::controller::{Controller, Error};
+use crate::rejection;
+
+/// When `monitor` stops; with neither it runs until Ctrl-C.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Until {
+    pub count: Option<u64>,
+    pub seconds: Option<u64>,
+}
+
+pub fn monitor(
+    controller: &mut Controller,
+    until: Until,
+    out: &mut dyn Write,
+) -> Result<(), Error> {
+    let deadline = until
+        .seconds
+        .map(|seconds| Instant::now() + Duration::from_secs(seconds));
+    let mut printed = 0;
+    let mut quiet_since = Instant::now();
+    while until.count.is_none_or(|count| printed < count) {
+        let wait = match deadline {
+            Some(deadline) if Instant::now() >= deadline => break,
+            Some(deadline) => deadline
+                .saturating_duration_since(Instant::now())
+                .min(Duration::from_secs(1)),
+            None => Duration::from_secs(1),
+        };
+        match controller.next_report(wait)? {
+            Some(report) => {
+                writeln!(out, "{}", describe(&report))?;
+                printed += 1;
+                quiet_since = Instant::now();
+            }
+            // The status frame alone comes every second in every mode: silence this
+            // long means no controller, unless the person turned status_time off.
+            None if quiet_since.elapsed() > Duration::from_secs(5) => {
+                writeln!(
+                    out,
+                    "no frame from the base controller for 5 s (is it connected? bit rate?)"
+                )?;
+                quiet_since = Instant::now();
+            }
+            None => {}
+        }
+    }
+    Ok(())
+}
+
+/// One report as a line of text.
+pub fn describe(report: &Report) -> String {
+    match *report {
+        Report::Position { x_mm, y_mm } => format!("position  x {x_mm} mm  y {y_mm} mm"),
+        Report::Heading { heading_mrad } => format!("heading   {heading_mrad} mrad"),
+        Report::Battery {
+            percent,
+            voltage_mv,
+        } => format!("battery   {percent} %  {voltage_mv} mV"),
+        Report::Weight { grams } => format!("weight    {grams} g"),
+        Report::RegisterValue { value } => format!("register  value {value}"),
+        Report::RegisterReadError { address, reason } => {
+            format!(
+                "register  {address} refused: {}",
+                rejection::describe(reason)
+            )
+        }
+        Report::Status(status) => describe_status(&status),
+    }
+}
+
+fn describe_status(status: &Status) -> String {
+    let flags = status.flags;
+    let faults = status.faults;
+    let set = |pairs: &[(bool, &str)]| {
+        let names: Vec<&str> = pairs
+            .iter()
+            .filter(|(on, _)| *on)
+            .map(|(_, name)| *name)
+            .collect();
+        if names.is_empty() {
+            "-".to_owned()
+        } else {
+            names.join(",")
+        }
+    };
+    let flag_names = set(&[
+        (flags.enable_fresh, "enable_fresh"),
+        (flags.pc_on, "pc_on"),
+        (flags.safety_zone, "safety_zone"),
+        (flags.remote_bonded, "remote_bonded"),
+        (flags.remote_connected, "remote_connected"),
+        (flags.remote_in_control, "remote_in_control"),
+        (flags.estop_pressed, "estop_pressed"),
+        (flags.brakes_applied, "brakes_applied"),
+    ]);
+    let fault_names = set(&[
+        (faults.left_drive_silent, "left_drive_silent"),
+        (faults.left_drive_alarm, "left_drive_alarm"),
+        (faults.right_drive_silent, "right_drive_silent"),
+        (faults.right_drive_alarm, "right_drive_alarm"),
+        (faults.flash, "flash"),
+        (faults.scale, "scale"),
+        (faults.can_bus, "can_bus"),
+        (faults.watchdog_reset, "watchdog_reset"),
+    ]);
+    let last = match rejection::name(status.last_rejection) {
+        Some(name) => format!("{name} on 0x{:02X}", status.last_rejection_subject),
+        None if status.last_rejection == 0 => "none".to_owned(),
+        None => format!(
+            "0x{:02X} on 0x{:02X}",
+            status.last_rejection, status.last_rejection_subject
+        ),
+    };
+    format!(
+        "status    mode {:?}  source {:?}  flags {flag_names}  faults {fault_names}  rejected {} (last {last})  drive alarm 0x{:02X}  modbus errors {}",
+        status.mode,
+        status.control,
+        status.rejected_count,
+        status.drive_alarm,
+        status.modbus_errors
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_status_frame_names_mode_flags_faults_and_the_last_rejection() {
+        // The protocol document's example frame.
+        let bytes = [0x24, 0x8D, 0xA6, 0xC8, 0x02, 0xC8, 0x84, 0x07];
+        let Ok(Some(report)) = Report::decode(0x0EE, &bytes) else {
+            panic!("decodes")
+        };
+        let line = describe(&report);
+        assert!(line.contains("mode AwaitingConfirm"), "{line}");
+        assert!(line.contains("source Remote"), "{line}");
+        assert!(
+            line.contains("enable_fresh,safety_zone,remote_bonded,brakes_applied"),
+            "{line}"
+        );
+        assert!(
+            line.contains("left_drive_alarm,right_drive_silent,scale,watchdog_reset"),
+            "{line}"
+        );
+        assert!(
+            line.contains("rejected 200 (last BadVelocityMarker on 0xC8)"),
+            "{line}"
+        );
+    }
+
+    #[test]
+    fn a_position_frame_reads_in_millimetres() {
+        let report = Report::Position {
+            x_mm: 1000,
+            y_mm: -2,
+        };
+        assert_eq!(describe(&report), "position  x 1000 mm  y -2 mm");
+    }
+}

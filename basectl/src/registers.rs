@@ -1,0 +1,207 @@
+//! `reg list/get/set/dump/restore`: the register table from the library, looked up by
+//! name or address, values checked against the range before anything is sent.
+
+use std::io::Write;
+
+use base_controller::registers::{Access, RESTORE_DEFAULTS_KEY, Reg, RegisterInfo, TABLE, info};
+
+use crate::controller::{Controller, Error};
+
+/// A register by its name (any case) or its address (decimal or `0x` hex).
+pub fn lookup(name_or_address: &str) -> Result<&'static RegisterInfo, Error> {
+    let by_name = TABLE
+        .iter()
+        .find(|register| register.name.eq_ignore_ascii_case(name_or_address));
+    let found = by_name.or_else(|| {
+        parse_number(name_or_address)
+            .and_then(|n| u8::try_from(n).ok())
+            .and_then(info)
+    });
+    found.ok_or_else(|| {
+        Error::InvalidInput(format!(
+            "no register {name_or_address:?} (see `basectl reg list` for names and addresses)"
+        ))
+    })
+}
+
+fn parse_number(text: &str) -> Option<u32> {
+    match text.strip_prefix("0x").or_else(|| text.strip_prefix("0X")) {
+        Some(hex) => u32::from_str_radix(hex, 16).ok(),
+        None => text.parse().ok(),
+    }
+}
+
+/// The allowed values of `register`, as a person reads them.
+pub fn allowed(register: &RegisterInfo) -> String {
+    match register.access {
+        Access::ReadOnly => "none: the register is read-only".to_owned(),
+        Access::WriteOnly => format!("only the keys 0x{RESTORE_DEFAULTS_KEY:04X} and 0xB1E0"),
+        Access::ReadWrite if register.zero_is_off => {
+            format!("0 (off) or {}..={}", register.min, register.max)
+        }
+        Access::ReadWrite => format!("{}..={}", register.min, register.max),
+    }
+}
+
+/// A value for `register` from the command line, refused here with the allowed range
+/// rather than by the base controller.
+pub fn parse_value(register: &RegisterInfo, text: &str) -> Result<u16, Error> {
+    let invalid = || {
+        Error::InvalidInput(format!(
+            "{text:?} is not a valid value for {} (allowed: {} {})",
+            register.name,
+            allowed(register),
+            register.unit
+        ))
+    };
+    let value = parse_number(text)
+        .and_then(|n| u16::try_from(n).ok())
+        .ok_or_else(invalid)?;
+    if register.access == Access::ReadOnly || !register.accepts(value) {
+        return Err(invalid());
+    }
+    Ok(value)
+}
+
+fn access_name(access: Access) -> &'static str {
+    match access {
+        Access::ReadWrite => "rw",
+        Access::ReadOnly => "ro",
+        Access::WriteOnly => "wo",
+    }
+}
+
+pub fn list(out: &mut dyn Write) -> std::io::Result<()> {
+    writeln!(
+        out,
+        "{:>4}  {:<16} {:<10} {:>7}  {:<20} {:<3} description",
+        "addr", "name", "unit", "default", "range", "acc"
+    )?;
+    for register in &TABLE {
+        let range = match register.access {
+            Access::WriteOnly => "keys".to_owned(),
+            _ if register.zero_is_off => format!("0|{}..{}", register.min, register.max),
+            _ => format!("{}..{}", register.min, register.max),
+        };
+        writeln!(
+            out,
+            "{:>4}  {:<16} {:<10} {:>7}  {:<20} {:<3} {}",
+            register.address,
+            register.name,
+            register.unit,
+            register.default,
+            range,
+            access_name(register.access),
+            register.description
+        )?;
+    }
+    Ok(())
+}
+
+pub fn get(
+    controller: &mut Controller,
+    register: &RegisterInfo,
+    out: &mut dyn Write,
+) -> Result<(), Error> {
+    let value = controller.read_register(register.address)?;
+    writeln!(out, "{} = {value} {}", register.name, register.unit)?;
+    Ok(())
+}
+
+pub fn set(
+    controller: &mut Controller,
+    register: &RegisterInfo,
+    value: u16,
+    out: &mut dyn Write,
+) -> Result<(), Error> {
+    let old = controller.read_register(register.address)?;
+    controller.write_register(register, value)?;
+    let new = controller.read_register(register.address)?;
+    if new != value {
+        return Err(Error::Aborted(format!(
+            "{} reads back {new} after writing {value}: another client may have written it",
+            register.name
+        )));
+    }
+    writeln!(out, "{}: {old} -> {new} {}", register.name, register.unit)?;
+    Ok(())
+}
+
+pub fn dump(controller: &mut Controller, out: &mut dyn Write) -> Result<(), Error> {
+    for register in TABLE.iter().filter(|r| r.access != Access::WriteOnly) {
+        let value = controller.read_register(register.address)?;
+        writeln!(out, "{} = {value} {}", register.name, register.unit)?;
+    }
+    Ok(())
+}
+
+pub fn restore(
+    controller: &mut Controller,
+    confirmed: bool,
+    out: &mut dyn Write,
+) -> Result<(), Error> {
+    if !confirmed {
+        return Err(Error::InvalidInput(
+            "restoring every register to its default needs --yes".to_owned(),
+        ));
+    }
+    controller.write_register(Reg::Command.info(), RESTORE_DEFAULTS_KEY)?;
+    writeln!(out, "every writable register is back at its default")?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn registers_are_found_by_name_in_any_case_or_by_address() {
+        assert_eq!(lookup("loop_end_delay").unwrap().address, 15);
+        assert_eq!(lookup("CAN_ACCEL").unwrap().address, 3);
+        assert_eq!(lookup("16").unwrap().name, "f_cw");
+        assert_eq!(lookup("0x13").unwrap().name, "weight_offset");
+    }
+
+    #[test]
+    fn unknown_registers_and_holes_are_refused() {
+        assert!(lookup("no_such_register").is_err());
+        assert!(lookup("35").is_err(), "34-37 are kept free");
+        assert!(lookup("300").is_err());
+    }
+
+    #[test]
+    fn values_outside_the_range_are_refused_with_the_range() {
+        let loop_end_delay = lookup("loop_end_delay").unwrap();
+        let error = parse_value(loop_end_delay, "0").unwrap_err().to_string();
+        assert!(
+            error.contains(&format!("{}..={}", loop_end_delay.min, loop_end_delay.max)),
+            "{error}"
+        );
+        assert!(parse_value(loop_end_delay, "70000").is_err());
+        assert!(parse_value(loop_end_delay, "-1").is_err());
+        assert!(parse_value(loop_end_delay, "fast").is_err());
+        assert_eq!(parse_value(loop_end_delay, "50").unwrap(), 50);
+        assert_eq!(parse_value(loop_end_delay, "0x32").unwrap(), 50);
+    }
+
+    #[test]
+    fn read_only_registers_take_no_value() {
+        assert!(parse_value(lookup("fw_version").unwrap(), "1").is_err());
+    }
+
+    #[test]
+    fn zero_means_off_where_the_register_allows_it() {
+        let status_time = lookup("status_time").unwrap();
+        assert_eq!(parse_value(status_time, "0").unwrap(), 0);
+    }
+
+    #[test]
+    fn the_list_has_a_line_per_register() {
+        let mut text = Vec::new();
+        list(&mut text).unwrap();
+        assert_eq!(
+            String::from_utf8(text).unwrap().lines().count(),
+            TABLE.len() + 1
+        );
+    }
+}

@@ -1,0 +1,219 @@
+//! basectl against the simulator binary, end to end over its SLCAN pseudo-terminal:
+//! register round trip, both calibration wizards without a person at the keyboard,
+//! and `monitor --count`. The test lives here because only this package's tests can
+//! name the simulator binary (`CARGO_BIN_EXE_virtual-base-controller`); it calls
+//! basectl's library functions, the same ones its `main` dispatches to.
+
+use std::io::{BufRead, BufReader, Write};
+use std::path::PathBuf;
+use std::process::{Child, ChildStdin, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use basectl::bus::SlcanPort;
+use basectl::calibrate::{self, Driving, OdometryPlan, Person, ScalePlan};
+use basectl::controller::{Controller, Error};
+use basectl::monitor::{self, Until};
+use basectl::registers;
+
+struct Simulator {
+    child: Child,
+    link: PathBuf,
+}
+
+impl Simulator {
+    fn start(name: &str) -> Self {
+        let directory = std::env::temp_dir().join(format!("basectl-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&directory);
+        std::fs::create_dir_all(&directory).unwrap();
+        let link = directory.join("slcan");
+        let mut child = Command::new(env!("CARGO_BIN_EXE_virtual-base-controller"))
+            .arg("--link")
+            .arg(&link)
+            .arg("--flash")
+            .arg(directory.join("flash.bin"))
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("the simulator starts");
+        let stdout = child.stdout.take().unwrap();
+        std::thread::spawn(move || for _ in BufReader::new(stdout).lines() {});
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while std::fs::read_link(&link).is_err() {
+            assert!(Instant::now() < deadline, "no serial port link appeared");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        Self { child, link }
+    }
+
+    fn port(&self) -> SlcanPort {
+        SlcanPort::open(self.link.to_str().unwrap(), 500_000).expect("the SLCAN channel opens")
+    }
+
+    fn console(&mut self) -> &mut ChildStdin {
+        self.child.stdin.as_mut().unwrap()
+    }
+}
+
+impl Drop for Simulator {
+    fn drop(&mut self) {
+        let _ = writeln!(self.console(), "quit");
+        let _ = self.child.wait();
+    }
+}
+
+/// The person at the robot, played through the simulator's console: putting the
+/// weight on the scale is `weight G` on its stdin.
+struct ScriptedPerson<'a> {
+    console: &'a mut ChildStdin,
+    known_g: u16,
+}
+
+impl Person for ScriptedPerson<'_> {
+    fn confirm(&mut self, instruction: &str) -> Result<(), Error> {
+        let grams = if instruction.contains("empty") {
+            0
+        } else {
+            self.known_g
+        };
+        writeln!(self.console, "weight {grams}")?;
+        // The controller filters the load cell's readings: let them settle on the new load.
+        std::thread::sleep(Duration::from_secs(3));
+        Ok(())
+    }
+
+    fn ask(&mut self, question: &str) -> Result<String, Error> {
+        panic!("the test gives every value up front, yet was asked {question:?}")
+    }
+}
+
+/// No person: the odometry test gives every value up front and drives by itself.
+struct Nobody;
+
+impl Person for Nobody {
+    fn confirm(&mut self, instruction: &str) -> Result<(), Error> {
+        panic!("nobody is there to {instruction:?}")
+    }
+
+    fn ask(&mut self, question: &str) -> Result<String, Error> {
+        panic!("nobody is there to answer {question:?}")
+    }
+}
+
+#[test]
+fn a_register_written_with_basectl_reads_back_and_a_bad_value_is_refused_with_its_reason() {
+    let simulator = Simulator::start("reg");
+    let mut port = simulator.port();
+    let mut controller = Controller::new(&mut port, Duration::from_millis(500));
+    let loop_end_delay = registers::lookup("loop_end_delay").unwrap();
+    let mut out = Vec::new();
+    registers::set(&mut controller, loop_end_delay, 40, &mut out).unwrap();
+    registers::get(&mut controller, loop_end_delay, &mut out).unwrap();
+    let text = String::from_utf8(out).unwrap();
+    assert!(text.contains("loop_end_delay: 50 -> 40 ms"), "{text}");
+    assert!(text.contains("loop_end_delay = 40 ms"), "{text}");
+
+    // In range by itself, but empty above full breaks a cross-register rule.
+    let batt_empty = registers::lookup("batt_empty_mv").unwrap();
+    let error = registers::set(&mut controller, batt_empty, 30_000, &mut Vec::new()).unwrap_err();
+    assert!(error.to_string().contains("Inconsistent"), "{error}");
+}
+
+#[test]
+fn the_odometry_wizard_runs_end_to_end_and_stores_new_factors() {
+    let simulator = Simulator::start("odometry");
+    let mut port = simulator.port();
+    let mut controller = Controller::new(&mut port, Duration::from_millis(500));
+    let plan = OdometryPlan {
+        driving: Driving::Automatic {
+            distance_mm: 300,
+            angle_mrad: 1500,
+            speed_mm_s: 200,
+            turn_mrad_s: 1000,
+        },
+        // Real moves about 10 % shorter than the odometry's, well inside 0.5 ... 1.5.
+        real_mm: Some(300),
+        real_cw_mrad: Some(1450),
+        real_ccw_mrad: Some(1450),
+    };
+    let mut out = Vec::new();
+    calibrate::odometry(&mut controller, plan, &mut Nobody, &mut out).unwrap();
+    let text = String::from_utf8(out).unwrap();
+    for factor in ["f_cw", "f_ccw", "f_lin"] {
+        let line = text
+            .lines()
+            .find(|line| line.trim_start().starts_with(&format!("{factor} ")))
+            .unwrap();
+        let [old, new] = [1, 3].map(|i| {
+            line.split_whitespace()
+                .nth(i)
+                .unwrap()
+                .parse::<u16>()
+                .unwrap()
+        });
+        assert!(
+            new < old,
+            "{factor}: real shorter than measured lowers the factor: {line}"
+        );
+    }
+}
+
+#[test]
+fn the_scale_wizard_runs_end_to_end_and_the_scale_then_reads_the_known_weight() {
+    let mut simulator = Simulator::start("scale");
+    let mut port = simulator.port();
+    let mut controller = Controller::new(&mut port, Duration::from_millis(500));
+    let mut person = ScriptedPerson {
+        console: simulator.child.stdin.as_mut().unwrap(),
+        known_g: 2000,
+    };
+    let mut out = Vec::new();
+    calibrate::scale(
+        &mut controller,
+        ScalePlan {
+            known_g: Some(2000),
+        },
+        &mut person,
+        &mut out,
+    )
+    .unwrap();
+    let text = String::from_utf8(out).unwrap();
+    assert!(text.contains("weight_offset"), "{text}");
+    let reading: u16 = text
+        .lines()
+        .last()
+        .unwrap()
+        .split_whitespace()
+        .nth(4)
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(reading.abs_diff(2000) <= 20, "{text}");
+}
+
+#[test]
+fn monitor_stops_after_count_frames_and_decodes_each() {
+    let simulator = Simulator::start("monitor");
+    let mut port = simulator.port();
+    let mut controller = Controller::new(&mut port, Duration::from_millis(500));
+    let mut out = Vec::new();
+    monitor::monitor(
+        &mut controller,
+        Until {
+            count: Some(80),
+            seconds: None,
+        },
+        &mut out,
+    )
+    .unwrap();
+    let text = String::from_utf8(out).unwrap();
+    assert_eq!(text.lines().count(), 80, "{text}");
+    assert!(
+        text.lines().any(|line| line.starts_with("position")),
+        "{text}"
+    );
+    assert!(
+        text.lines().any(|line| line.starts_with("status    mode")),
+        "{text}"
+    );
+}
