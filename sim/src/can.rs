@@ -26,124 +26,23 @@ pub const BITRATE_BPS: u32 = 500_000;
 /// take part again.
 pub const RECOVERY_BITS: u32 = 128 * 11;
 
-/// Most data bytes of a classic CAN frame.
-const MAX_DLC: usize = 8;
+/// A frame on the virtual bus: the SLCAN codec's frame type, so that frames cross the
+/// simulator's serial port without conversion.
+pub use slcan::Frame as SimFrame;
 
-/// One classic CAN frame (2.0A or 2.0B), data or remote. `embedded-can` defines only
-/// the `Frame` trait, so the virtual bus brings its own frame type.
-///
-/// Data bytes past the length are always zero, so the derived equality is equality of
-/// frames. A remote frame carries no data; its DLC is the length it asks for.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub struct SimFrame {
-    id: Id,
-    remote: bool,
-    dlc: u8,
-    data: [u8; MAX_DLC],
+/// The protocol's view of a frame; `None` for extended and remote frames, which the
+/// protocol does not use.
+pub fn to_raw(frame: &SimFrame) -> Option<RawFrame> {
+    if frame.is_remote_frame() {
+        return None;
+    }
+    RawFrame::new(frame.standard_id()?, frame.data())
 }
 
-impl Frame for SimFrame {
-    fn new(id: impl Into<Id>, data: &[u8]) -> Option<Self> {
-        let mut bytes = [0; MAX_DLC];
-        bytes.get_mut(..data.len())?.copy_from_slice(data);
-        Some(Self {
-            id: id.into(),
-            remote: false,
-            dlc: u8::try_from(data.len()).ok()?,
-            data: bytes,
-        })
-    }
-
-    fn new_remote(id: impl Into<Id>, dlc: usize) -> Option<Self> {
-        if dlc > MAX_DLC {
-            return None;
-        }
-        Some(Self {
-            id: id.into(),
-            remote: true,
-            dlc: u8::try_from(dlc).ok()?,
-            data: [0; MAX_DLC],
-        })
-    }
-
-    fn is_extended(&self) -> bool {
-        matches!(self.id, Id::Extended(_))
-    }
-
-    fn is_remote_frame(&self) -> bool {
-        self.remote
-    }
-
-    fn id(&self) -> Id {
-        self.id
-    }
-
-    fn dlc(&self) -> usize {
-        usize::from(self.dlc)
-    }
-
-    fn data(&self) -> &[u8] {
-        if self.remote {
-            return &[];
-        }
-        self.data.get(..self.dlc()).unwrap_or(&[])
-    }
-}
-
-impl SimFrame {
-    /// A standard data frame; `None` if `id` is wider than 11 bits or `data` longer
-    /// than 8 bytes.
-    pub fn standard(id: u16, data: &[u8]) -> Option<Self> {
-        Self::new(StandardId::new(id)?, data)
-    }
-
-    /// The 11-bit identifier, if this is a standard frame.
-    pub fn standard_id(&self) -> Option<u16> {
-        match self.id {
-            Id::Standard(id) => Some(id.as_raw()),
-            Id::Extended(_) => None,
-        }
-    }
-
-    /// The protocol's view of the frame; `None` for extended and remote frames, which
-    /// the protocol does not use.
-    pub fn to_raw(&self) -> Option<RawFrame> {
-        if self.remote {
-            return None;
-        }
-        RawFrame::new(self.standard_id()?, self.data())
-    }
-
-    /// Bits this frame occupies on the wire, an upper bound.
-    ///
-    /// Without stuffing a standard frame has 47 bits plus 8 per data byte (SOF, 11-bit
-    /// ID, RTR, IDE, r0, DLC, CRC 15, CRC delimiter, ACK slot and delimiter, 7 EOF,
-    /// 3 intermission): 111 bits with 8 bytes. An extended frame adds SRR, the
-    /// 18-bit ID extension and r1: 67 + 8n. Stuffing inserts a bit after five equal
-    /// bits from SOF to the end of the CRC; at worst that is the first five bits and
-    /// then every fourth, `(L - 1) / 4` for `L` bits. Counting the worst case instead
-    /// of stuffing the real bits (which needs the CRC) keeps the model simple and
-    /// errs towards a slower bus: 135 bits for 8 standard bytes, 270 µs at 500 kbit/s.
-    /// A remote frame sends no data field, whatever its DLC.
-    pub fn wire_bits(&self) -> u32 {
-        let data_bits = if self.remote {
-            0
-        } else {
-            8 * u32::from(self.dlc)
-        };
-        // SOF to the end of the CRC: the part that is stuffed.
-        let stuffed = if self.is_extended() { 54 } else { 34 } + data_bits;
-        // CRC delimiter, ACK slot and delimiter, end of frame, intermission.
-        let trailer = 1 + 2 + 7 + 3;
-        stuffed + (stuffed - 1) / 4 + trailer
-    }
-}
-
-impl From<RawFrame> for SimFrame {
-    fn from(raw: RawFrame) -> Self {
-        Self::standard(raw.id(), raw.data())
-            .expect("a RawFrame has an 11-bit ID and at most 8 bytes by construction")
-    }
+/// A protocol frame on the virtual bus.
+pub fn from_raw(raw: &RawFrame) -> SimFrame {
+    SimFrame::standard(raw.id(), raw.data())
+        .expect("a RawFrame has an 11-bit ID and at most 8 bytes by construction")
 }
 
 /// How long `frame` occupies the bus at [`BITRATE_BPS`], rounded up to whole µs.

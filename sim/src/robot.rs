@@ -183,7 +183,7 @@ impl Pc {
             .sent_with_id(frame_id)
             .into_iter()
             .filter_map(|sent| {
-                let raw = sent.frame.to_raw()?;
+                let raw = crate::can::to_raw(&sent.frame)?;
                 let report = Report::decode(raw.id(), raw.data()).ok()??;
                 Some((sent.at, report))
             })

@@ -8,7 +8,7 @@ use embassy_futures::select::{Either, select};
 use embassy_time::{Duration, Timer};
 use embedded_can::{ExtendedId, Frame, Id, StandardId};
 use virtual_robot::can::{
-    BITRATE_BPS, RECOVERY_BITS, SimFrame, VirtualCan, frame_time, recovery_time,
+    BITRATE_BPS, RECOVERY_BITS, SimFrame, VirtualCan, frame_time, from_raw, recovery_time, to_raw,
 };
 use virtual_robot::runtime::{block_on, now};
 
@@ -66,14 +66,14 @@ fn sim_frames_follow_the_embedded_can_contract() {
 #[test]
 fn sim_frames_convert_to_and_from_protocol_frames() {
     let raw = RawFrame::new(0x0C8, &[0xF4, 0x01, 0, 0, 3]).unwrap();
-    let sim = SimFrame::from(raw);
+    let sim = from_raw(&raw);
     assert_eq!(sim.standard_id(), Some(0x0C8));
     assert_eq!(sim.data(), raw.data());
-    assert_eq!(sim.to_raw(), Some(raw));
+    assert_eq!(to_raw(&sim), Some(raw));
     let extended = SimFrame::new(ExtendedId::new(0x0C8).unwrap(), &[1]).unwrap();
-    assert_eq!(extended.to_raw(), None);
+    assert_eq!(to_raw(&extended), None);
     let remote = SimFrame::new_remote(StandardId::new(0x0C8).unwrap(), 1).unwrap();
-    assert_eq!(remote.to_raw(), None);
+    assert_eq!(to_raw(&remote), None);
 }
 
 #[test]

@@ -25,7 +25,7 @@ pub struct Telemetry {
 impl Telemetry {
     pub fn absorb(&mut self, sent: impl IntoIterator<Item = SentFrame>) {
         for sent in sent {
-            let Some(raw) = sent.frame.to_raw() else {
+            let Some(raw) = crate::can::to_raw(&sent.frame) else {
                 continue;
             };
             match Report::decode(raw.id(), raw.data()) {
