@@ -125,6 +125,22 @@ impl DriveFaults {
     fn any(&self) -> bool {
         self.left_silent || self.left_alarm || self.right_silent || self.right_alarm
     }
+
+    /// Sets the wheel's bit: silent without an alarm code, alarm with one.
+    fn record(&mut self, wheel: Wheel, alarm: Option<u8>) {
+        match (wheel, alarm) {
+            (Wheel::Left, None) => self.left_silent = true,
+            (Wheel::Left, Some(code)) => {
+                self.left_alarm = true;
+                self.last_alarm_code = code;
+            }
+            (Wheel::Right, None) => self.right_silent = true,
+            (Wheel::Right, Some(code)) => {
+                self.right_alarm = true;
+                self.last_alarm_code = code;
+            }
+        }
+    }
 }
 
 /// The supervisor's state. Data lives in the variant that needs it.
@@ -418,24 +434,19 @@ impl Supervisor {
         params: &SupervisorParams,
         effects: &mut Effects,
     ) {
-        // In an emergency the drives lose power by design (and often raise an undervoltage
-        // alarm on the way down), and while (re)starting the link has not declared them
-        // ready: neither is a fault.
+        // While (re)starting nothing moves, so a drive that does not answer or keeps an
+        // alarm is no reason to stop; but the PC must see why the base does not get
+        // ready, so the fault bit is set and the drives' readiness clears it.
+        if matches!(self.state, State::Starting | State::Recovering) {
+            self.faults.record(wheel, alarm);
+            return;
+        }
+        // In an emergency the drives lose power by design (and often raise an
+        // undervoltage alarm on the way down): not a fault.
         if !self.may_drive() {
             return;
         }
-        match (wheel, alarm) {
-            (Wheel::Left, None) => self.faults.left_silent = true,
-            (Wheel::Left, Some(code)) => {
-                self.faults.left_alarm = true;
-                self.faults.last_alarm_code = code;
-            }
-            (Wheel::Right, None) => self.faults.right_silent = true,
-            (Wheel::Right, Some(code)) => {
-                self.faults.right_alarm = true;
-                self.faults.last_alarm_code = code;
-            }
-        }
+        self.faults.record(wheel, alarm);
         debug_assert!(self.faults.any());
         self.state = State::Fault {
             at_rest_since: None,
@@ -733,6 +744,19 @@ mod tests {
         let effects = supervisor.step(at(10), Event::ConfirmPressed, &PARAMS);
         assert!(!effects.setup_drives);
         assert_eq!(supervisor.mode(), Mode::Emergency);
+    }
+
+    #[test]
+    fn a_drive_silent_while_starting_is_shown_without_leaving_starting_and_cleared_when_ready() {
+        let mut supervisor = Supervisor::new();
+        let effects = supervisor.step(at(300), Event::DriveSilent(Wheel::Right), &PARAMS);
+        assert!(supervisor.faults().right_silent);
+        assert!(!supervisor.faults().left_silent);
+        assert_eq!(supervisor.mode(), Mode::Starting);
+        assert_eq!(effects, Effects::default());
+        supervisor.step(at(900), Event::DrivesReady, &PARAMS);
+        assert_eq!(supervisor.faults(), DriveFaults::default());
+        assert_eq!(supervisor.mode(), Mode::Standby);
     }
 
     #[test]

@@ -193,6 +193,28 @@ fn a_drive_that_stops_answering_stops_the_other_and_recovers_after_the_confirm_p
     });
 }
 
+/// A drive that never answers after boot keeps the base in Starting; the status frame
+/// says which one, and the bit clears once it answers and the setup is done.
+#[test]
+fn a_drive_silent_at_boot_is_shown_in_the_status_frame_until_it_answers() {
+    let robot = VirtualRobot::new();
+    robot.drives.set_silent(1, true);
+    robot.run(async |pc| {
+        let status = pc
+            .wait_for_status(5_000, |status| status.faults.left_drive_silent)
+            .await
+            .expect("the silent drive is reported");
+        assert_eq!(status.mode, Mode::Starting);
+        assert!(!status.faults.right_drive_silent);
+        robot.drives.set_silent(1, false);
+        let status = pc
+            .wait_for_status(5_000, |status| status.mode == Mode::Standby)
+            .await
+            .expect("the base gets ready once the drive answers");
+        assert!(!status.faults.left_drive_silent);
+    });
+}
+
 #[test]
 fn a_register_written_over_can_survives_a_reboot() {
     let robot = VirtualRobot::new();

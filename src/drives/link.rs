@@ -160,12 +160,23 @@ impl<'a, P: Rs485> DriveLink<'a, P> {
         self.refresh_demand();
     }
 
+    /// Polls until both drives answer. A drive silent for `failures_before_loss` polls
+    /// in a row is reported once, so the status frame says why the base does not get
+    /// ready (unpowered, unplugged, wrong address or baud rate).
     async fn poll_until_both_answer(&mut self) {
+        let mut silent_polls = [0u8; WHEELS.len()];
         loop {
             let mut answering = 0;
-            for wheel in WHEELS {
+            for (index, wheel) in WHEELS.into_iter().enumerate() {
                 if self.probe(wheel).await != Probe::Silent {
                     answering += 1;
+                    silent_polls[index] = 0;
+                    continue;
+                }
+                silent_polls[index] = silent_polls[index].saturating_add(1);
+                if silent_polls[index] == self.settings.failures_before_loss {
+                    warn!("{} drive does not answer", wheel);
+                    self.report(Input::DriveSilent(wheel)).await;
                 }
             }
             if answering == WHEELS.len() {
