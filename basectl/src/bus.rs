@@ -87,20 +87,5 @@ impl fmt::Display for BusError {
 
 impl std::error::Error for BusError {}
 
-/// A standard data frame as the library's codec wants it; `None` for extended and
-/// remote frames.
-pub(crate) fn to_raw_frame<F: embedded_can::Frame>(frame: &F) -> Option<RawFrame> {
-    match frame.id() {
-        embedded_can::Id::Standard(id) if !frame.is_remote_frame() => {
-            RawFrame::new(id.as_raw(), frame.data())
-        }
-        _ => None,
-    }
-}
-
-/// The frame type `F` for a library frame; every `RawFrame` has an 11-bit ID and at most
-/// 8 bytes, so this always succeeds for a correct `F`.
-pub(crate) fn from_raw_frame<F: embedded_can::Frame>(frame: &RawFrame) -> F {
-    let id = embedded_can::StandardId::new(frame.id()).expect("RawFrame IDs have 11 bits");
-    F::new(id, frame.data()).expect("RawFrame data has at most 8 bytes")
-}
+/// The library's conversions between its protocol frames and driver frames.
+pub(crate) use base_controller::app::can::{from_raw, to_raw};

@@ -13,7 +13,6 @@ use std::cell::RefCell;
 use std::collections::VecDeque;
 use std::rc::Rc;
 
-use base_controller::can::RawFrame;
 use base_controller::hw::{BusState, CanError, CanRx, CanTx};
 use embassy_sync::waitqueue::WakerRegistration;
 use embassy_time::{Duration, Instant, Timer};
@@ -30,20 +29,8 @@ pub const RECOVERY_BITS: u32 = 128 * 11;
 /// simulator's serial port without conversion.
 pub use slcan::Frame as SimFrame;
 
-/// The protocol's view of a frame; `None` for extended and remote frames, which the
-/// protocol does not use.
-pub fn to_raw(frame: &SimFrame) -> Option<RawFrame> {
-    if frame.is_remote_frame() {
-        return None;
-    }
-    RawFrame::new(frame.standard_id()?, frame.data())
-}
-
-/// A protocol frame on the virtual bus.
-pub fn from_raw(raw: &RawFrame) -> SimFrame {
-    SimFrame::standard(raw.id(), raw.data())
-        .expect("a RawFrame has an 11-bit ID and at most 8 bytes by construction")
-}
+/// Conversions between protocol frames and bus frames: the library's own.
+pub use base_controller::app::can::{from_raw, to_raw};
 
 /// How long `frame` occupies the bus at [`BITRATE_BPS`], rounded up to whole µs.
 pub fn frame_time(frame: &SimFrame) -> Duration {

@@ -66,7 +66,7 @@ fn sim_frames_follow_the_embedded_can_contract() {
 #[test]
 fn sim_frames_convert_to_and_from_protocol_frames() {
     let raw = RawFrame::new(0x0C8, &[0xF4, 0x01, 0, 0, 3]).unwrap();
-    let sim = from_raw(&raw);
+    let sim: SimFrame = from_raw(&raw).unwrap();
     assert_eq!(sim.standard_id(), Some(0x0C8));
     assert_eq!(sim.data(), raw.data());
     assert_eq!(to_raw(&sim), Some(raw));

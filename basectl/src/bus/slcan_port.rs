@@ -12,7 +12,7 @@ use base_controller::can::RawFrame;
 use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
 use nix::sys::termios::{SetArg, cfmakeraw, tcgetattr, tcsetattr};
 
-use super::{Bus, BusError, from_raw_frame, to_raw_frame};
+use super::{Bus, BusError, from_raw, to_raw};
 
 /// How long the adapter may take to answer a setup command.
 const SETUP_REPLY_TIMEOUT: Duration = Duration::from_millis(1000);
@@ -156,7 +156,11 @@ impl SlcanPort {
 
 impl Bus for SlcanPort {
     fn send(&mut self, frame: &RawFrame) -> Result<(), BusError> {
-        let line = slcan::format_frame(&from_raw_frame::<slcan::Frame>(frame), None);
+        let line = slcan::format_frame(
+            &from_raw::<slcan::Frame>(frame)
+                .expect("a RawFrame has an 11-bit ID and at most 8 bytes"),
+            None,
+        );
         self.write(line.as_bytes())
     }
 
@@ -166,7 +170,7 @@ impl Bus for SlcanPort {
             // Acknowledgements and lines that are no frame say nothing about the bus.
             if let Event::Line(line) = event
                 && let Ok(frame) = slcan::parse_received_frame::<slcan::Frame>(&line)
-                && let Some(frame) = to_raw_frame(&frame)
+                && let Some(frame) = to_raw(&frame)
             {
                 return Ok(Some(frame));
             }

@@ -6,7 +6,7 @@ use std::time::Duration;
 use base_controller::can::RawFrame;
 use socketcan::{CanFrame, CanSocket, Socket};
 
-use super::{Bus, BusError, from_raw_frame, to_raw_frame};
+use super::{Bus, BusError, from_raw, to_raw};
 
 pub struct SocketCanBus {
     socket: CanSocket,
@@ -29,7 +29,10 @@ impl SocketCanBus {
 impl Bus for SocketCanBus {
     fn send(&mut self, frame: &RawFrame) -> Result<(), BusError> {
         self.socket
-            .write_frame(&from_raw_frame::<CanFrame>(frame))
+            .write_frame(
+                &from_raw::<CanFrame>(frame)
+                    .expect("a RawFrame has an 11-bit ID and at most 8 bytes"),
+            )
             .map_err(|source| BusError::Io {
                 what: format!("cannot send on {}", self.interface),
                 source,
@@ -45,7 +48,7 @@ impl Bus for SocketCanBus {
             }
             match self.socket.read_frame_timeout(remaining) {
                 Ok(frame) => {
-                    if let Some(frame) = to_raw_frame(&frame) {
+                    if let Some(frame) = to_raw(&frame) {
                         return Ok(Some(frame));
                     }
                 }
