@@ -5,7 +5,7 @@
 use std::fmt;
 use std::time::Duration;
 
-use base_controller::can::RawFrame;
+use base_core::can::RawFrame;
 
 mod slcan_port;
 #[cfg(target_os = "linux")]
@@ -86,6 +86,3 @@ impl fmt::Display for BusError {
 }
 
 impl std::error::Error for BusError {}
-
-/// The library's conversions between its protocol frames and driver frames.
-pub(crate) use base_controller::app::can::{from_raw, to_raw};

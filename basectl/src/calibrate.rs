@@ -5,11 +5,11 @@
 use std::io::{BufRead, Write};
 use std::time::{Duration, Instant};
 
-use base_controller::calibration::{
+use base_core::calibration::{
     OdometryCalibrationCommand as Odometry, ScaleCalibrationCommand as Scale,
 };
-use base_controller::can::{Command, Mode};
-use base_controller::registers::Reg;
+use base_core::can::{Command, Mode};
+use base_core::registers::Reg;
 
 use crate::controller::{Controller, Error, Pose};
 
@@ -180,7 +180,7 @@ fn ask_u16(person: &mut dyn Person, question: &str) -> Result<u16, Error> {
 fn current_pose(controller: &mut Controller) -> Result<Pose, Error> {
     // The position frame comes every `loop_end_delay` (50 ms by default).
     controller.wait_for("a position frame 0x0EC", Duration::from_secs(2), |report| {
-        matches!(report, base_controller::can::Report::Heading { .. }).then_some(())
+        matches!(report, base_core::can::Report::Heading { .. }).then_some(())
     })?;
     Ok(controller.pose().unwrap_or_default())
 }

@@ -5,8 +5,8 @@
 use std::fmt;
 use std::time::{Duration, Instant};
 
-use base_controller::can::{Command, Report, Status};
-use base_controller::registers::{Reg, RegisterInfo};
+use base_core::can::{Command, Report, Status};
+use base_core::registers::{Reg, RegisterInfo};
 
 use crate::bus::{Bus, BusError};
 use crate::rejection;

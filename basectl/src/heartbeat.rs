@@ -4,7 +4,7 @@
 use std::io::Write;
 use std::time::{Duration, Instant};
 
-use base_controller::can::Command;
+use base_core::can::Command;
 
 use crate::controller::{Controller, Error};
 

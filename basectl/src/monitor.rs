@@ -3,7 +3,7 @@
 use std::io::Write;
 use std::time::{Duration, Instant};
 
-use base_controller::can::{Report, Status};
+use base_core::can::{Report, Status};
 
 use crate::controller::{Controller, Error};
 use crate::rejection;

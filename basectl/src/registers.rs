@@ -3,7 +3,7 @@
 
 use std::io::Write;
 
-use base_controller::registers::{Access, RESTORE_DEFAULTS_KEY, Reg, RegisterInfo, TABLE, info};
+use base_core::registers::{Access, RESTORE_DEFAULTS_KEY, Reg, RegisterInfo, TABLE, info};
 
 use crate::controller::{Controller, Error};
 

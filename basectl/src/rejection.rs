@@ -90,10 +90,10 @@ pub fn describe(code: u8) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use base_controller::calibration::odometry::OdometryCalibrationError;
-    use base_controller::calibration::scale::ScaleCalibrationError;
-    use base_controller::can::FrameError;
-    use base_controller::registers::RegisterError;
+    use base_core::calibration::odometry::OdometryCalibrationError;
+    use base_core::calibration::scale::ScaleCalibrationError;
+    use base_core::can::FrameError;
+    use base_core::registers::RegisterError;
 
     #[test]
     fn names_match_the_firmwares_codes() {

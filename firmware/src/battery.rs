@@ -1,8 +1,8 @@
 //! The battery voltage: one ADC1 reading, turned into millivolts at the pin by the
 //! board's conversion, then through the divider into millivolts at the battery.
 
-use base_controller::battery::VoltageDivider;
-use base_controller::hw::{BatteryVoltage, SensorError};
+use base_core::battery::VoltageDivider;
+use base_runtime::hw::{BatteryVoltage, SensorError};
 use esp_hal::Blocking;
 use esp_hal::analog::adc::{Adc, AdcCalScheme, AdcChannel, AdcPin};
 use esp_hal::peripherals::ADC1;

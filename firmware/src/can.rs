@@ -1,9 +1,9 @@
 //! CAN on the TWAI controller: the receive and transmit halves as the library's
 //! [`CanRx`] and [`CanTx`], with the acceptance filters of
-//! [`base_controller::can::filter`] and the bit rate chosen at build time.
+//! [`base_core::can::filter`] and the bit rate chosen at build time.
 
-use base_controller::can::filter::COMMAND_FILTERS;
-use base_controller::hw::{BusState, CanError, CanRx, CanTx};
+use base_core::can::filter::COMMAND_FILTERS;
+use base_runtime::hw::{BusState, CanError, CanRx, CanTx};
 use embassy_time::Timer;
 use esp_hal::Async;
 use esp_hal::gpio::AnyPin;

@@ -5,7 +5,7 @@
 
 use core::ops::Range;
 
-use base_controller::store::PARTITION_PAGES;
+use base_runtime::store::PARTITION_PAGES;
 use embassy_embedded_hal::adapter::BlockingAsync;
 use embassy_embedded_hal::flash::partition::Partition;
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;

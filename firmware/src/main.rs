@@ -4,8 +4,8 @@
 #![no_std]
 #![no_main]
 
-use base_controller::app::{self, Hardware, Settings, channels::Channels, remote};
-use base_controller::hx711::{Gain, Hx711};
+use base_runtime::hx711::{Gain, Hx711};
+use base_runtime::{Hardware, Settings, ble, channels::Channels};
 use defmt::{error, info, warn};
 use embassy_embedded_hal::adapter::BlockingAsync;
 use embassy_futures::join::join;
@@ -124,8 +124,15 @@ async fn main(_spawner: embassy_executor::Spawner) {
                 let controller: ExternalController<_, HCI_SLOTS> =
                     ExternalController::new(connector);
                 let mac = efuse::interface_mac_address(InterfaceMacAddress::Bluetooth);
-                let address = remote::random_static_address(mac.as_bytes());
-                remote::run(controller, address, bond_flash, bond_range, &CHANNELS).await
+                let address = ble::random_static_address(mac.as_bytes());
+                ble::run(
+                    controller,
+                    address,
+                    bond_flash,
+                    bond_range,
+                    CHANNELS.remote_ends(),
+                )
+                .await
             }
             Err(error) => {
                 // Without the radio the base still drives over CAN; the status frame
@@ -135,6 +142,6 @@ async fn main(_spawner: embassy_executor::Spawner) {
             }
         }
     };
-    let (never, ()) = join(app::run(hardware, settings, &CHANNELS), remote).await;
+    let (never, ()) = join(base_runtime::run(hardware, settings, &CHANNELS), remote).await;
     never
 }

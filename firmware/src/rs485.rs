@@ -3,8 +3,8 @@
 //! enabled before the first byte and released once `flush` has seen the last stop bit
 //! leave, which is the [`Rs485`] contract.
 
-use base_controller::drives::{LineSettings, Parity};
-use base_controller::hw::Rs485;
+use base_core::drives::{LineSettings, Parity};
+use base_runtime::hw::Rs485;
 use embedded_io_async::{ErrorType, Read, Write};
 use esp_hal::Async;
 use esp_hal::gpio::{AnyPin, Level, Output, OutputConfig};

@@ -3,7 +3,7 @@
 //! 1 Hz blink means every critical task is alive, and a LED that stops blinking means
 //! the watchdog is about to reset the chip.
 
-use base_controller::hw::Watchdog;
+use base_runtime::hw::Watchdog;
 use esp_hal::gpio::{AnyPin, Level, Output, OutputConfig};
 use esp_hal::peripherals::RTC_TIMER;
 use esp_hal::rtc_cntl::{Rtc, Rwdt, RwdtStage, RwdtStageAction};

@@ -16,12 +16,12 @@ esp_bootloader_esp_idf::esp_app_desc!();
 
 #[embedded_test::tests(default_timeout = 10)]
 mod tests {
-    use base_controller::can::filter::COMMAND_FILTERS;
-    use base_controller::can::id;
-    use base_controller::registers::Reg;
-    use base_controller::store::RegisterStore;
     use base_controller_firmware::flash::{self, SharedFlash};
     use base_controller_firmware::{board, can};
+    use base_core::can::filter::COMMAND_FILTERS;
+    use base_core::can::id;
+    use base_core::registers::Reg;
+    use base_runtime::store::RegisterStore;
     use embassy_embedded_hal::adapter::BlockingAsync;
     use embassy_futures::block_on;
     use esp_hal::peripherals::Peripherals;

@@ -3,7 +3,7 @@
 //! panic, and whatever decodes must survive encode -> decode unchanged.
 #![no_main]
 
-use base_controller::can::{Command, RawFrame, Report};
+use base_core::can::{Command, RawFrame, Report};
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|input: &[u8]| {

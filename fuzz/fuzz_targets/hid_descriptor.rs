@@ -4,7 +4,7 @@
 //! every decoded state must stay within its ranges.
 #![no_main]
 
-use base_controller::hid::{GamepadLayout, ReportMap, VidPid};
+use base_core::hid::{GamepadLayout, ReportMap, VidPid};
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|input: &[u8]| {

@@ -4,7 +4,7 @@
 //! request asked for.
 #![no_main]
 
-use base_controller::modbus::{
+use base_core::modbus::{
     self, READ_HOLDING, READ_WRITE_MULTIPLE, Target, parse_read, parse_share_reply,
     parse_write_echo,
 };

@@ -4,7 +4,7 @@
 //!
 //! The live simulator with an SLCAN endpoint for real PC software: `cargo run -p virtual-robot`.
 
-use base_controller::can::Mode;
+use base_core::can::Mode;
 use embassy_time::Instant;
 use virtual_robot::robot::{Pc, VirtualRobot, wait_ms};
 

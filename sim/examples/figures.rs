@@ -14,8 +14,8 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use base_controller::can::id;
-use base_controller::registers::Reg;
+use base_core::can::id;
+use base_core::registers::Reg;
 use embassy_futures::join::join;
 use embassy_time::{Duration, Instant, Timer};
 use virtual_robot::can::{BITRATE_BPS, SentFrame};

@@ -13,7 +13,7 @@ use std::cell::RefCell;
 use std::collections::VecDeque;
 use std::rc::Rc;
 
-use base_controller::hw::{BusState, CanError, CanRx, CanTx};
+use base_runtime::hw::{BusState, CanError, CanRx, CanTx};
 use embassy_sync::waitqueue::WakerRegistration;
 use embassy_time::{Duration, Instant, Timer};
 use embedded_can::{Frame, Id, StandardId};
@@ -28,9 +28,6 @@ pub const RECOVERY_BITS: u32 = 128 * 11;
 /// A frame on the virtual bus: the SLCAN codec's frame type, so that frames cross the
 /// simulator's serial port without conversion.
 pub use slcan::Frame as SimFrame;
-
-/// Conversions between protocol frames and bus frames: the library's own.
-pub use base_controller::app::can::{from_raw, to_raw};
 
 /// How long `frame` occupies the bus at [`BITRATE_BPS`], rounded up to whole µs.
 pub fn frame_time(frame: &SimFrame) -> Duration {

@@ -4,7 +4,7 @@
 //! drive link owns the [`DrivesPort`]; the test keeps the [`DrivesHandle`] to cut power,
 //! silence a drive, raise alarms, garble replies and look inside.
 //!
-//! The slave side is written from the spec, not from `base_controller::modbus` (only
+//! The slave side is written from the spec, not from `base_core::modbus` (only
 //! the CRC routine is shared), so master and sim cannot agree on the same mistake.
 //!
 //! # The line
@@ -42,8 +42,8 @@ use core::task::{Poll, Waker};
 use std::collections::VecDeque;
 use std::rc::Rc;
 
-use base_controller::hw::Rs485;
-use base_controller::modbus::crc16;
+use base_core::modbus::crc16;
+use base_runtime::hw::Rs485;
 use embassy_futures::select::select;
 use embassy_time::{Duration, Instant, Timer};
 use embedded_io_async::{ErrorType, Read, Write};

@@ -7,8 +7,8 @@ use core::convert::Infallible;
 use std::cell::RefCell;
 use std::rc::Rc;
 
-use base_controller::hw::{BatteryVoltage, LoadCell, SensorError, Watchdog};
-use base_controller::hx711;
+use base_runtime::hw::{BatteryVoltage, LoadCell, SensorError, Watchdog};
+use base_runtime::hx711;
 use embassy_time::{Duration, Instant, Timer};
 use embedded_hal::digital::{ErrorType, InputPin, OutputPin, PinState, StatefulOutputPin};
 

@@ -1,6 +1,6 @@
 //! The virtual robot: the base controller's hardware in memory, for whole-system tests
 //! on the host (and the simulator). Every part implements a trait of
-//! `base_controller::hw`, so the firmware's own task code runs against it unchanged.
+//! `base_runtime::hw`, so the firmware's own task code runs against it unchanged.
 //!
 //! Time is virtual: [`runtime::block_on`] runs the tasks and jumps the clock to the next
 //! timer whenever every task waits, so a test of minutes of driving runs in

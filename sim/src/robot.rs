@@ -12,13 +12,13 @@
 //! assert!(position.is_some_and(|(x, _)| x > 200));
 //! ```
 //!
-//! [`VirtualRobot::run`] boots the firmware (`base_controller::app::run`) on the
+//! [`VirtualRobot::run`] boots the firmware (`base_runtime::run`) on the
 //! virtual clock and runs the test script beside it; when the script returns, the
 //! controller loses power. The drives, flash, pins and sensors outlive a run, so a
 //! second `run` is a reboot of the controller alone.
 
-use base_controller::app::{self, Hardware, Settings, channels::Channels};
-use base_controller::can::{Command, RawFrame, Report, Status, id};
+use base_core::can::{Command, RawFrame, Report, Status, id};
+use base_runtime::{Hardware, Settings, channels::Channels};
 use embassy_futures::select::{Either, select};
 use embassy_time::{Duration, Instant, Timer};
 use embedded_hal::digital::PinState;
@@ -104,7 +104,12 @@ impl VirtualRobot {
         let channels = Channels::new();
         let pc = Pc { peer };
         block_on(async {
-            match select(app::run(hardware, self.settings, &channels), script(&pc)).await {
+            match select(
+                base_runtime::run(hardware, self.settings, &channels),
+                script(&pc),
+            )
+            .await
+            {
                 Either::First(never) => never,
                 Either::Second(result) => result,
             }
@@ -183,7 +188,7 @@ impl Pc {
             .sent_with_id(frame_id)
             .into_iter()
             .filter_map(|sent| {
-                let raw = crate::can::to_raw(&sent.frame)?;
+                let raw = RawFrame::from_frame(&sent.frame)?;
                 let report = Report::decode(raw.id(), raw.data()).ok()??;
                 Some((sent.at, report))
             })

@@ -1,14 +1,14 @@
 //! The virtual CAN bus: frames both ways with their bus time, bus-off and recovery,
 //! injected receive errors, and the acceptance filter.
 
-use base_controller::can::{RawFrame, id};
-use base_controller::hw::{BusState, CanError, CanRx, CanTx};
+use base_core::can::{RawFrame, id};
+use base_runtime::hw::{BusState, CanError, CanRx, CanTx};
 use embassy_futures::join::join;
 use embassy_futures::select::{Either, select};
 use embassy_time::{Duration, Timer};
 use embedded_can::{ExtendedId, Frame, Id, StandardId};
 use virtual_robot::can::{
-    BITRATE_BPS, RECOVERY_BITS, SimFrame, VirtualCan, frame_time, from_raw, recovery_time, to_raw,
+    BITRATE_BPS, RECOVERY_BITS, SimFrame, VirtualCan, frame_time, recovery_time,
 };
 use virtual_robot::runtime::{block_on, now};
 
@@ -66,14 +66,14 @@ fn sim_frames_follow_the_embedded_can_contract() {
 #[test]
 fn sim_frames_convert_to_and_from_protocol_frames() {
     let raw = RawFrame::new(0x0C8, &[0xF4, 0x01, 0, 0, 3]).unwrap();
-    let sim: SimFrame = from_raw(&raw).unwrap();
+    let sim: SimFrame = raw.to_frame().unwrap();
     assert_eq!(sim.standard_id(), Some(0x0C8));
     assert_eq!(sim.data(), raw.data());
-    assert_eq!(to_raw(&sim), Some(raw));
+    assert_eq!(RawFrame::from_frame(&sim), Some(raw));
     let extended = SimFrame::new(ExtendedId::new(0x0C8).unwrap(), &[1]).unwrap();
-    assert_eq!(to_raw(&extended), None);
+    assert_eq!(RawFrame::from_frame(&extended), None);
     let remote = SimFrame::new_remote(StandardId::new(0x0C8).unwrap(), 1).unwrap();
-    assert_eq!(to_raw(&remote), None);
+    assert_eq!(RawFrame::from_frame(&remote), None);
 }
 
 #[test]

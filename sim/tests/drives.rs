@@ -2,7 +2,7 @@
 //! `spec/motor-drives.md` §6 written to the port, the replies read back and checked
 //! with the firmware's own parser.
 
-use base_controller::modbus::{
+use base_core::modbus::{
     self, READ_WRITE_MULTIPLE, ReplyError, ShareReply, parse_read, parse_share_reply,
     parse_write_echo,
 };

@@ -1,7 +1,7 @@
 //! Simulated pins and sensors: they do what they say, on the virtual clock.
 
-use base_controller::hw::{BatteryVoltage, LoadCell, SensorError, Watchdog};
-use base_controller::hx711::{READY_TIMEOUT, SAMPLE_INTERVAL};
+use base_runtime::hw::{BatteryVoltage, LoadCell, SensorError, Watchdog};
+use base_runtime::hx711::{READY_TIMEOUT, SAMPLE_INTERVAL};
 use embassy_time::{Duration, Timer};
 use embedded_hal::digital::{InputPin, OutputPin, PinState, StatefulOutputPin};
 use virtual_robot::io::{LevelChange, Pulse, SimBattery, SimLoadCell, SimPin, SimWatchdog};

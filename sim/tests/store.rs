@@ -6,10 +6,10 @@
 
 use std::ops::Range;
 
-use base_controller::app::channels::{INPUT_QUEUE, PendingWrites, RawMutex};
-use base_controller::controller::{Input, Persist};
-use base_controller::registers::{LoadReport, Reg, Registers, encode_record};
-use base_controller::store::{RegisterStore, StoreError, run};
+use base_core::controller::{Input, Persist};
+use base_core::registers::{LoadReport, Reg, Registers, encode_record};
+use base_runtime::channels::{INPUT_QUEUE, RawMutex};
+use base_runtime::store::{PendingWrites, RegisterStore, StoreError, run};
 use embassy_futures::select::{Either, select};
 use embassy_sync::channel::Channel;
 use embassy_time::Timer;

@@ -1,9 +1,9 @@
 //! The real firmware tasks on the virtual robot: CAN in, Modbus bytes out, odometry
 //! back, all on a virtual clock. Each test is a story a user of the robot would tell.
 
-use base_controller::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
-use base_controller::can::{Command, Mode, Report, id};
-use base_controller::drives::reg;
+use base_core::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
+use base_core::can::{Command, Mode, Report, id};
+use base_core::drives::reg;
 use embassy_time::Instant;
 use virtual_robot::robot::{Pc, VirtualRobot, wait_ms};
 

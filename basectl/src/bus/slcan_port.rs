@@ -8,11 +8,11 @@ use std::io::{Read, Write};
 use std::os::fd::AsFd;
 use std::time::{Duration, Instant};
 
-use base_controller::can::RawFrame;
+use base_core::can::RawFrame;
 use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
 use nix::sys::termios::{SetArg, cfmakeraw, tcgetattr, tcsetattr};
 
-use super::{Bus, BusError, from_raw, to_raw};
+use super::{Bus, BusError};
 
 /// How long the adapter may take to answer a setup command.
 const SETUP_REPLY_TIMEOUT: Duration = Duration::from_millis(1000);
@@ -157,7 +157,8 @@ impl SlcanPort {
 impl Bus for SlcanPort {
     fn send(&mut self, frame: &RawFrame) -> Result<(), BusError> {
         let line = slcan::format_frame(
-            &from_raw::<slcan::Frame>(frame)
+            &frame
+                .to_frame::<slcan::Frame>()
                 .expect("a RawFrame has an 11-bit ID and at most 8 bytes"),
             None,
         );
@@ -170,7 +171,7 @@ impl Bus for SlcanPort {
             // Acknowledgements and lines that are no frame say nothing about the bus.
             if let Event::Line(line) = event
                 && let Ok(frame) = slcan::parse_received_frame::<slcan::Frame>(&line)
-                && let Some(frame) = to_raw(&frame)
+                && let Some(frame) = RawFrame::from_frame(&frame)
             {
                 return Ok(Some(frame));
             }

@@ -3,10 +3,10 @@
 
 use std::time::Duration;
 
-use base_controller::can::RawFrame;
+use base_core::can::RawFrame;
 use socketcan::{CanFrame, CanSocket, Socket};
 
-use super::{Bus, BusError, from_raw, to_raw};
+use super::{Bus, BusError};
 
 pub struct SocketCanBus {
     socket: CanSocket,
@@ -30,7 +30,8 @@ impl Bus for SocketCanBus {
     fn send(&mut self, frame: &RawFrame) -> Result<(), BusError> {
         self.socket
             .write_frame(
-                &from_raw::<CanFrame>(frame)
+                &frame
+                    .to_frame::<CanFrame>()
                     .expect("a RawFrame has an 11-bit ID and at most 8 bytes"),
             )
             .map_err(|source| BusError::Io {
@@ -48,7 +49,7 @@ impl Bus for SocketCanBus {
             }
             match self.socket.read_frame_timeout(remaining) {
                 Ok(frame) => {
-                    if let Some(frame) = to_raw(&frame) {
+                    if let Some(frame) = RawFrame::from_frame(&frame) {
                         return Ok(Some(frame));
                     }
                 }

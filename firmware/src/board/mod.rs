@@ -17,8 +17,8 @@ mod chip;
 
 pub use chip::{Battery, CHIP, reset_by_watchdog, take};
 
-use base_controller::app::{ActiveLevel, InputSettings};
-use base_controller::battery::VoltageDivider;
+use base_core::battery::VoltageDivider;
+use base_runtime::{ActiveLevel, InputSettings};
 use esp_hal::gpio::{AnyPin, Pull};
 use esp_hal::peripherals::{BT, FROM_CPU_INTR0, RTC_TIMER, TIMG0, TWAI0, UART1};
 use esp_storage::FlashStorage;

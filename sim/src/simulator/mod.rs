@@ -11,8 +11,8 @@ use std::cell::RefCell;
 use std::io::{self, BufRead, IsTerminal, Write};
 use std::path::PathBuf;
 
-use base_controller::app::{self, Hardware, channels::Channels};
-use base_controller::can::Mode;
+use base_core::can::Mode;
+use base_runtime::{Hardware, channels::Channels};
 use embassy_futures::select::{Either, Either4, select, select4};
 use embassy_time::{Instant, Timer};
 use embedded_hal::digital::PinState;
@@ -120,7 +120,7 @@ pub fn run(options: &Options) -> io::Result<()> {
             demo(options.demo, &view),
         );
         match select4(
-            app::run(hardware, robot.settings, &channels),
+            base_runtime::run(hardware, robot.settings, &channels),
             bridge_slcan(&port, &view),
             show_status(&view),
             ending,

@@ -3,7 +3,7 @@
 
 use std::cell::Cell;
 
-use base_controller::can::{ControlSource, Report, Status};
+use base_core::can::{ControlSource, RawFrame, Report, Status};
 use embassy_time::Instant;
 use embedded_hal::digital::PinState;
 
@@ -25,7 +25,7 @@ pub struct Telemetry {
 impl Telemetry {
     pub fn absorb(&mut self, sent: impl IntoIterator<Item = SentFrame>) {
         for sent in sent {
-            let Some(raw) = crate::can::to_raw(&sent.frame) else {
+            let Some(raw) = RawFrame::from_frame(&sent.frame) else {
                 continue;
             };
             match Report::decode(raw.id(), raw.data()) {

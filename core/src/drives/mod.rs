@@ -1,10 +1,7 @@
-//! The drive link: the two Oriental Motor BLV R drives on one RS-485 line, spoken to
-//! in Modbus-RTU ID share mode (motor-drives.md). [`link::run`] is the task;
-//! [`master`] moves bytes with the line's timing; [`settings`] holds what must match
-//! the drives' configuration.
+//! The two Oriental Motor BLV R drives as the controller knows them: their Modbus
+//! register addresses ([`reg`]) and what must match their configuration
+//! ([`settings`]). The runtime's drive link speaks to them (see `docs/drives.md`).
 
-pub mod link;
-pub mod master;
 pub mod settings;
 
 pub use settings::{AccelUnit, DriveSettings, LineSettings, Parity};

@@ -1,8 +1,8 @@
 //! The CAN protocol as golden bytes: every frame of docs/protocol.md decoded from and
 //! encoded to its exact bytes, every rejection, and properties over arbitrary input.
 
-use base_controller::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
-use base_controller::can::{
+use base_core::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
+use base_core::can::{
     Command, ControlSource, Faults, FrameError, Mode, RawFrame, Report, Status, StatusFlags, id,
 };
 use proptest::prelude::*;

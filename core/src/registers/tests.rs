@@ -547,7 +547,7 @@ fn documented_row(info: &RegisterInfo) -> String {
 
 #[test]
 fn docs_table_matches_the_register_table() {
-    let docs = include_str!("../../docs/registers.md");
+    let docs = include_str!("../../../docs/registers.md");
     for info in persistent() {
         let row = format!("{}rw | ", documented_row(info));
         assert!(
@@ -561,7 +561,7 @@ fn docs_table_matches_the_register_table() {
 
 #[test]
 fn readme_table_matches_the_register_table() {
-    let readme = include_str!("../../README.md");
+    let readme = include_str!("../../../README.md");
     for info in persistent() {
         let row = documented_row(info);
         assert!(readme.contains(&row), "README.md lacks the row {row:?}");

@@ -5,19 +5,19 @@
 //! after every event. The module `model` holds the contract's rules for who may drive
 //! (spec §5.1, §6, the supervisor's rules), tracked from the inputs alone.
 
-use base_controller::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
-use base_controller::can::{Command, ControlSource, Mode, RawFrame, Report, Status, id};
-use base_controller::controller::{Controller, Input, Output};
-use base_controller::gamepad::{Buttons, Dpad, GamepadState};
-use base_controller::kinematics::{self, KinematicsParams, MotorRpm, SafetyLimits, Twist};
-use base_controller::odometry::{EncoderCounts, Pose};
-use base_controller::registers::{
+use base_core::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
+use base_core::can::{Command, ControlSource, Mode, RawFrame, Report, Status, id};
+use base_core::controller::{Controller, Input, Output};
+use base_core::gamepad::{Buttons, Dpad, GamepadState};
+use base_core::kinematics::{self, KinematicsParams, MotorRpm, SafetyLimits, Twist};
+use base_core::odometry::{EncoderCounts, Pose};
+use base_core::registers::{
     MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, OPEN_PAIRING_WINDOW_KEY, RESTORE_DEFAULTS_KEY,
     Reg, Registers,
 };
-use base_controller::remote::{MODIFIER_THRESHOLD, PAIRING_WINDOW_MS};
-use base_controller::supervisor::Wheel;
-use base_controller::time::Instant;
+use base_core::remote::{MODIFIER_THRESHOLD, PAIRING_WINDOW_MS};
+use base_core::supervisor::Wheel;
+use base_core::time::Instant;
 use proptest::prelude::*;
 use proptest::strategy::ValueTree;
 use proptest::test_runner::{TestCaseError, TestRunner};

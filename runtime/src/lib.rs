@@ -1,5 +1,6 @@
-//! The running controller: async tasks that own the hardware (through [`crate::hw`])
-//! and move values between it and the [`Controller`]. They decide nothing themselves.
+//! The base controller running: async tasks that own the hardware (through the traits
+//! of [`hw`]) and move values between it and the core's [`Controller`]. They decide
+//! nothing themselves; every decision is in `base-core`.
 //!
 //! ```text
 //!   CanRx ──frames──┐                                  ┌──▶ can_tx ──▶ CanTx
@@ -15,25 +16,35 @@
 //! future. The chip shell spawns that future on its executor; the virtual robot runs
 //! it under a virtual clock. Neither adds logic.
 
+#![cfg_attr(not(test), no_std)]
+
+// First, so that every module below can log.
+#[macro_use]
+mod fmt;
+
+pub mod ble;
 pub mod can;
 pub mod channels;
 pub mod control;
+pub mod drive_link;
+pub mod hw;
+pub mod hx711;
 pub mod inputs;
 pub mod liveness;
-#[cfg(feature = "ble")]
-pub mod remote;
 pub mod sensors;
+pub mod store;
 
 use embassy_futures::join::{join, join4, join5};
 
-use crate::controller::{Controller, Input};
-use crate::drives::{self, DriveSettings};
+use base_core::controller::{Controller, Input};
+use base_core::drives::DriveSettings;
+
+use crate::channels::Channels;
 use crate::hw::{
     BatteryVoltage, CanRx, CanTx, InputPin, LoadCell, NorFlash, OutputPin, Rs485, Watchdog,
 };
-use crate::store::{self, RegisterStore};
+use crate::store::RegisterStore;
 
-use channels::Channels;
 pub use inputs::{ActiveLevel, InputSettings};
 
 /// Every piece of hardware the tasks use, as the board provides it.
@@ -115,10 +126,15 @@ where
     }
     let ((never, ..), ..) = join(
         join5(
-            control::run(controller, channels, hardware.pc_switch, &boot_inputs),
-            drives::link::run(hardware.drives, settings.drives, channels),
-            can::run_rx(hardware.can_rx, channels),
-            can::run_tx(hardware.can_tx, channels),
+            control::run(
+                controller,
+                channels.control_ends(),
+                hardware.pc_switch,
+                &boot_inputs,
+            ),
+            drive_link::run(hardware.drives, settings.drives, channels.drive_link_ends()),
+            can::run_rx(hardware.can_rx, channels.inputs.sender()),
+            can::run_tx(hardware.can_tx, &channels.can_tx, channels.inputs.sender()),
             inputs::run(
                 inputs::InputPins {
                     estop: hardware.estop,
@@ -126,7 +142,8 @@ where
                     button: hardware.button,
                 },
                 settings.inputs,
-                channels,
+                channels.inputs.sender(),
+                &channels.liveness,
             ),
         ),
         join4(
@@ -135,9 +152,9 @@ where
                 &channels.pending_writes,
                 channels.inputs.sender(),
             ),
-            sensors::run_battery(hardware.battery, channels),
-            sensors::run_scale(hardware.load_cell, channels),
-            liveness::run(hardware.watchdog, channels),
+            sensors::run_battery(hardware.battery, channels.inputs.sender()),
+            sensors::run_scale(hardware.load_cell, channels.inputs.sender()),
+            liveness::run(hardware.watchdog, &channels.liveness),
         ),
     )
     .await;

@@ -1,12 +1,12 @@
 //! The Modbus-RTU master: one request out, one reply in, with the line's timing. It
-//! knows bytes and time, not registers; [`crate::modbus`] builds and checks frames.
+//! knows bytes and time, not registers; [`base_core::modbus`] builds and checks frames.
 
 use embassy_time::{Duration, Instant, Timer, with_timeout};
 
 use crate::hw::Rs485;
-use crate::modbus::{Frame, MAX_FRAME};
+use base_core::modbus::{Frame, MAX_FRAME};
 
-use super::settings::LineSettings;
+use base_core::drives::settings::LineSettings;
 
 /// Why a transaction brought no reply to parse.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -14,25 +14,66 @@
 //! contract): drives that come back unasked stay held until the supervisor asks.
 
 use embassy_futures::select::{Either, select};
+use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Instant, Timer};
 
-use crate::app::channels::{Channels, CriticalTask, DriveDemand};
-use crate::controller::Input;
+use crate::channels::{InputSender, RawMutex};
 use crate::hw::Rs485;
-use crate::kinematics::MotorRpm;
-use crate::modbus::{self, Frame, ReplyError, Target};
-use crate::odometry::EncoderCounts;
-use crate::registers::{Reg, Registers};
-use crate::supervisor::Wheel;
+use crate::liveness::{CriticalTask, Liveness};
+use base_core::controller::Input;
+use base_core::kinematics::{MotorRpm, WheelCommand};
+use base_core::modbus::{self, Frame, ReplyError, Target};
+use base_core::odometry::EncoderCounts;
+use base_core::registers::{Reg, Registers};
+use base_core::supervisor::Wheel;
 
-use super::master::{Master, TransferError};
-use super::reg;
-use super::settings::DriveSettings;
+pub mod master;
+
+use base_core::drives::DriveSettings;
+use base_core::drives::reg;
+use master::{Master, TransferError};
 
 /// Runs the drive link forever.
-pub async fn run<P: Rs485>(port: P, settings: DriveSettings, channels: &Channels) -> ! {
+pub async fn run<P: Rs485>(port: P, settings: DriveSettings, channels: DriveLinkEnds<'_>) -> ! {
     let mut link = DriveLink::new(port, settings, channels);
     link.run().await
+}
+
+/// What the controller wants from the drives right now.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct DriveDemand {
+    /// Motor speeds and accelerations for both wheels.
+    pub wheels: WheelCommand,
+    /// Drives excited (S-ON, brakes released).
+    pub excite: bool,
+    /// How many times the controller asked for a fresh setup; the link sets the drives
+    /// up again whenever this grows past what it served.
+    pub setup_requests: u32,
+    /// The control cycle (`loop_end_delay`), ms.
+    pub cycle_ms: u16,
+}
+
+impl DriveDemand {
+    pub const fn at_rest(cycle_ms: u16) -> Self {
+        Self {
+            wheels: WheelCommand {
+                rpm: MotorRpm { left: 0, right: 0 },
+                left_accel: 0,
+                right_accel: 0,
+            },
+            excite: false,
+            setup_requests: 0,
+            cycle_ms,
+        }
+    }
+}
+
+/// The drive link's channel ends (see [`crate::channels::Channels`]).
+pub struct DriveLinkEnds<'a> {
+    pub drive_demand: &'a Signal<RawMutex, DriveDemand>,
+    pub inputs: InputSender<'a>,
+    pub liveness: &'a Liveness,
 }
 
 /// Why a step of the link failed.
@@ -71,7 +112,7 @@ const WHEELS: [Wheel; 2] = [Wheel::Left, Wheel::Right];
 struct DriveLink<'a, P> {
     master: Master<P>,
     settings: DriveSettings,
-    channels: &'a Channels,
+    channels: DriveLinkEnds<'a>,
     demand: DriveDemand,
     /// Setup requests handled so far.
     served_setups: u32,
@@ -85,7 +126,7 @@ struct DriveLink<'a, P> {
 }
 
 impl<'a, P: Rs485> DriveLink<'a, P> {
-    fn new(port: P, settings: DriveSettings, channels: &'a Channels) -> Self {
+    fn new(port: P, settings: DriveSettings, channels: DriveLinkEnds<'a>) -> Self {
         Self {
             master: Master::new(port, &settings.line, settings.reply_timeout_ms),
             settings,

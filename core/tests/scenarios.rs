@@ -3,16 +3,16 @@
 //! the manual's default registers and gear_ratio 10, motor_dir 2 (right motor mirrored),
 //! so 500 mm/s is 336 motor r/min: +336 on the left drive, −336 on the right.
 
-use base_controller::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
-use base_controller::can::{Command, ControlSource, Mode, RawFrame, Report, id};
-use base_controller::controller::{Controller, Input, Output};
-use base_controller::gamepad::{Buttons, Dpad, GamepadState};
-use base_controller::kinematics::MotorRpm;
-use base_controller::odometry::EncoderCounts;
-use base_controller::power::SwitchLevel;
-use base_controller::registers::{Reg, Registers};
-use base_controller::supervisor::Wheel;
-use base_controller::time::Instant;
+use base_core::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
+use base_core::can::{Command, ControlSource, Mode, RawFrame, Report, id};
+use base_core::controller::{Controller, Input, Output};
+use base_core::gamepad::{Buttons, Dpad, GamepadState};
+use base_core::kinematics::MotorRpm;
+use base_core::odometry::EncoderCounts;
+use base_core::power::SwitchLevel;
+use base_core::registers::{Reg, Registers};
+use base_core::supervisor::Wheel;
+use base_core::time::Instant;
 
 /// What one row expects.
 #[derive(Debug, Clone, Copy)]
@@ -445,10 +445,10 @@ fn estop_while_driving_stops_at_once_and_needs_release_confirm_and_setup() {
                 Input::Tick,
                 &[
                     NoFeedback,
-                    Sends(Report::Status(base_controller::can::Status {
+                    Sends(Report::Status(base_core::can::Status {
                         mode: Mode::Emergency,
                         control: ControlSource::None,
-                        flags: base_controller::can::StatusFlags {
+                        flags: base_core::can::StatusFlags {
                             remote_bonded: true,
                             remote_connected: true,
                             estop_pressed: true,

@@ -31,7 +31,7 @@
 //! i32 range), the first counter value sits just below i32::MAX, and drive reconnects
 //! restart the counters and re-baseline the odometry on the way.
 
-use base_controller::odometry::{EncoderCounts, Odometry, OdometryParams, PrecisePose};
+use base_core::odometry::{EncoderCounts, Odometry, OdometryParams, PrecisePose};
 use core::f64::consts::TAU;
 
 const COUNTS_PER_MOTOR_REV: f64 = 36000.0;

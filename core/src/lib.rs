@@ -1,14 +1,13 @@
-//! The base controller: a hardware-free core that decides (pure `no_std` code with
-//! time passed in), and the async tasks that run it, written against the hardware
-//! traits of [`hw`]. The chip shell implements those traits with esp-hal; the virtual
-//! robot in `sim/` implements them in memory for the whole-system tests.
+//! The base controller's core: everything that decides, as pure `no_std` code with no
+//! async, no hardware and no clock. Time is an argument (`now`), hardware is values in
+//! and out. The runtime crate (`base-runtime`) runs it on a chip or on the virtual
+//! robot; the PC tools use its CAN codec and register table.
 #![cfg_attr(not(test), no_std)]
 
 // First, so that every module below can log.
 #[macro_use]
 mod fmt;
 
-pub mod app;
 pub mod battery;
 pub mod calibration;
 pub mod can;
@@ -18,8 +17,6 @@ pub mod drives;
 pub mod feedback;
 pub mod gamepad;
 pub mod hid;
-pub mod hw;
-pub mod hx711;
 pub mod kinematics;
 pub mod modbus;
 pub mod odometry;
@@ -27,6 +24,5 @@ pub mod power;
 pub mod registers;
 pub mod remote;
 pub mod scale;
-pub mod store;
 pub mod supervisor;
 pub mod time;

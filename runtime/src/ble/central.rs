@@ -25,17 +25,19 @@ use embedded_storage_async::nor_flash::NorFlash;
 use heapless::Vec;
 use sequential_storage::cache::Cache;
 use sequential_storage::map::{MapConfig, MapStorage};
+use trouble_host::Controller as HciController;
 use trouble_host::advertise::AdStructure;
 use trouble_host::prelude::*;
 
-use crate::controller::Input;
-use crate::hid::{GamepadLayout, VidPid};
+use base_core::controller::Input;
+use base_core::hid::{GamepadLayout, VidPid};
 
-use super::channels::{Channels, RemoteRequest};
+use embassy_sync::signal::Signal;
 
-mod bond;
+use crate::channels::RawMutex;
 
-pub use bond::{BOND_RECORD_LEN, decode_bond, encode_bond};
+use super::bond::{BOND_RECORD_LEN, decode_bond, encode_bond};
+use super::{RemoteEnds, RemoteRequest};
 
 /// One gamepad, and the L2CAP channels the host needs for it (signalling, ATT, SMP).
 const CONNECTIONS: usize = 1;
@@ -83,10 +85,10 @@ pub async fn run<C, F>(
     address: [u8; 6],
     bond_flash: F,
     bond_range: Range<u32>,
-    channels: &Channels,
+    channels: RemoteEnds<'_>,
 ) -> !
 where
-    C: Controller + ControllerCmdSync<LeSetScanParams>,
+    C: HciController + ControllerCmdSync<LeSetScanParams>,
     F: NorFlash,
 {
     let mut resources: HostResources<DefaultPacketPool, CONNECTIONS, L2CAP_CHANNELS> =
@@ -115,7 +117,7 @@ where
     let finder = PadFinder::default();
     let mut runner = stack.runner();
     let mut central = stack.central();
-    let mut remote = Remote {
+    let mut remote = PadLink {
         stack: &stack,
         channels,
         request: RemoteRequest::default(),
@@ -160,13 +162,13 @@ where
     }
 }
 
-struct Remote<'s, 'r, C: Controller + ControllerCmdSync<LeSetScanParams>> {
+struct PadLink<'s, 'r, C: HciController + ControllerCmdSync<LeSetScanParams>> {
     stack: &'s Stack<'r, C, DefaultPacketPool>,
-    channels: &'s Channels,
+    channels: RemoteEnds<'s>,
     request: RemoteRequest,
 }
 
-impl<C: Controller + ControllerCmdSync<LeSetScanParams>> Remote<'_, '_, C> {
+impl<C: HciController + ControllerCmdSync<LeSetScanParams>> PadLink<'_, '_, C> {
     fn refresh_request(&mut self) {
         if let Some(request) = self.channels.remote_requests.try_take() {
             self.request = request;
@@ -346,9 +348,9 @@ enum HidSetupError {
 
 /// Reads the Report Map and the report IDs, subscribes to the input reports and sends
 /// each decoded report to the controller.
-async fn forward_reports<C: Controller>(
+async fn forward_reports<C: HciController>(
     client: &GattClient<'_, C, DefaultPacketPool, MAX_SERVICES>,
-    channels: &Channels,
+    channels: RemoteEnds<'_>,
 ) -> Result<(), HidSetupError> {
     let ids = read_vid_pid(client).await;
     let services = client
@@ -426,7 +428,7 @@ async fn forward_reports<C: Controller>(
 
 /// The pad's USB vendor and product ID from the Device Information service, which
 /// refines the button map of pads the generic map gets wrong.
-async fn read_vid_pid<C: Controller>(
+async fn read_vid_pid<C: HciController>(
     client: &GattClient<'_, C, DefaultPacketPool, MAX_SERVICES>,
 ) -> Option<VidPid> {
     let services = client
@@ -450,7 +452,7 @@ async fn read_vid_pid<C: Controller>(
 }
 
 /// Answers the pad's connection parameter requests and returns when the link drops.
-async fn watch_link<C: Controller>(
+async fn watch_link<C: HciController>(
     conn: &Connection<'_, DefaultPacketPool>,
     stack: &Stack<'_, C, DefaultPacketPool>,
 ) {
@@ -476,7 +478,7 @@ fn connect_config(targets: &[Address]) -> ConnectConfig<'_> {
     }
 }
 
-async fn report(channels: &Channels, input: Input) {
+async fn report(channels: RemoteEnds<'_>, input: Input) {
     channels.inputs.send(input).await;
 }
 
@@ -484,7 +486,7 @@ async fn report(channels: &Channels, input: Input) {
 /// shows the gamepad appearance or lists the HID service.
 #[derive(Default)]
 struct PadFinder {
-    found: embassy_sync::signal::Signal<super::channels::RawMutex, Address>,
+    found: Signal<RawMutex, Address>,
 }
 
 impl EventHandler for PadFinder {

@@ -3,12 +3,13 @@
 
 use embassy_time::{Duration, Ticker};
 
-use crate::controller::Input;
-use crate::debounce::Debouncer;
 use crate::hw::InputPin;
+use base_core::controller::Input;
+use base_core::debounce::Debouncer;
 
-use super::channels::{Channels, CriticalTask};
-use super::control::core_now;
+use crate::channels::InputSender;
+use crate::control::core_now;
+use crate::liveness::{CriticalTask, Liveness};
 
 /// Which pin level means "active" (pressed, occupied).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -93,7 +94,8 @@ fn read<P: InputPin>(pin: &mut P, active: ActiveLevel) -> bool {
 pub async fn run<E: InputPin, Z: InputPin, B: InputPin>(
     pins: InputPins<E, Z, B>,
     settings: InputSettings,
-    channels: &Channels,
+    inputs: InputSender<'_>,
+    liveness: &Liveness,
 ) -> ! {
     let mut estop = DebouncedInput::new(
         pins.estop,
@@ -114,19 +116,19 @@ pub async fn run<E: InputPin, Z: InputPin, B: InputPin>(
         Input::Button,
     );
     // The controller starts knowing nothing: tell it the levels at boot.
-    channels.inputs.send(estop.current()).await;
-    channels.inputs.send(zone.current()).await;
+    inputs.send(estop.current()).await;
+    inputs.send(zone.current()).await;
     let mut ticker = Ticker::every(Duration::from_millis(u64::from(
         settings.sample_period_ms.max(1),
     )));
     loop {
         ticker.next().await;
-        channels.liveness.check_in(CriticalTask::Inputs);
+        liveness.check_in(CriticalTask::Inputs);
         for change in [estop.sample(), zone.sample(), button.sample()]
             .into_iter()
             .flatten()
         {
-            channels.inputs.send(change).await;
+            inputs.send(change).await;
         }
     }
 }

@@ -6,18 +6,18 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Debug;
 
-use base_controller::calibration::odometry::OdometryCalibrationError;
-use base_controller::calibration::scale::ScaleCalibrationError;
-use base_controller::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
-use base_controller::can::{
+use base_core::calibration::odometry::OdometryCalibrationError;
+use base_core::calibration::scale::ScaleCalibrationError;
+use base_core::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
+use base_core::can::{
     Command, ControlSource, Faults, FrameError, Mode, RawFrame, Report, Status, StatusFlags, id,
 };
-use base_controller::registers::{self, Reg, RegisterError, TABLE};
+use base_core::registers::{self, Reg, RegisterError, TABLE};
 use can_dbc::{
     AttributeValue, ByteOrder, Dbc, Message, MessageId, MultiplexIndicator, Signal, ValueType,
 };
 
-const DBC_PATH: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/docs/base-controller.dbc");
+const DBC_PATH: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../docs/base-controller.dbc");
 
 /// The DBC's two nodes.
 const PC: &str = "PC";

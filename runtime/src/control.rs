@@ -4,13 +4,20 @@
 use embassy_futures::select::{Either, select};
 use embassy_time::{Duration, Instant, Timer};
 
-use crate::controller::{Controller, Input, Output};
-use crate::hw::OutputPin;
-use crate::power::SwitchLevel;
-use crate::registers::Reg;
-use crate::time;
+use embassy_sync::signal::Signal;
 
-use super::channels::{Channels, CriticalTask, DriveDemand, RemoteRequest};
+use base_core::controller::{Controller, Input, Output};
+use base_core::power::SwitchLevel;
+use base_core::registers::Reg;
+use base_core::time;
+
+use crate::ble::RemoteRequest;
+use crate::can::FrameQueue;
+use crate::channels::{InputReceiver, RawMutex};
+use crate::drive_link::DriveDemand;
+use crate::hw::OutputPin;
+use crate::liveness::{CriticalTask, Liveness};
+use crate::store::PendingWrites;
 
 /// Timeouts and periodic frames are checked this often (the controller's contract).
 pub const TICK: Duration = Duration::from_millis(10);
@@ -20,9 +27,19 @@ pub fn core_now() -> time::Instant {
     time::Instant::from_millis(Instant::now().as_millis())
 }
 
+/// The controller task's channel ends (see [`crate::channels::Channels`]).
+pub struct ControlEnds<'a> {
+    pub inputs: InputReceiver<'a>,
+    pub can_tx: &'a FrameQueue,
+    pub drive_demand: &'a Signal<RawMutex, DriveDemand>,
+    pub pending_writes: &'a PendingWrites,
+    pub remote_requests: &'a Signal<RawMutex, RemoteRequest>,
+    pub liveness: &'a Liveness,
+}
+
 pub async fn run<S: OutputPin>(
     mut controller: Controller,
-    channels: &Channels,
+    channels: ControlEnds<'_>,
     mut pc_switch: S,
     boot_inputs: &[Input],
 ) -> ! {
@@ -35,7 +52,7 @@ pub async fn run<S: OutputPin>(
     };
     for input in boot_inputs {
         let out = controller.handle(core_now(), *input);
-        dispatch(&controller, out, channels, &mut state, &mut pc_switch);
+        dispatch(&controller, out, &channels, &mut state, &mut pc_switch);
     }
     let mut next_tick = Instant::now() + TICK;
     loop {
@@ -48,7 +65,7 @@ pub async fn run<S: OutputPin>(
             }
         };
         let out = controller.handle(core_now(), input);
-        dispatch(&controller, out, channels, &mut state, &mut pc_switch);
+        dispatch(&controller, out, &channels, &mut state, &mut pc_switch);
     }
 }
 
@@ -61,13 +78,13 @@ struct Dispatched {
 fn dispatch<S: OutputPin>(
     controller: &Controller,
     out: Output,
-    channels: &Channels,
+    channels: &ControlEnds<'_>,
     state: &mut Dispatched,
     pc_switch: &mut S,
 ) {
     let demand = &mut state.demand;
     for frame in out.frames {
-        channels.send_frame(frame);
+        channels.can_tx.send(frame);
     }
     let mut next = *demand;
     if let Some(wheels) = out.wheels {

@@ -8,7 +8,7 @@
 //! The store is a [`sequential_storage`] map over the flash range the board's partition
 //! gives (whole erase pages, at least 2, at most [`MAX_PAGES`]; the board uses
 //! [`PARTITION_PAGES`] pages of 4096 bytes). The key is the register address (one
-//! byte); the value is the 6-byte record of [`crate::registers::encode_record`]:
+//! byte); the value is the 6-byte record of [`base_core::registers::encode_record`]:
 //! `[schema, address, value MSB, value LSB, CRC LSB, CRC MSB]`. So every item carries
 //! the core's schema version and CRC inside sequential-storage's own item CRC, and the
 //! key repeats the record's address: an item whose key and address disagree is rejected.
@@ -71,17 +71,21 @@
 
 use core::ops::Range;
 
-use embassy_sync::channel::Sender;
+use core::cell::RefCell;
+
+use embassy_sync::blocking_mutex::Mutex;
+use embassy_sync::signal::Signal;
 use embedded_storage_async::nor_flash::NorFlash;
+use heapless::Vec;
 use sequential_storage::cache::Cache;
 use sequential_storage::cache::key_pointers::ArrayKeyPointers;
 use sequential_storage::cache::page_pointers::ArrayPagePointers;
 use sequential_storage::cache::page_states::ArrayPageStates;
 use sequential_storage::map::{MapConfig, MapStorage};
 
-use crate::app::channels::{INPUT_QUEUE, PendingBatch, PendingWrites, RawMutex};
-use crate::controller::Input;
-use crate::registers::{
+use crate::channels::{InputSender, RawMutex};
+use base_core::controller::{Input, Persist};
+use base_core::registers::{
     ADDRESS_COUNT, Access, LoadReport, RECORD_LEN, RecordError, Registers, decode_record,
     encode_record, info,
 };
@@ -417,13 +421,103 @@ impl<F: NorFlash> RegisterStore<F> {
 pub async fn run<F: NorFlash>(
     store: &mut RegisterStore<F>,
     pending: &PendingWrites,
-    faults: Sender<'_, RawMutex, Input, INPUT_QUEUE>,
+    faults: InputSender<'_>,
 ) -> ! {
     loop {
         let batch = pending.take().await;
         if store.apply(&batch).await.is_err() {
             faults.send(Input::FlashFault).await;
         }
+    }
+}
+
+/// Register values the store has yet to write.
+pub struct PendingWrites {
+    state: Mutex<RawMutex, RefCell<Dirty>>,
+    wake: Signal<RawMutex, ()>,
+}
+
+/// Registers live at addresses below 64, so one bit each marks a pending value.
+struct Dirty {
+    restore_defaults: bool,
+    marks: u64,
+    values: [u16; 64],
+}
+
+/// Everything pending at one moment, in the order the store must apply it.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct PendingBatch {
+    /// Erase every stored value first.
+    pub restore_defaults: bool,
+    /// Then store these (address, value) pairs.
+    pub writes: Vec<(u8, u16), 64>,
+}
+
+impl PendingWrites {
+    pub const fn new() -> Self {
+        Self {
+            state: Mutex::new(RefCell::new(Dirty {
+                restore_defaults: false,
+                marks: 0,
+                values: [0; 64],
+            })),
+            wake: Signal::new(),
+        }
+    }
+
+    /// Marks what the controller changed. Never waits.
+    pub fn record(&self, persist: &Persist) {
+        if !persist.defaults_restored && persist.changed.is_empty() {
+            return;
+        }
+        self.state.lock(|state| {
+            let mut state = state.borrow_mut();
+            if persist.defaults_restored {
+                // Later writes go on top of the defaults; earlier ones are void.
+                state.restore_defaults = true;
+                state.marks = 0;
+            }
+            for &(address, value) in &persist.changed {
+                let slot = usize::from(address);
+                debug_assert!(slot < 64, "register address {address} out of the map");
+                if slot < 64 {
+                    state.marks |= 1 << slot;
+                    state.values[slot] = value;
+                }
+            }
+        });
+        self.wake.signal(());
+    }
+
+    /// Waits until something is pending and takes all of it.
+    pub async fn take(&self) -> PendingBatch {
+        loop {
+            let batch = self.state.lock(|state| {
+                let mut state = state.borrow_mut();
+                let mut batch = PendingBatch {
+                    restore_defaults: core::mem::take(&mut state.restore_defaults),
+                    writes: Vec::new(),
+                };
+                let mut marks = core::mem::take(&mut state.marks);
+                while marks != 0 {
+                    let slot = marks.trailing_zeros() as usize;
+                    marks &= marks - 1;
+                    // 64 slots fit a 64-entry batch.
+                    let _ = batch.writes.push((slot as u8, state.values[slot]));
+                }
+                batch
+            });
+            if batch.restore_defaults || !batch.writes.is_empty() {
+                return batch;
+            }
+            self.wake.wait().await;
+        }
+    }
+}
+
+impl Default for PendingWrites {
+    fn default() -> Self {
+        Self::new()
     }
 }
 
@@ -591,7 +685,7 @@ impl ItemCrc32 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::registers::Reg;
+    use base_core::registers::Reg;
 
     fn newest(items: &[(u8, &[u8])]) -> (Registers, LoadReport) {
         let mut newest = Newest::new();
@@ -689,5 +783,51 @@ mod tests {
             assert_ne!(value, 0);
             assert!(!matches!(value.to_le_bytes()[0], 0x00 | 0xFF));
         }
+    }
+}
+
+#[cfg(test)]
+mod pending_tests {
+    use super::*;
+    use embassy_futures::block_on;
+
+    fn persist(changed: &[(u8, u16)], defaults_restored: bool) -> Persist {
+        Persist {
+            changed: Vec::from_slice(changed).expect("fits"),
+            defaults_restored,
+        }
+    }
+
+    #[test]
+    fn repeated_writes_coalesce_to_the_latest_value_in_address_order() {
+        let pending = PendingWrites::new();
+        pending.record(&persist(&[(11, 500), (3, 7)], false));
+        pending.record(&persist(&[(11, 900)], false));
+        let batch = block_on(pending.take());
+        assert!(!batch.restore_defaults);
+        assert_eq!(batch.writes[..], [(3, 7), (11, 900)]);
+    }
+
+    #[test]
+    fn a_restore_voids_earlier_writes_and_keeps_later_ones() {
+        let pending = PendingWrites::new();
+        pending.record(&persist(&[(11, 500)], false));
+        pending.record(&persist(&[], true));
+        pending.record(&persist(&[(12, 2_000)], false));
+        let batch = block_on(pending.take());
+        assert!(batch.restore_defaults);
+        assert_eq!(batch.writes[..], [(12, 2_000)]);
+    }
+
+    #[test]
+    fn nothing_recorded_means_nothing_to_take() {
+        let pending = PendingWrites::new();
+        pending.record(&persist(&[], false));
+        let mut take = core::pin::pin!(pending.take());
+        let waker = core::task::Waker::noop();
+        let poll = take
+            .as_mut()
+            .poll(&mut core::task::Context::from_waker(waker));
+        assert!(poll.is_pending());
     }
 }

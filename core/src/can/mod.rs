@@ -155,6 +155,27 @@ impl RawFrame {
     }
 }
 
+/// Conversions to and from the frame type of any CAN driver (the chip's TWAI, SocketCAN,
+/// the virtual bus): the one place that decides which driver frames the protocol sees.
+#[cfg(feature = "embedded-can")]
+impl RawFrame {
+    /// A standard data frame as the codec's frame; `None` for extended and remote
+    /// frames, which are not part of the protocol.
+    pub fn from_frame<F: embedded_can::Frame>(frame: &F) -> Option<Self> {
+        match frame.id() {
+            embedded_can::Id::Standard(id) if frame.is_data_frame() => {
+                Self::new(id.as_raw(), frame.data())
+            }
+            _ => None,
+        }
+    }
+
+    /// This frame as the driver's frame type.
+    pub fn to_frame<F: embedded_can::Frame>(&self) -> Option<F> {
+        F::new(embedded_can::StandardId::new(self.id)?, self.data())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

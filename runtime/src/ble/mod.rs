@@ -1,0 +1,34 @@
+//! The Bluetooth remote: what the controller asks of it ([`RemoteRequest`]) and, with
+//! the `ble` feature, the BLE central task that keeps the bonded gamepad connected.
+
+#[cfg(feature = "ble")]
+mod bond;
+#[cfg(feature = "ble")]
+mod central;
+
+#[cfg(feature = "ble")]
+pub use bond::{BOND_RECORD_LEN, decode_bond, encode_bond};
+#[cfg(feature = "ble")]
+pub use central::*;
+
+use embassy_sync::signal::Signal;
+
+use crate::channels::{InputSender, RawMutex};
+
+/// What the controller asks of the Bluetooth remote task.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct RemoteRequest {
+    /// A new pad may be paired (and replace the bonded one) while this is true.
+    pub pairing_open: bool,
+    /// Counts the controller's requests to switch the pad off; a change means "drop the
+    /// link now" (a counter, so two requests in a row are not merged into one state).
+    pub disconnects: u16,
+}
+
+/// The remote task's channel ends (see [`crate::channels::Channels`]).
+#[derive(Clone, Copy)]
+pub struct RemoteEnds<'a> {
+    pub remote_requests: &'a Signal<RawMutex, RemoteRequest>,
+    pub inputs: InputSender<'a>,
+}

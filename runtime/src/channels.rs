@@ -1,0 +1,104 @@
+//! Every channel between the tasks, in one place. Each field says who sends, who
+//! receives, and why that primitive. The message types live beside the task that
+//! consumes them; each task receives only the ends it uses (the `*_ends` methods), so
+//! its signature shows its place in the topology.
+//!
+//! The tasks share one executor, so a critical-section mutex costs almost nothing; it
+//! is still the right one because the BLE task may run on another executor or
+//! interrupt priority.
+
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::channel::{Channel, Receiver, Sender};
+use embassy_sync::signal::Signal;
+
+use base_core::controller::Input;
+
+use crate::ble::{RemoteEnds, RemoteRequest};
+use crate::can::FrameQueue;
+use crate::control::ControlEnds;
+use crate::drive_link::{DriveDemand, DriveLinkEnds};
+use crate::liveness::Liveness;
+use crate::store::PendingWrites;
+
+pub type RawMutex = CriticalSectionRawMutex;
+
+/// Room for bursts: a CAN burst of commands plus a drive cycle's worth of feedback.
+pub const INPUT_QUEUE: usize = 32;
+
+/// Where every task sends what the controller must hear of.
+pub type InputSender<'a> = Sender<'a, RawMutex, Input, INPUT_QUEUE>;
+pub type InputReceiver<'a> = Receiver<'a, RawMutex, Input, INPUT_QUEUE>;
+
+pub struct Channels {
+    /// CAN RX, drive link, sensors, inputs, remote → controller. A queue because every
+    /// event counts and order matters (an e-stop edge must not be overtaken). Senders
+    /// await room; the controller only computes, so it drains faster than anyone fills.
+    pub inputs: Channel<RawMutex, Input, INPUT_QUEUE>,
+    /// Controller → CAN TX. A queue of frames in order that the controller never waits
+    /// on: when the bus is slow or off and the queue is full, the frame is dropped and
+    /// counted, because control must go on.
+    pub can_tx: FrameQueue,
+    /// Controller → drive link. A signal (latest value wins), because the demand is a
+    /// state, not an event: only the newest setpoint matters, and the link must never
+    /// work through stale ones.
+    pub drive_demand: Signal<RawMutex, DriveDemand>,
+    /// Controller → register store. Coalescing dirty marks, because flash writes are
+    /// slow (an erase takes tens of ms) and the controller must never wait for them,
+    /// yet no change may be lost: a value written twice is stored once, with its
+    /// latest value.
+    pub pending_writes: PendingWrites,
+    /// Critical tasks → liveness task: check-in marks behind the watchdog.
+    pub liveness: Liveness,
+    /// Controller → Bluetooth remote task. A signal (latest value wins): the request is
+    /// a state (is the pairing window open, how many disconnects were asked for), and
+    /// the remote task acts on the newest.
+    pub remote_requests: Signal<RawMutex, RemoteRequest>,
+}
+
+impl Channels {
+    pub const fn new() -> Self {
+        Self {
+            inputs: Channel::new(),
+            can_tx: FrameQueue::new(),
+            drive_demand: Signal::new(),
+            pending_writes: PendingWrites::new(),
+            liveness: Liveness::new(),
+            remote_requests: Signal::new(),
+        }
+    }
+
+    /// The controller task's ends: it receives every input and feeds everyone else.
+    pub fn control_ends(&self) -> ControlEnds<'_> {
+        ControlEnds {
+            inputs: self.inputs.receiver(),
+            can_tx: &self.can_tx,
+            drive_demand: &self.drive_demand,
+            pending_writes: &self.pending_writes,
+            remote_requests: &self.remote_requests,
+            liveness: &self.liveness,
+        }
+    }
+
+    /// The drive link's ends: the demand in, feedback out, and its check-in.
+    pub fn drive_link_ends(&self) -> DriveLinkEnds<'_> {
+        DriveLinkEnds {
+            drive_demand: &self.drive_demand,
+            inputs: self.inputs.sender(),
+            liveness: &self.liveness,
+        }
+    }
+
+    /// The Bluetooth remote's ends: the controller's requests in, pad reports out.
+    pub fn remote_ends(&self) -> RemoteEnds<'_> {
+        RemoteEnds {
+            remote_requests: &self.remote_requests,
+            inputs: self.inputs.sender(),
+        }
+    }
+}
+
+impl Default for Channels {
+    fn default() -> Self {
+        Self::new()
+    }
+}
