@@ -5,7 +5,8 @@
 //! pins for analog use (ADC2 is the radio's). The input-only pins GPIO34–39 have no
 //! internal pulls, so only the battery's analog input uses one of them.
 //!
-//! Built with the `esp` toolchain (espup); the README walks through it.
+//! Built with the `esp` toolchain (espup); the README walks through it. CI type-checks
+//! and lints it without espup (`.ci/esp32-check`).
 
 use esp_hal::analog::adc::{Adc, AdcConfig, Attenuation};
 use esp_hal::peripherals::{GPIO34, Peripherals};
@@ -53,9 +54,9 @@ pub fn take(p: Peripherals) -> Board {
         button: p.GPIO33.into(),
         pc_switch: p.GPIO23.into(),
         status_led: p.GPIO22.into(),
+        bt: p.BT,
         // The second core is not started, but a flash write must never run while it
         // fetches from flash: park it if it ever runs.
-        bt: p.BT,
         flash: FlashStorage::new(p.FLASH).multicore_auto_park(),
         rtc: p.RTC_TIMER,
         timg0: p.TIMG0,
