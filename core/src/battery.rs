@@ -1,4 +1,4 @@
-//! Battery state (contract §10): filters the ADC voltage so load steps do not make the
+//! Battery state (docs/behaviour.md, Battery): filters the ADC voltage so load steps do not make the
 //! reading jump, and maps a voltage to a percentage. The battery task feeds it samples;
 //! frame 0x0EB reports the filtered voltage and its percentage.
 

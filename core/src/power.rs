@@ -1,4 +1,4 @@
-//! Front button and PC power (contract §11): owns what the button means, whether the
+//! Front button and PC power (docs/behaviour.md, Front button and PC power): owns what the button means, whether the
 //! robot PC counts as on, and the pulse on the PC's power-switch contact. The input task
 //! sends the debounced button edges, the CAN task the heartbeats (0x006 `01`), a timer
 //! the ticks; the supervisor takes `confirm`, the shell drives the switch pin, and the
@@ -73,7 +73,7 @@ pub enum SwitchLevel {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct PowerOutputs {
-    /// A short press was released: confirms an emergency (contract §6).
+    /// A short press was released: confirms an emergency (docs/behaviour.md).
     pub confirm: bool,
     /// Set the switch pin to this level; `None`: leave it.
     pub switch: Option<SwitchLevel>,
@@ -234,7 +234,7 @@ impl PowerState {
 ///  switch: Open ── pulse ──▶ Closed{until = now + switch_pulse} ── until reached ──▶ Open
 /// ```
 ///
-/// Rules (contract §11, and the decisions it leaves open):
+/// Rules (docs/behaviour.md, and the decisions it leaves open):
 /// - Hold times act when they are reached, not on release; one action per press.
 /// - Whether the PC is on is judged at the moment a hold time is reached: at
 ///   `start_pc_ms` an off PC is switched on (and holding on to 8 s does nothing more);

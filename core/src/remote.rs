@@ -1,4 +1,4 @@
-//! The Bluetooth remote (contract §13): what the gamepad's sticks and buttons mean. The
+//! The Bluetooth remote (docs/remote.md): what the gamepad's sticks and buttons mean. The
 //! controller feeds it the BLE task's link reports, the decoded gamepad states and the
 //! time; it answers with the dead-man and twist for the supervisor, an odometry reset,
 //! and a request to disconnect the pad. It also keeps the pairing window, which the
@@ -273,7 +273,7 @@ fn drive(pad: GamepadState, level_mm_s: u16, params: &RemoteParams) -> Control {
 
 /// The twist the sticks ask for at a speed level: left stick forward (+1) is
 /// `level_mm_s` forward, right stick right (+1) is `level · 2 / wheel_dist` clockwise,
-/// positive as on CAN (contract §2), which runs the left wheel forward and the right
+/// positive as on CAN (docs/behaviour.md, Conventions), which runs the left wheel forward and the right
 /// one backward at the level's speed.
 fn stick_twist(left_y: f32, right_x: f32, level_mm_s: u16, wheel_distance_mm: u16) -> Twist {
     let level = f32::from(level_mm_s);

@@ -1,4 +1,4 @@
-//! The load cell (contract §9): averaging of raw HX711 samples and their conversion to
+//! The load cell (docs/behaviour.md, Scale): averaging of raw HX711 samples and their conversion to
 //! grams with registers 19 (`weight_offset`) and 20 (`scale_value`). The scale task
 //! pushes samples; the feedback sender (0x0EA) and the scale calibration read the average.
 

@@ -624,7 +624,7 @@ fn dead_man_drives_with_contr_acc_norm_and_its_release_brakes_then_closes_the_br
                     Control(ControlSource::Remote),
                 ],
             ),
-            // Right stick right turns clockwise on the spot (contract §2: + clockwise):
+            // Right stick right turns clockwise on the spot (docs/behaviour.md: + clockwise):
             // the left wheel forward, the right one backward (its motor is mirrored, so
             // both motors turn positive), each at the level's 250 mm/s.
             (
@@ -778,7 +778,7 @@ fn l2_with_menu_resets_the_odometry_menu_alone_does_not_also_in_an_emergency() {
             (70, counts(806_982, -806_982), &[at_1000]),
             (80, buttons(Buttons::MENU), &[]),
             (90, l2_and(Buttons::MENU), &[at_1000]),
-            // In an emergency too (contract §6).
+            // In an emergency too (docs/behaviour.md, Emergency stop).
             (100, Input::Estop(true), &[Mode(Mode::Emergency)]),
             (110, l2_and(Buttons::NONE), &[]),
             (120, l2_and(Buttons::MENU), &[at_0]),

@@ -1,5 +1,5 @@
 //! The virtual pair of Oriental Motor BLV R drives on one RS-485 line. They speak the
-//! bytes of `spec/motor-drives.md` on the virtual clock (unicast FC 03h/10h/17h,
+//! bytes of the BLV R manual on the virtual clock (unicast FC 03h/10h/17h,
 //! broadcast, ID share FC 03h/10h/17h) and turn their motors as commanded. The firmware's
 //! drive link owns the [`DrivesPort`]; the test keeps the [`DrivesHandle`] to cut power,
 //! silence a drive, raise alarms, garble replies and look inside.

@@ -1,5 +1,5 @@
 //! The virtual drives seen from the master's side of the line: the frames of
-//! `spec/motor-drives.md` §6 written to the port, the replies read back and checked
+//! docs/drives.md written to the port, the replies read back and checked
 //! with the firmware's own parser.
 
 use base_core::modbus::{

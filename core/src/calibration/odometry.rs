@@ -1,13 +1,13 @@
-//! Odometry calibration (0x008, contract §8): owns the running calibration phase and the
+//! Odometry calibration (0x008, docs/behaviour.md, Odometry calibration): owns the running calibration phase and the
 //! pending correction factors. The CAN dispatcher hands it the steps, the odometry task
 //! feeds it every raw (uncorrected) increment, and `Store` gives the factors to whoever
 //! owns registers 16–18 and the flash.
 
 use super::OdometryCalibrationCommand;
 
-/// Lowest accepted factor, ×10000 (0.5, contract §8).
+/// Lowest accepted factor, ×10000 (0.5, docs/behaviour.md).
 pub const FACTOR_MIN: u16 = 5_000;
-/// Highest accepted factor, ×10000 (1.5, contract §8).
+/// Highest accepted factor, ×10000 (1.5, docs/behaviour.md).
 pub const FACTOR_MAX: u16 = 15_000;
 /// Registers 16–18 hold the factors in units of 1/10000.
 const FACTOR_SCALE: f64 = 10_000.0;
@@ -90,7 +90,7 @@ impl OdometryCalibrationError {
 ///   Store: pending → returned and cleared (phase unchanged); nothing pending → NothingPending
 /// ```
 ///
-/// Decisions (contract §8 leaves them open):
+/// Decisions (the protocol leaves them open):
 /// - A rejected end of the running phase (zero raw, factor out of range) still ends the
 ///   phase: the measurement is unusable, and a fresh start makes sure no motion from
 ///   before the retry leaks into the next attempt. Pending factors are untouched.

@@ -1,4 +1,4 @@
-//! Scale calibration (0x007, contract §9): owns which step of the load-cell calibration
+//! Scale calibration (0x007, docs/behaviour.md, Scale): owns which step of the load-cell calibration
 //! has been done. The CAN dispatcher hands it the steps together with the current
 //! averaged HX711 reading; the register/flash owner stores what it returns.
 
@@ -67,7 +67,7 @@ impl ScaleCalibrationError {
 ///    └── any rejected step: phase unchanged, nothing stored
 /// ```
 ///
-/// Decisions (contract §9 leaves them open):
+/// Decisions (the protocol leaves them open):
 /// - The offset is returned for storing at `02` already: taring alone is useful, and a
 ///   person who never sends `03` still gets a zeroed scale.
 /// - A rejected step changes nothing, so the person can fix the cause (empty the scale,

@@ -1,4 +1,4 @@
-//! Every open point of the drive research note (motor-drives.md §8) as a named
+//! Every open point of the drives' configuration (docs/drives.md) as a named
 //! setting: the robot's drives were configured with MEXE02 long ago, and these must
 //! match what is in them. The defaults are the note's best guess; the README lists
 //! what a commissioning engineer checks.

@@ -1,5 +1,5 @@
 //! Modbus-RTU frames for the Oriental Motor BLV R drives in ID share mode: building
-//! requests and checking replies, byte for byte as in `spec/motor-drives.md` §3 and §6.
+//! requests and checking replies, byte for byte as the BLV R manual has them (docs/drives.md).
 //! No I/O and no time: the drive link sends what this builds and hands back what it read.
 //!
 //! Hand-written rather than taken from a crate: the maintained `no_std` Modbus crates

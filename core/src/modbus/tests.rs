@@ -39,7 +39,7 @@ fn share_reply(gid: u8, function: u8, per_member: &[&[u32]], trailer: bool) -> s
     if trailer { with_crc(reply) } else { reply }
 }
 
-// §6 of spec/motor-drives.md: left = slave 1 (local ID 1), right = slave 2, group 15.
+// The wiring of docs/drives.md: left = slave 1 (local ID 1), right = slave 2, group 15.
 const GID: u8 = 0x0F;
 const READ_LIST: [u32; 4] = [102, 103, 64, 86];
 const WRITE_LIST: [u32; 5] = [45, 47, 48, 49, 51];

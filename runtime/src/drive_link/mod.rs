@@ -274,7 +274,7 @@ impl<'a, P: Rs485> DriveLink<'a, P> {
         Ok(modbus::parse_read(&self.reply, slave, 1)?[0])
     }
 
-    /// The setup of motor-drives.md §6.1, for drives that answer.
+    /// The setup of docs/drives.md (What happens on the wire), for drives that answer.
     async fn set_up(&mut self) -> Result<(), LinkError> {
         let mut lists = [0u32; 2 * reg::SHARE_LIST_SLOTS];
         lists[..reg::SHARE_READ_LIST.len()].copy_from_slice(&reg::SHARE_READ_LIST);

@@ -340,8 +340,8 @@ fn windows_map_reads_home_from_system_main_menu_in_report_2() {
 
 // ---- Stadia ----------------------------------------------------------------------
 
-/// The input report of Stadia's map (report 3, 10 bytes) as `spec/ble-gamepad.md` §4
-/// describes it: hat 0 … 7 with 8 centred, 15 buttons listed one usage each, sticks
+/// The input report of Stadia's map (report 3, 10 bytes) as SDL's and BlueRetro's
+/// Stadia drivers read it: hat 0 … 7 with 8 centred, 15 buttons listed one usage each, sticks
 /// as u8 from 1 with centre 0x80, triggers as u8, a consumer byte (left constant here).
 /// The button usages are listed in bit order: bit 0 is Capture (18), bit 14 A (1).
 const STADIA_MAP: &[u8] = &[
