@@ -4,10 +4,12 @@
 
 mod command;
 pub mod filter;
+mod rejection;
 mod report;
 mod status;
 
 pub use command::Command;
+pub use rejection::Rejection;
 pub use report::Report;
 pub use status::{ControlSource, Faults, Mode, Status, StatusFlags};
 

@@ -1,0 +1,177 @@
+//! Every reason the controller gives for refusing an input, as one table: the code on
+//! the wire (status byte 4, and a refused register read's `004#FF addr code`), a name
+//! and a cause. The PC tools show these; `docs/protocol.md` (Rejection codes) lists
+//! the same table, and a test holds the two together.
+
+use crate::calibration::odometry::OdometryCalibrationError;
+use crate::calibration::scale::ScaleCalibrationError;
+use crate::registers::RegisterError;
+
+use super::FrameError;
+
+/// One rejection reason, whichever module gave it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Rejection {
+    Frame(FrameError),
+    Register(RegisterError),
+    OdometryCalibration(OdometryCalibrationError),
+    ScaleCalibration(ScaleCalibrationError),
+}
+
+impl Rejection {
+    /// Every reason this firmware reports, in code order.
+    pub const ALL: [Rejection; 17] = [
+        Rejection::Frame(FrameError::WrongLength),
+        Rejection::Frame(FrameError::BadVelocityMarker),
+        Rejection::Frame(FrameError::UnknownSubcommand),
+        Rejection::Register(RegisterError::UnknownAddress),
+        Rejection::Register(RegisterError::ReadOnly),
+        Rejection::Register(RegisterError::OutOfRange),
+        Rejection::Register(RegisterError::Inconsistent),
+        Rejection::OdometryCalibration(OdometryCalibrationError::EndWithoutStart),
+        Rejection::OdometryCalibration(OdometryCalibrationError::ZeroRawValue),
+        Rejection::OdometryCalibration(OdometryCalibrationError::FactorOutOfRange),
+        Rejection::OdometryCalibration(OdometryCalibrationError::NothingPending),
+        Rejection::ScaleCalibration(ScaleCalibrationError::NotStarted),
+        Rejection::ScaleCalibration(ScaleCalibrationError::NotTared),
+        Rejection::ScaleCalibration(ScaleCalibrationError::NoReading),
+        Rejection::ScaleCalibration(ScaleCalibrationError::OffsetOutOfRange),
+        Rejection::ScaleCalibration(ScaleCalibrationError::ZeroWeight),
+        Rejection::ScaleCalibration(ScaleCalibrationError::ScaleValueOutOfRange),
+    ];
+
+    /// `None` for 0 (nothing rejected) and for codes this firmware does not define (a
+    /// newer firmware's).
+    pub fn from_code(code: u8) -> Option<Rejection> {
+        Self::ALL.into_iter().find(|reason| reason.code() == code)
+    }
+
+    /// The stable code on the wire.
+    pub fn code(self) -> u8 {
+        match self {
+            Rejection::Frame(error) => error.code(),
+            Rejection::Register(error) => error.code(),
+            Rejection::OdometryCalibration(error) => error.code(),
+            Rejection::ScaleCalibration(error) => error.code(),
+        }
+    }
+
+    /// The name the PC tools and the docs use.
+    pub const fn name(self) -> &'static str {
+        use OdometryCalibrationError as Odometry;
+        use ScaleCalibrationError as Scale;
+        match self {
+            Rejection::Frame(FrameError::WrongLength) => "WrongLength",
+            Rejection::Frame(FrameError::BadVelocityMarker) => "BadVelocityMarker",
+            Rejection::Frame(FrameError::UnknownSubcommand) => "UnknownSubcommand",
+            Rejection::Register(RegisterError::UnknownAddress) => "UnknownAddress",
+            Rejection::Register(RegisterError::ReadOnly) => "ReadOnly",
+            Rejection::Register(RegisterError::OutOfRange) => "OutOfRange",
+            Rejection::Register(RegisterError::Inconsistent) => "Inconsistent",
+            Rejection::OdometryCalibration(Odometry::EndWithoutStart) => "EndWithoutStart",
+            Rejection::OdometryCalibration(Odometry::ZeroRawValue) => "ZeroRawValue",
+            Rejection::OdometryCalibration(Odometry::FactorOutOfRange) => "FactorOutOfRange",
+            Rejection::OdometryCalibration(Odometry::NothingPending) => "NothingPending",
+            Rejection::ScaleCalibration(Scale::NotStarted) => "NotStarted",
+            Rejection::ScaleCalibration(Scale::NotTared) => "NotTared",
+            Rejection::ScaleCalibration(Scale::NoReading) => "NoReading",
+            Rejection::ScaleCalibration(Scale::OffsetOutOfRange) => "OffsetOutOfRange",
+            Rejection::ScaleCalibration(Scale::ZeroWeight) => "ZeroWeight",
+            Rejection::ScaleCalibration(Scale::ScaleValueOutOfRange) => "ScaleValueOutOfRange",
+        }
+    }
+
+    /// What the sender did wrong, in a few words.
+    pub const fn cause(self) -> &'static str {
+        use OdometryCalibrationError as Odometry;
+        use ScaleCalibrationError as Scale;
+        match self {
+            Rejection::Frame(FrameError::WrongLength) => {
+                "a frame too short for its content, or longer than 8 bytes"
+            }
+            Rejection::Frame(FrameError::BadVelocityMarker) => {
+                "a velocity frame whose byte 4 is not 03"
+            }
+            Rejection::Frame(FrameError::UnknownSubcommand) => {
+                "the frame's first byte is not a defined sub-command"
+            }
+            Rejection::Register(RegisterError::UnknownAddress) => "no register at this address",
+            Rejection::Register(RegisterError::ReadOnly) => "the register is read-only",
+            Rejection::Register(RegisterError::OutOfRange) => {
+                "the value is outside the register's range"
+            }
+            Rejection::Register(RegisterError::Inconsistent) => {
+                "the value would break a cross-register rule (docs/registers.md)"
+            }
+            Rejection::OdometryCalibration(Odometry::EndWithoutStart) => {
+                "an end step without its own start step running"
+            }
+            Rejection::OdometryCalibration(Odometry::ZeroRawValue) => {
+                "nothing measured in the step's direction (not moved, or the wrong way)"
+            }
+            Rejection::OdometryCalibration(Odometry::FactorOutOfRange) => {
+                "real / measured is outside 0.5 ... 1.5"
+            }
+            Rejection::OdometryCalibration(Odometry::NothingPending) => {
+                "store (04) with no computed factor waiting"
+            }
+            Rejection::ScaleCalibration(Scale::NotStarted) => "scale step without start (01)",
+            Rejection::ScaleCalibration(Scale::NotTared) => {
+                "known weight (03) before the empty reading (02)"
+            }
+            Rejection::ScaleCalibration(Scale::NoReading) => "the load cell gave no reading",
+            Rejection::ScaleCalibration(Scale::OffsetOutOfRange) => {
+                "the empty reading does not fit weight_offset (0..65535)"
+            }
+            Rejection::ScaleCalibration(Scale::ZeroWeight) => "known weight of 0 g",
+            Rejection::ScaleCalibration(Scale::ScaleValueOutOfRange) => {
+                "the computed scale_value does not fit 1..65535 (too steep, or the load cell reads backwards)"
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use std::vec::Vec;
+
+    use super::*;
+
+    #[test]
+    fn every_reason_has_its_own_code_and_name() {
+        for (i, a) in Rejection::ALL.iter().enumerate() {
+            assert_eq!(Rejection::from_code(a.code()), Some(*a));
+            for b in &Rejection::ALL[i + 1..] {
+                assert_ne!(a.code(), b.code(), "{a:?} and {b:?}");
+                assert_ne!(a.name(), b.name(), "{a:?} and {b:?}");
+            }
+        }
+        assert_eq!(Rejection::from_code(0), None);
+    }
+
+    #[test]
+    fn the_table_is_the_one_in_docs_protocol() {
+        let docs = include_str!("../../../docs/protocol.md");
+        let section = docs
+            .split("## Rejection codes")
+            .nth(1)
+            .expect("docs/protocol.md has a Rejection codes section");
+        let documented: Vec<(u8, &str)> = section
+            .lines()
+            .filter_map(|line| {
+                let mut cells = line.split('|').map(str::trim).skip(1);
+                let code = cells.next()?.strip_prefix("0x")?;
+                let name = cells.next()?;
+                let code = u8::from_str_radix(code, 16).ok()?;
+                (code != 0).then_some((code, name))
+            })
+            .collect();
+        let ours: Vec<(u8, &str)> = Rejection::ALL
+            .iter()
+            .map(|reason| (reason.code(), reason.name()))
+            .collect();
+        assert_eq!(documented, ours);
+    }
+}
