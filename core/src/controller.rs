@@ -15,7 +15,9 @@ use crate::gamepad::GamepadState;
 use crate::kinematics::{self, KinematicsParams, MotorRpm, SafetyLimits, Twist, WheelCommand};
 use crate::odometry::{EncoderCounts, Odometry, OdometryParams};
 use crate::power::{PowerControl, PowerEvent, PowerParams, SwitchLevel};
-use crate::registers::{Reg, RegisterError, Registers, WriteOutcome};
+use crate::registers::{
+    MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, Reg, RegisterError, Registers, WriteOutcome,
+};
 use crate::remote::{Control, PairingWindow, Remote, RemoteEvent, RemoteParams};
 use crate::scale::{self, RawAverage};
 use crate::supervisor::{Event, Setpoint, Supervisor, SupervisorParams, Wheel};
@@ -615,33 +617,58 @@ impl Controller {
     }
 
     fn kinematics_params(&self) -> KinematicsParams {
-        let r = &self.registers;
-        let motor_dir = r.get(Reg::MotorDir);
+        let g = Geometry::of(&self.registers);
         KinematicsParams {
-            left_radius_mm: f32::from(r.get(Reg::RadL)),
-            right_radius_mm: f32::from(r.get(Reg::RadR)),
-            wheel_distance_mm: f32::from(r.get(Reg::WheelDist)),
-            gear_ratio: f32::from(r.get(Reg::GearRatio)) / 100.0,
-            max_motor_rpm: f32::from(r.get(Reg::MaxMotorVel)),
-            invert_left: motor_dir & 0b01 != 0,
-            invert_right: motor_dir & 0b10 != 0,
+            left_radius_mm: g.left_radius_mm as f32,
+            right_radius_mm: g.right_radius_mm as f32,
+            wheel_distance_mm: g.wheel_distance_mm as f32,
+            gear_ratio: g.gear_ratio as f32,
+            max_motor_rpm: f32::from(self.registers.get(Reg::MaxMotorVel)),
+            invert_left: g.invert_left,
+            invert_right: g.invert_right,
         }
     }
 
     fn odometry_params(&self) -> OdometryParams {
         let r = &self.registers;
-        let motor_dir = r.get(Reg::MotorDir);
+        let g = Geometry::of(r);
         OdometryParams {
+            left_radius_mm: g.left_radius_mm,
+            right_radius_mm: g.right_radius_mm,
+            wheel_distance_mm: g.wheel_distance_mm,
+            gear_ratio: g.gear_ratio,
+            counts_per_motor_rev: COUNTS_PER_MOTOR_REV,
+            invert_left: g.invert_left,
+            invert_right: g.invert_right,
+            f_lin: f64::from(r.get(Reg::FLin)) / 10_000.0,
+            f_cw: f64::from(r.get(Reg::FCw)) / 10_000.0,
+            f_ccw: f64::from(r.get(Reg::FCcw)) / 10_000.0,
+        }
+    }
+}
+
+/// The base's geometry in the registers' units decoded to physical ones, once for
+/// both directions: twist → wheels (kinematics) and wheels → pose (odometry).
+struct Geometry {
+    left_radius_mm: f64,
+    right_radius_mm: f64,
+    wheel_distance_mm: f64,
+    /// Motor turns per wheel turn (`gear_ratio` is ×100).
+    gear_ratio: f64,
+    invert_left: bool,
+    invert_right: bool,
+}
+
+impl Geometry {
+    fn of(r: &Registers) -> Self {
+        let motor_dir = r.get(Reg::MotorDir);
+        Self {
             left_radius_mm: f64::from(r.get(Reg::RadL)),
             right_radius_mm: f64::from(r.get(Reg::RadR)),
             wheel_distance_mm: f64::from(r.get(Reg::WheelDist)),
             gear_ratio: f64::from(r.get(Reg::GearRatio)) / 100.0,
-            counts_per_motor_rev: COUNTS_PER_MOTOR_REV,
-            invert_left: motor_dir & 0b01 != 0,
-            invert_right: motor_dir & 0b10 != 0,
-            f_lin: f64::from(r.get(Reg::FLin)) / 10_000.0,
-            f_cw: f64::from(r.get(Reg::FCw)) / 10_000.0,
-            f_ccw: f64::from(r.get(Reg::FCcw)) / 10_000.0,
+            invert_left: motor_dir & MOTOR_DIR_INVERT_LEFT != 0,
+            invert_right: motor_dir & MOTOR_DIR_INVERT_RIGHT != 0,
         }
     }
 }
