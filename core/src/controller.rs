@@ -14,13 +14,13 @@ use crate::feedback::{FeedbackPeriods, FeedbackSchedule};
 use crate::gamepad::GamepadState;
 use crate::kinematics::{self, KinematicsParams, MotorRpm, SafetyLimits, Twist, WheelCommand};
 use crate::odometry::{EncoderCounts, Odometry, OdometryParams};
-use crate::power::{PowerControl, PowerEvent, PowerParams, SwitchLevel};
+use crate::power::{self, PowerControl, SwitchLevel};
 use crate::registers::{
     MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, Reg, RegisterError, Registers, WriteOutcome,
 };
-use crate::remote::{Control, PairingWindow, Remote, RemoteEvent, RemoteParams};
+use crate::remote::{self, Control, PairingWindow, Remote};
 use crate::scale::{self, RawAverage};
-use crate::supervisor::{Event, Setpoint, Supervisor, SupervisorParams, Wheel};
+use crate::supervisor::{self, Setpoint, Supervisor, Wheel};
 use crate::time::Instant;
 
 /// BLV R position counters: 0.01° of the motor shaft per count.
@@ -187,14 +187,13 @@ pub struct Controller {
 impl Controller {
     /// A controller starting at `now` with the registers the flash task loaded.
     pub fn new(now: Instant, registers: Registers) -> Self {
-        let power = PowerControl::new(power_params(&registers));
         Self {
             registers,
             supervisor: Supervisor::new(),
             odometry: Odometry::new(),
             odometry_calibration: OdometryCalibration::new(),
             scale_calibration: ScaleCalibration::new(),
-            power,
+            power: PowerControl::new(),
             battery: BatteryFilter::default(),
             battery_mv: None,
             scale: RawAverage::new(),
@@ -231,25 +230,29 @@ impl Controller {
         let mut out = Output::default();
         match input {
             Input::CanFrame(frame) => self.can_frame(now, frame, &mut out),
-            Input::Estop(pressed) => self.supervise(now, Event::Estop { pressed }, &mut out),
+            Input::Estop(pressed) => {
+                self.supervise(now, supervisor::Event::Estop { pressed }, &mut out)
+            }
             Input::SafetyZone(occupied) => {
-                self.supervise(now, Event::SafetyZone { occupied }, &mut out)
+                self.supervise(now, supervisor::Event::SafetyZone { occupied }, &mut out)
             }
             Input::Button(pressed) => {
                 let event = if pressed {
-                    PowerEvent::ButtonPressed
+                    power::Event::ButtonPressed
                 } else {
-                    PowerEvent::ButtonReleased
+                    power::Event::ButtonReleased
                 };
                 self.power_event(now, event, &mut out);
             }
-            Input::Gamepad(pad) => self.remote_step(now, RemoteEvent::Report(pad), None, &mut out),
+            Input::Gamepad(pad) => {
+                self.remote_step(now, remote::Event::Report(pad), None, &mut out)
+            }
             Input::RemoteLink { bonded, connected } => {
                 self.remote_link = RemoteLink { bonded, connected };
                 let event = if connected {
-                    RemoteEvent::Connected
+                    remote::Event::Connected
                 } else {
-                    RemoteEvent::Disconnected
+                    remote::Event::Disconnected
                 };
                 self.remote_step(now, event, None, &mut out);
             }
@@ -268,11 +271,13 @@ impl Controller {
                 // baseline, and the wheels were told nothing yet.
                 self.odometry.rebaseline();
                 self.commanded = MotorRpm { left: 0, right: 0 };
-                self.supervise(now, Event::DrivesReady, &mut out);
+                self.supervise(now, supervisor::Event::DrivesReady, &mut out);
             }
-            Input::DriveSilent(wheel) => self.supervise(now, Event::DriveSilent(wheel), &mut out),
+            Input::DriveSilent(wheel) => {
+                self.supervise(now, supervisor::Event::DriveSilent(wheel), &mut out)
+            }
             Input::DriveAlarm { wheel, code } => {
-                self.supervise(now, Event::DriveAlarm { wheel, code }, &mut out)
+                self.supervise(now, supervisor::Event::DriveAlarm { wheel, code }, &mut out)
             }
             Input::ModbusError => self.modbus_errors = self.modbus_errors.wrapping_add(1),
             Input::ScaleSample(raw) => {
@@ -291,8 +296,13 @@ impl Controller {
                     info!("pairing window closed: time is up");
                     out.pairing_window = Some(false);
                 }
-                self.remote_step(now, RemoteEvent::Tick, Some(Event::Tick), &mut out);
-                self.power_event(now, PowerEvent::Tick, &mut out);
+                self.remote_step(
+                    now,
+                    remote::Event::Tick,
+                    Some(supervisor::Event::Tick),
+                    &mut out,
+                );
+                self.power_event(now, power::Event::Tick, &mut out);
             }
         }
         self.periodic_frames(now, &mut out);
@@ -308,7 +318,7 @@ impl Controller {
             control: supervisor.control(),
             flags: StatusFlags {
                 enable_fresh: supervisor.enable_fresh(now, &self.supervisor_params()),
-                pc_on: self.power.pc_on(now),
+                pc_on: self.power.pc_on(now, &power_params(&self.registers)),
                 safety_zone: supervisor.safety_zone(),
                 remote_bonded: self.remote_link.bonded,
                 remote_connected: self.remote_link.connected,
@@ -344,7 +354,9 @@ impl Controller {
             }
         };
         match command {
-            Command::Enable { refresh } => self.supervise(now, Event::CanEnable { refresh }, out),
+            Command::Enable { refresh } => {
+                self.supervise(now, supervisor::Event::CanEnable { refresh }, out)
+            }
             Command::Velocity {
                 linear_mm_s,
                 rotation_mrad_s,
@@ -353,7 +365,7 @@ impl Controller {
                     linear_mm_s: i32::from(linear_mm_s),
                     rotation_mrad_s: i32::from(rotation_mrad_s),
                 };
-                self.supervise(now, Event::CanVelocity(twist), out);
+                self.supervise(now, supervisor::Event::CanVelocity(twist), out);
             }
             Command::RegisterWrite { address, value } => {
                 self.write_register(now, address, value, out);
@@ -372,7 +384,7 @@ impl Controller {
                 push_frame(out, report.encode());
             }
             Command::ResetOdometry => self.odometry.reset(),
-            Command::Heartbeat => self.power_event(now, PowerEvent::Heartbeat, out),
+            Command::Heartbeat => self.power_event(now, power::Event::Heartbeat, out),
             Command::ScaleCalibration(step) => {
                 let offset = self.registers.get(Reg::WeightOffset);
                 match self
@@ -391,7 +403,7 @@ impl Controller {
                         .record(error.code(), frame_subject(frame.id())),
                 }
             }
-            Command::OdometryCalibration(step) => match self.odometry_calibration.handle(step) {
+            Command::OdometryCalibration(step) => match self.odometry_calibration.step(step) {
                 Ok(Some(factors)) => {
                     for (reg, value) in [
                         (Reg::FCw, factors.f_cw),
@@ -424,15 +436,17 @@ impl Controller {
             outcome,
             Ok(WriteOutcome::Changed { .. } | WriteOutcome::DefaultsRestored)
         ) {
-            // The power state machine holds its parameters; everything else reads the
-            // registers when it needs them.
-            self.power.set_params(power_params(&self.registers));
             // Without a step a lowered max_motor_vel (or a new gear ratio, radius,
             // motor_dir or safety limit) would wait for the next change of the twist,
             // which never comes while the PC repeats the same velocity or the gamepad's
             // stick is held still. The remote maps a held stick again first (a new
             // wheel_dist or speed-level limit changes its twist).
-            self.remote_step(now, RemoteEvent::ParamsChanged, Some(Event::Tick), out);
+            self.remote_step(
+                now,
+                remote::Event::ParamsChanged,
+                Some(supervisor::Event::Tick),
+                out,
+            );
         }
         match outcome {
             Ok(WriteOutcome::Changed { address, value }) => {
@@ -470,10 +484,10 @@ impl Controller {
         // as standing).
         let standing = -AT_REST_RPM..=AT_REST_RPM;
         let at_rest = standing.contains(&rpm.left) && standing.contains(&rpm.right);
-        self.supervise(now, Event::AtRest(at_rest), out);
+        self.supervise(now, supervisor::Event::AtRest(at_rest), out);
     }
 
-    fn supervise(&mut self, now: Instant, event: Event, out: &mut Output) {
+    fn supervise(&mut self, now: Instant, event: supervisor::Event, out: &mut Output) {
         let effects = self.supervisor.step(now, event, &self.supervisor_params());
         if let Some(setpoint) = effects.setpoint {
             self.setpoint = setpoint;
@@ -500,8 +514,8 @@ impl Controller {
     fn remote_step(
         &mut self,
         now: Instant,
-        event: RemoteEvent,
-        otherwise: Option<Event>,
+        event: remote::Event,
+        otherwise: Option<supervisor::Event>,
         out: &mut Output,
     ) {
         let effects = self.remote.step(now, event, &self.remote_params());
@@ -510,8 +524,10 @@ impl Controller {
         }
         out.disconnect_remote |= effects.disconnect;
         let step = match effects.control {
-            Some(Control::Drive { dead_man, twist }) => Some(Event::Remote { dead_man, twist }),
-            Some(Control::Lost) => Some(Event::RemoteLinkLost),
+            Some(Control::Drive { dead_man, twist }) => {
+                Some(supervisor::Event::Remote { dead_man, twist })
+            }
+            Some(Control::Lost) => Some(supervisor::Event::RemoteLinkLost),
             None => otherwise,
         };
         if let Some(step) = step {
@@ -519,10 +535,10 @@ impl Controller {
         }
     }
 
-    fn power_event(&mut self, now: Instant, event: PowerEvent, out: &mut Output) {
-        let power = self.power.handle(event, now);
+    fn power_event(&mut self, now: Instant, event: power::Event, out: &mut Output) {
+        let power = self.power.step(now, event, &power_params(&self.registers));
         if power.confirm {
-            self.supervise(now, Event::ConfirmPressed, out);
+            self.supervise(now, supervisor::Event::ConfirmPressed, out);
         }
         if power.switch.is_some() {
             out.pc_switch = power.switch;
@@ -589,9 +605,9 @@ impl Controller {
         }
     }
 
-    fn supervisor_params(&self) -> SupervisorParams {
+    fn supervisor_params(&self) -> supervisor::Params {
         let r = &self.registers;
-        SupervisorParams {
+        supervisor::Params {
             enable_timeout_ms: u32::from(r.get(Reg::EnableTimeout)),
             cmd_timeout_ms: u32::from(r.get(Reg::CmdTimeout)),
             disable_time_ms: u32::from(r.get(Reg::DisableTime)),
@@ -606,9 +622,9 @@ impl Controller {
         }
     }
 
-    fn remote_params(&self) -> RemoteParams {
+    fn remote_params(&self) -> remote::Params {
         let r = &self.registers;
-        RemoteParams {
+        remote::Params {
             start_level_mm_s: r.get(Reg::PsRelMaxVel),
             max_level_mm_s: r.get(Reg::PsAbsMaxVel),
             wheel_distance_mm: r.get(Reg::WheelDist),
@@ -673,8 +689,8 @@ impl Geometry {
     }
 }
 
-fn power_params(r: &Registers) -> PowerParams {
-    PowerParams {
+fn power_params(r: &Registers) -> power::Params {
+    power::Params {
         start_pc_ms: u32::from(r.get(Reg::StartPc)),
         shutdown_pc_ms: u32::from(r.get(Reg::ShutdownPc)),
         heartbeat_timeout_ms: u32::from(r.get(Reg::HeartbeatTime)),

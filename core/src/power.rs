@@ -9,7 +9,7 @@ use crate::time::Instant;
 /// Timing of the button and the PC, from registers 21–23 plus two extensions.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct PowerParams {
+pub struct Params {
     /// Hold time that switches an off PC on (register 22 `start_PC`).
     pub start_pc_ms: u32,
     /// Hold time that switches a running PC off (register 23 `shutdown_PC`).
@@ -26,11 +26,11 @@ pub struct PowerParams {
     pub switch_pulse_ms: u32,
 }
 
-impl PowerParams {
+impl Params {
     /// Register defaults (21–23) plus: boot grace 120 s, enough for a PC to boot its OS
     /// and start the heartbeat sender; switch pulse 500 ms, a firm "press" of the
     /// PC's power button, far from the 4 s forced off.
-    pub const DEFAULT: PowerParams = PowerParams {
+    pub const DEFAULT: Params = Params {
         start_pc_ms: 3_000,
         shutdown_pc_ms: 8_000,
         heartbeat_timeout_ms: 5_000,
@@ -39,7 +39,7 @@ impl PowerParams {
     };
 }
 
-impl Default for PowerParams {
+impl Default for Params {
     fn default() -> Self {
         Self::DEFAULT
     }
@@ -48,7 +48,7 @@ impl Default for PowerParams {
 /// What happened.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum PowerEvent {
+pub enum Event {
     /// Debounced front button went down.
     ButtonPressed,
     /// Debounced front button went up.
@@ -56,8 +56,8 @@ pub enum PowerEvent {
     /// A PC heartbeat (0x006 `01`) arrived.
     Heartbeat,
     /// Time passed. Send one at least every few ms while the button is held or the
-    /// contact is closed (or sleep until [`PowerControl::next_deadline`]): hold times
-    /// and pulse ends act on the first event at or after their deadline.
+    /// contact is closed: hold times and pulse ends act on the first event at or after
+    /// their deadline.
     Tick,
 }
 
@@ -72,15 +72,15 @@ pub enum SwitchLevel {
 /// What the shell has to do after one event.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct PowerOutputs {
+pub struct Effects {
     /// A short press was released: confirms an emergency (docs/behaviour.md).
     pub confirm: bool,
     /// Set the switch pin to this level; `None`: leave it.
     pub switch: Option<SwitchLevel>,
 }
 
-impl PowerOutputs {
-    pub const NONE: PowerOutputs = PowerOutputs {
+impl Effects {
+    pub const NONE: Effects = Effects {
         confirm: false,
         switch: None,
     };
@@ -129,7 +129,7 @@ pub enum PcState {
 }
 
 impl PcState {
-    fn is_on(self, now: Instant, params: &PowerParams) -> bool {
+    fn is_on(self, now: Instant, params: &Params) -> bool {
         let fresh = |hb: Instant| now.millis_since(hb) < u64::from(params.heartbeat_timeout_ms);
         match self {
             PcState::Off => false,
@@ -145,7 +145,7 @@ impl PcState {
     }
 
     /// Drop what has expired by `now`, so the state says what is true now.
-    fn settle(self, now: Instant, params: &PowerParams) -> PcState {
+    fn settle(self, now: Instant, params: &Params) -> PcState {
         let after_grace = match self {
             PcState::Booting {
                 since,
@@ -247,13 +247,8 @@ impl PowerState {
 ///   its heartbeats keep coming: the OS is still shutting down, and the button keeps
 ///   meaning "off" until the PC has really gone quiet. Another 8 s hold in that time
 ///   sends another pulse (for a PC that ignored the first one).
-pub fn step(
-    state: PowerState,
-    event: PowerEvent,
-    now: Instant,
-    params: &PowerParams,
-) -> (PowerState, PowerOutputs) {
-    let mut out = PowerOutputs::NONE;
+fn next(state: PowerState, now: Instant, event: Event, params: &Params) -> (PowerState, Effects) {
+    let mut out = Effects::NONE;
     let mut pc = state.pc.settle(now, params);
     let mut switch = state.switch;
 
@@ -299,9 +294,9 @@ pub fn step(
     }
 
     match event {
-        PowerEvent::Tick => {}
-        PowerEvent::Heartbeat => pc = pc.heartbeat(now),
-        PowerEvent::ButtonPressed => {
+        Event::Tick => {}
+        Event::Heartbeat => pc = pc.heartbeat(now),
+        Event::ButtonPressed => {
             // A second "pressed" without a release in between is a duplicate edge; the
             // press keeps its original start.
             if button == ButtonState::Released {
@@ -311,7 +306,7 @@ pub fn step(
                 };
             }
         }
-        PowerEvent::ButtonReleased => {
+        Event::ButtonReleased => {
             if let ButtonState::Held { stage, .. } = button {
                 out.confirm = stage == HoldStage::Short;
             }
@@ -322,70 +317,33 @@ pub fn step(
     (PowerState { button, switch, pc }, out)
 }
 
-/// The state machine with its parameters, as the power task holds it.
+/// The button / PC-power state machine as the controller holds it; see [`next`] for
+/// the transition diagram and the rules.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct PowerControl {
-    params: PowerParams,
     state: PowerState,
 }
 
 impl PowerControl {
-    pub const fn new(params: PowerParams) -> Self {
+    pub const fn new() -> Self {
         Self {
-            params,
             state: PowerState::INITIAL,
         }
     }
 
-    pub fn handle(&mut self, event: PowerEvent, now: Instant) -> PowerOutputs {
-        let (state, out) = step(self.state, event, now, &self.params);
+    /// Handles one event at `now` and returns what must happen. New register values
+    /// (`params`) take effect at once; a running press keeps its start time.
+    pub fn step(&mut self, now: Instant, event: Event, params: &Params) -> Effects {
+        let (state, effects) = next(self.state, now, event, params);
         self.state = state;
-        out
+        effects
     }
 
     /// Whether the PC counts as on at `now` (heartbeat fresh or boot grace running),
     /// for the status frame.
-    pub fn pc_on(&self, now: Instant) -> bool {
-        self.state.pc.is_on(now, &self.params)
-    }
-
-    /// The next moment a `Tick` can change an output: a hold time or the end of the
-    /// pulse. The shell may sleep until then (or until the next input).
-    pub fn next_deadline(&self) -> Option<Instant> {
-        let hold = match self.state.button {
-            ButtonState::Held {
-                since,
-                stage: HoldStage::Short,
-            } => Some(since.plus_millis(u64::from(self.params.start_pc_ms))),
-            ButtonState::Held {
-                since,
-                stage: HoldStage::AwaitShutdown,
-            } => Some(since.plus_millis(u64::from(self.params.shutdown_pc_ms))),
-            ButtonState::Held {
-                stage: HoldStage::Done,
-                ..
-            }
-            | ButtonState::Released => None,
-        };
-        let pulse_end = match self.state.switch {
-            SwitchState::Closed { until } => Some(until),
-            SwitchState::Open => None,
-        };
-        match (hold, pulse_end) {
-            (Some(a), Some(b)) => Some(a.min(b)),
-            (a, b) => a.or(b),
-        }
-    }
-
-    /// New register values take effect from the next event; a running press keeps its
-    /// start time.
-    pub fn set_params(&mut self, params: PowerParams) {
-        self.params = params;
-    }
-
-    pub fn params(&self) -> PowerParams {
-        self.params
+    pub fn pc_on(&self, now: Instant, params: &Params) -> bool {
+        self.state.pc.is_on(now, params)
     }
 
     pub fn state(&self) -> PowerState {
@@ -395,32 +353,32 @@ impl PowerControl {
 
 impl Default for PowerControl {
     fn default() -> Self {
-        Self::new(PowerParams::DEFAULT)
+        Self::new()
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use PowerEvent::{ButtonPressed as Press, ButtonReleased as Release, Heartbeat as Hb, Tick};
+    use Event::{ButtonPressed as Press, ButtonReleased as Release, Heartbeat as Hb, Tick};
     use proptest::prelude::*;
 
-    const NONE: PowerOutputs = PowerOutputs::NONE;
-    const CONFIRM: PowerOutputs = PowerOutputs {
+    const NONE: Effects = Effects::NONE;
+    const CONFIRM: Effects = Effects {
         confirm: true,
         switch: None,
     };
-    const CLOSE: PowerOutputs = PowerOutputs {
+    const CLOSE: Effects = Effects {
         confirm: false,
         switch: Some(SwitchLevel::Closed),
     };
-    const OPEN: PowerOutputs = PowerOutputs {
+    const OPEN: Effects = Effects {
         confirm: false,
         switch: Some(SwitchLevel::Open),
     };
 
     /// Short, distinct numbers so a table row reads at a glance.
-    const PARAMS: PowerParams = PowerParams {
+    const PARAMS: Params = Params {
         start_pc_ms: 3_000,
         shutdown_pc_ms: 8_000,
         heartbeat_timeout_ms: 5_000,
@@ -430,21 +388,25 @@ mod tests {
 
     /// Run a scenario table of (time ms, event) → expected outputs, plus `pc_on` after
     /// the event where given.
-    fn run(control: &mut PowerControl, rows: &[(u64, PowerEvent, PowerOutputs)]) {
+    fn run(control: &mut PowerControl, rows: &[(u64, Event, Effects)]) {
+        run_with(control, &PARAMS, rows);
+    }
+
+    fn run_with(control: &mut PowerControl, params: &Params, rows: &[(u64, Event, Effects)]) {
         for (i, &(t, event, expected)) in rows.iter().enumerate() {
-            let got = control.handle(event, Instant::from_millis(t));
+            let got = control.step(Instant::from_millis(t), event, params);
             assert_eq!(got, expected, "row {i}: {event:?} at {t} ms");
         }
     }
 
     fn fresh() -> PowerControl {
-        PowerControl::new(PARAMS)
+        PowerControl::new()
     }
 
     /// A PC that has been sending heartbeats every 2 s since boot, up to `until_ms`.
     fn with_heartbeats(control: &mut PowerControl, until_ms: u64) {
         for t in (0..=until_ms).step_by(2_000) {
-            control.handle(Hb, Instant::from_millis(t));
+            control.step(Instant::from_millis(t), Hb, &PARAMS);
         }
     }
 
@@ -464,7 +426,7 @@ mod tests {
                 (15_000, Tick, NONE),
             ],
         );
-        assert!(c.pc_on(Instant::from_millis(15_000)));
+        assert!(c.pc_on(Instant::from_millis(15_000), &PARAMS));
     }
 
     #[test]
@@ -480,7 +442,7 @@ mod tests {
                 (10_000, Tick, NONE),
             ],
         );
-        assert!(!c.pc_on(Instant::from_millis(10_000)));
+        assert!(!c.pc_on(Instant::from_millis(10_000), &PARAMS));
     }
 
     #[test]
@@ -561,7 +523,7 @@ mod tests {
                 (23_500, Release, NONE),
             ],
         );
-        assert!(c.pc_on(Instant::from_millis(23_500)));
+        assert!(c.pc_on(Instant::from_millis(23_500), &PARAMS));
     }
 
     #[test]
@@ -582,7 +544,7 @@ mod tests {
             ],
         );
         // No heartbeat ever came, so without the grace nothing keeps it "on".
-        assert!(!c.pc_on(Instant::from_millis(29_000)));
+        assert!(!c.pc_on(Instant::from_millis(29_000), &PARAMS));
     }
 
     #[test]
@@ -598,7 +560,7 @@ mod tests {
             ],
         );
         for (t, on) in [(3_000, true), (62_999, true), (63_000, false)] {
-            assert_eq!(c.pc_on(Instant::from_millis(t)), on, "at {t} ms");
+            assert_eq!(c.pc_on(Instant::from_millis(t), &PARAMS), on, "at {t} ms");
         }
         // Grace over without a heartbeat: the PC did not start; 3 s tries again.
         run(&mut c, &[(70_000, Press, NONE), (73_000, Tick, CLOSE)]);
@@ -616,16 +578,16 @@ mod tests {
             ],
         );
         for t in (40_000..=80_000).step_by(2_000) {
-            c.handle(Hb, Instant::from_millis(t));
+            c.step(Instant::from_millis(t), Hb, &PARAMS);
         }
-        assert!(c.pc_on(Instant::from_millis(84_999)));
-        assert!(!c.pc_on(Instant::from_millis(85_000)));
+        assert!(c.pc_on(Instant::from_millis(84_999), &PARAMS));
+        assert!(!c.pc_on(Instant::from_millis(85_000), &PARAMS));
     }
 
     #[test]
     fn heartbeat_lapse_turns_the_pc_off() {
         let mut c = fresh();
-        assert!(!c.pc_on(Instant::from_millis(0)));
+        assert!(!c.pc_on(Instant::from_millis(0), &PARAMS));
         run(&mut c, &[(1_000, Hb, NONE), (3_000, Hb, NONE)]);
         for (t, on) in [
             (3_000, true),
@@ -633,7 +595,7 @@ mod tests {
             (8_000, false),
             (60_000, false),
         ] {
-            assert_eq!(c.pc_on(Instant::from_millis(t)), on, "at {t} ms");
+            assert_eq!(c.pc_on(Instant::from_millis(t), &PARAMS), on, "at {t} ms");
         }
         // Now off, a 3 s hold switches it on.
         run(&mut c, &[(9_000, Press, NONE), (12_000, Tick, CLOSE)]);
@@ -690,8 +652,8 @@ mod tests {
                 (20_000, Hb, NONE), // last one
             ],
         );
-        assert!(c.pc_on(Instant::from_millis(24_999)));
-        assert!(!c.pc_on(Instant::from_millis(25_000)));
+        assert!(c.pc_on(Instant::from_millis(24_999), &PARAMS));
+        assert!(!c.pc_on(Instant::from_millis(25_000), &PARAMS));
         // Gone quiet: the next 3 s press switches it on again.
         run(&mut c, &[(26_000, Press, NONE), (29_000, Tick, CLOSE)]);
     }
@@ -730,13 +692,15 @@ mod tests {
     #[test]
     fn pulse_lasts_switch_pulse_ms() {
         for pulse_ms in [100u32, 500, 1_500] {
-            let mut c = PowerControl::new(PowerParams {
+            let mut c = PowerControl::new();
+            let params = Params {
                 switch_pulse_ms: pulse_ms,
                 ..PARAMS
-            });
+            };
             let end = 3_000 + u64::from(pulse_ms);
-            run(
+            run_with(
                 &mut c,
+                &params,
                 &[
                     (0, Press, NONE),
                     (3_000, Tick, CLOSE),
@@ -794,25 +758,6 @@ mod tests {
         run(&mut c, &[(0, Release, NONE), (10, Tick, NONE)]);
     }
 
-    #[test]
-    fn next_deadline_names_the_hold_times_and_the_pulse_end() {
-        let mut c = fresh();
-        assert_eq!(c.next_deadline(), None);
-        c.handle(Hb, Instant::from_millis(0));
-        c.handle(Press, Instant::from_millis(1_000));
-        assert_eq!(c.next_deadline(), Some(Instant::from_millis(4_000)));
-        c.handle(Hb, Instant::from_millis(2_000));
-        c.handle(Tick, Instant::from_millis(4_000));
-        assert_eq!(c.next_deadline(), Some(Instant::from_millis(9_000)));
-        for t in [4_000, 6_000, 8_000] {
-            c.handle(Hb, Instant::from_millis(t));
-        }
-        c.handle(Tick, Instant::from_millis(9_000));
-        assert_eq!(c.next_deadline(), Some(Instant::from_millis(9_500)));
-        c.handle(Tick, Instant::from_millis(9_500));
-        assert_eq!(c.next_deadline(), None);
-    }
-
     #[derive(Debug, Clone, Copy)]
     enum Input {
         Press,
@@ -851,12 +796,12 @@ mod tests {
                     Input::Heartbeat => Hb,
                     Input::Tick => Tick,
                 };
-                if matches!(event, PowerEvent::ButtonPressed)
+                if matches!(event, Event::ButtonPressed)
                     && c.state().button == ButtonState::Released
                 {
                     closes_this_press = 0;
                 }
-                let out = c.handle(event, Instant::from_millis(t));
+                let out = c.step(Instant::from_millis(t), event, &PARAMS);
                 match out.switch {
                     Some(SwitchLevel::Closed) => {
                         closes_this_press += 1;

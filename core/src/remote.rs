@@ -51,7 +51,7 @@ pub const PAIRING_WINDOW_MS: u64 = 60_000;
 /// The registers the remote depends on, with their units in their names.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct RemoteParams {
+pub struct Params {
     /// `PS_rel_max_vel`: the speed level each connection starts with.
     pub start_level_mm_s: u16,
     /// `PS_abs_max_vel`: the highest speed level.
@@ -66,7 +66,7 @@ pub struct RemoteParams {
 /// Everything the remote reacts to.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum RemoteEvent {
+pub enum Event {
     /// The BLE task reports a bonded pad connected. Repeated while connected it changes
     /// nothing: only a connection after a disconnection is a new one.
     Connected,
@@ -95,7 +95,7 @@ pub enum Control {
 /// The answer to one event. Empty fields mean "nothing".
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct RemoteEffects {
+pub struct Effects {
     pub control: Option<Control>,
     /// L2 + Menu: set the pose to zero.
     pub reset_odometry: bool,
@@ -147,34 +147,29 @@ impl Remote {
     }
 
     /// Handles one event at `now` and returns what must happen.
-    pub fn step(
-        &mut self,
-        now: Instant,
-        event: RemoteEvent,
-        params: &RemoteParams,
-    ) -> RemoteEffects {
-        let mut effects = RemoteEffects::default();
+    pub fn step(&mut self, now: Instant, event: Event, params: &Params) -> Effects {
+        let mut effects = Effects::default();
         self.state = match (self.state, event) {
-            (_, RemoteEvent::Disconnected) => {
+            (_, Event::Disconnected) => {
                 effects.control = Some(Control::Lost);
                 State::Offline
             }
-            (State::Offline, RemoteEvent::Connected) => State::Connected(Session {
+            (State::Offline, Event::Connected) => State::Connected(Session {
                 level_mm_s: clamp_level(params.start_level_mm_s, params),
                 last: None,
                 last_input: now,
             }),
-            (State::Offline, RemoteEvent::Report(_)) => {
+            (State::Offline, Event::Report(_)) => {
                 warn!("gamepad report without a connection dropped");
                 State::Offline
             }
-            (State::Connected(session), RemoteEvent::Report(pad)) => {
+            (State::Connected(session), Event::Report(pad)) => {
                 session.report(now, pad, params, &mut effects)
             }
-            (State::Connected(session), RemoteEvent::ParamsChanged) => {
+            (State::Connected(session), Event::ParamsChanged) => {
                 State::Connected(session.params_changed(params, &mut effects))
             }
-            (State::Connected(session), RemoteEvent::Tick) => {
+            (State::Connected(session), Event::Tick) => {
                 let held = session.last.is_some_and(dead_man_held);
                 let idle_ms = now.millis_since(session.last_input);
                 if !held && idle_ms >= u64::from(params.afk_timeout_ms) {
@@ -184,14 +179,14 @@ impl Remote {
                     State::Connected(session)
                 }
             }
-            (State::SwitchingOff, RemoteEvent::Report(_)) => {
+            (State::SwitchingOff, Event::Report(_)) => {
                 effects.disconnect = true;
                 State::SwitchingOff
             }
-            (state @ (State::Connected(_) | State::SwitchingOff), RemoteEvent::Connected)
+            (state @ (State::Connected(_) | State::SwitchingOff), Event::Connected)
             | (
                 state @ (State::Offline | State::SwitchingOff),
-                RemoteEvent::ParamsChanged | RemoteEvent::Tick,
+                Event::ParamsChanged | Event::Tick,
             ) => state,
         };
         effects
@@ -203,8 +198,8 @@ impl Session {
         mut self,
         now: Instant,
         pad: GamepadState,
-        params: &RemoteParams,
-        effects: &mut RemoteEffects,
+        params: &Params,
+        effects: &mut Effects,
     ) -> State {
         let before = self.last.unwrap_or_default();
         let pressed =
@@ -233,7 +228,7 @@ impl Session {
         State::Connected(self)
     }
 
-    fn params_changed(mut self, params: &RemoteParams, effects: &mut RemoteEffects) -> Session {
+    fn params_changed(mut self, params: &Params, effects: &mut Effects) -> Session {
         self.level_mm_s = clamp_level(self.level_mm_s, params);
         // Only a held dead-man drives; a released one is mapped again with the next report.
         if let Some(pad) = self.last.filter(|pad| dead_man_held(*pad)) {
@@ -243,7 +238,7 @@ impl Session {
     }
 }
 
-fn switch_off(effects: &mut RemoteEffects) -> State {
+fn switch_off(effects: &mut Effects) -> State {
     effects.control = Some(Control::Lost);
     effects.disconnect = true;
     State::SwitchingOff
@@ -255,11 +250,11 @@ fn dead_man_held(pad: GamepadState) -> bool {
 
 /// The level within `MIN_LEVEL_MM_S ..= PS_abs_max_vel`; if the registers ever allowed
 /// a maximum below the minimum, the minimum wins (the slower one).
-fn clamp_level(level_mm_s: u16, params: &RemoteParams) -> u16 {
+fn clamp_level(level_mm_s: u16, params: &Params) -> u16 {
     level_mm_s.min(params.max_level_mm_s).max(MIN_LEVEL_MM_S)
 }
 
-fn drive(pad: GamepadState, level_mm_s: u16, params: &RemoteParams) -> Control {
+fn drive(pad: GamepadState, level_mm_s: u16, params: &Params) -> Control {
     Control::Drive {
         dead_man: dead_man_held(pad),
         twist: stick_twist(
@@ -340,7 +335,7 @@ mod tests {
     use super::*;
     use crate::gamepad::Dpad;
 
-    const PARAMS: RemoteParams = RemoteParams {
+    const PARAMS: Params = Params {
         start_level_mm_s: 250,
         max_level_mm_s: 1200,
         wheel_distance_mm: 250,
@@ -353,7 +348,7 @@ mod tests {
 
     fn connected() -> Remote {
         let mut remote = Remote::new();
-        remote.step(at(0), RemoteEvent::Connected, &PARAMS);
+        remote.step(at(0), Event::Connected, &PARAMS);
         remote
     }
 
@@ -387,8 +382,8 @@ mod tests {
         })
     }
 
-    fn report(remote: &mut Remote, ms: u64, pad: GamepadState) -> RemoteEffects {
-        remote.step(at(ms), RemoteEvent::Report(pad), &PARAMS)
+    fn report(remote: &mut Remote, ms: u64, pad: GamepadState) -> Effects {
+        remote.step(at(ms), Event::Report(pad), &PARAMS)
     }
 
     #[test]
@@ -437,12 +432,12 @@ mod tests {
     fn reports_drive_only_while_connected() {
         let mut remote = Remote::new();
         assert_eq!(report(&mut remote, 0, sticks(1.0, 0.0)).control, None);
-        remote.step(at(10), RemoteEvent::Connected, &PARAMS);
+        remote.step(at(10), Event::Connected, &PARAMS);
         assert_eq!(
             report(&mut remote, 20, sticks(1.0, 0.0)).control,
             driving(250, 0)
         );
-        let lost = remote.step(at(30), RemoteEvent::Disconnected, &PARAMS);
+        let lost = remote.step(at(30), Event::Disconnected, &PARAMS);
         assert_eq!(lost.control, Some(Control::Lost));
         assert_eq!(report(&mut remote, 40, sticks(1.0, 0.0)).control, None);
     }
@@ -467,24 +462,21 @@ mod tests {
 
     #[test]
     fn dpad_presses_step_the_level_within_50_and_ps_abs_max_vel() {
-        let params = RemoteParams {
+        let params = Params {
             max_level_mm_s: 400,
             ..PARAMS
         };
         let mut remote = Remote::new();
-        remote.step(at(0), RemoteEvent::Connected, &params);
+        remote.step(at(0), Event::Connected, &params);
         let mut ms = 0;
         let mut press = |remote: &mut Remote, dpad: Dpad| {
             ms += 10;
-            remote.step(at(ms), RemoteEvent::Report(held(Buttons::NONE)), &params);
+            remote.step(at(ms), Event::Report(held(Buttons::NONE)), &params);
             let pad = GamepadState {
                 dpad,
                 ..sticks(1.0, 0.0)
             };
-            match remote
-                .step(at(ms), RemoteEvent::Report(pad), &params)
-                .control
-            {
+            match remote.step(at(ms), Event::Report(pad), &params).control {
                 Some(Control::Drive { twist, .. }) => twist.linear_mm_s,
                 other => panic!("{other:?}"),
             }
@@ -541,13 +533,13 @@ mod tests {
         };
         assert_eq!(report(&mut remote, 10, up).control, driving(300, 0));
         // Connected again while connected: the same connection.
-        remote.step(at(20), RemoteEvent::Connected, &PARAMS);
+        remote.step(at(20), Event::Connected, &PARAMS);
         assert_eq!(
             report(&mut remote, 30, sticks(1.0, 0.0)).control,
             driving(300, 0)
         );
-        remote.step(at(40), RemoteEvent::Disconnected, &PARAMS);
-        remote.step(at(50), RemoteEvent::Connected, &PARAMS);
+        remote.step(at(40), Event::Disconnected, &PARAMS);
+        remote.step(at(50), Event::Connected, &PARAMS);
         assert_eq!(
             report(&mut remote, 60, sticks(1.0, 0.0)).control,
             driving(250, 0)
@@ -565,15 +557,15 @@ mod tests {
             ..sticks(1.0, 0.5)
         };
         assert_eq!(report(&mut remote, 10, up).control, driving(300, 1200));
-        let lowered = RemoteParams {
+        let lowered = Params {
             max_level_mm_s: 200,
             wheel_distance_mm: 400,
             ..PARAMS
         };
-        let effects = remote.step(at(20), RemoteEvent::ParamsChanged, &lowered);
+        let effects = remote.step(at(20), Event::ParamsChanged, &lowered);
         assert_eq!(effects.control, driving(200, 500));
         // Raised again: the level stays where the clamp put it.
-        let effects = remote.step(at(30), RemoteEvent::ParamsChanged, &PARAMS);
+        let effects = remote.step(at(30), Event::ParamsChanged, &PARAMS);
         assert_eq!(effects.control, driving(200, 800));
     }
 
@@ -582,9 +574,7 @@ mod tests {
         let mut remote = connected();
         // No report yet: nothing to map (and "released" would be a guess).
         assert_eq!(
-            remote
-                .step(at(5), RemoteEvent::ParamsChanged, &PARAMS)
-                .control,
+            remote.step(at(5), Event::ParamsChanged, &PARAMS).control,
             None
         );
         let released = GamepadState {
@@ -593,9 +583,7 @@ mod tests {
         };
         report(&mut remote, 10, released);
         assert_eq!(
-            remote
-                .step(at(20), RemoteEvent::ParamsChanged, &PARAMS)
-                .control,
+            remote.step(at(20), Event::ParamsChanged, &PARAMS).control,
             None
         );
     }
@@ -688,7 +676,7 @@ mod tests {
         let effects = report(&mut remote, 50, l2_home);
         assert_eq!(
             effects,
-            RemoteEffects {
+            Effects {
                 control: Some(Control::Lost),
                 reset_odometry: false,
                 disconnect: true,
@@ -698,35 +686,23 @@ mod tests {
         // drive nothing.
         let effects = report(&mut remote, 60, sticks(1.0, 0.0));
         assert_eq!((effects.control, effects.disconnect), (None, true));
-        remote.step(at(70), RemoteEvent::Disconnected, &PARAMS);
+        remote.step(at(70), Event::Disconnected, &PARAMS);
         assert!(!report(&mut remote, 80, sticks(1.0, 0.0)).disconnect);
     }
 
     #[test]
     fn no_input_for_ps_afk_time_switches_the_pad_off_counting_from_the_last_report() {
         let mut remote = connected();
-        assert!(
-            !remote
-                .step(at(29_999), RemoteEvent::Tick, &PARAMS)
-                .disconnect
-        );
+        assert!(!remote.step(at(29_999), Event::Tick, &PARAMS).disconnect);
         report(&mut remote, 29_999, held(Buttons::A));
-        assert!(
-            !remote
-                .step(at(59_998), RemoteEvent::Tick, &PARAMS)
-                .disconnect
-        );
-        let effects = remote.step(at(59_999), RemoteEvent::Tick, &PARAMS);
+        assert!(!remote.step(at(59_998), Event::Tick, &PARAMS).disconnect);
+        let effects = remote.step(at(59_999), Event::Tick, &PARAMS);
         assert_eq!(
             (effects.control, effects.disconnect),
             (Some(Control::Lost), true)
         );
         // Asked once; the BLE task reports the link down next.
-        assert!(
-            !remote
-                .step(at(70_000), RemoteEvent::Tick, &PARAMS)
-                .disconnect
-        );
+        assert!(!remote.step(at(70_000), Event::Tick, &PARAMS).disconnect);
     }
 
     #[test]
@@ -735,22 +711,10 @@ mod tests {
         // for longer than PS_afk_time must not switch the pad off under the operator.
         let mut remote = connected();
         report(&mut remote, 0, sticks(1.0, 0.0));
-        assert!(
-            !remote
-                .step(at(100_000), RemoteEvent::Tick, &PARAMS)
-                .disconnect
-        );
+        assert!(!remote.step(at(100_000), Event::Tick, &PARAMS).disconnect);
         report(&mut remote, 100_000, held(Buttons::NONE));
-        assert!(
-            !remote
-                .step(at(129_999), RemoteEvent::Tick, &PARAMS)
-                .disconnect
-        );
-        assert!(
-            remote
-                .step(at(130_000), RemoteEvent::Tick, &PARAMS)
-                .disconnect
-        );
+        assert!(!remote.step(at(129_999), Event::Tick, &PARAMS).disconnect);
+        assert!(remote.step(at(130_000), Event::Tick, &PARAMS).disconnect);
     }
 
     #[test]

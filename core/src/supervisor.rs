@@ -97,7 +97,7 @@ pub struct Effects {
 /// The register values the supervisor needs, with their units in their names.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct SupervisorParams {
+pub struct Params {
     pub enable_timeout_ms: u32,
     /// 0 = a CAN velocity never goes stale by itself.
     pub cmd_timeout_ms: u32,
@@ -143,16 +143,24 @@ impl DriveFaults {
     }
 }
 
-/// The supervisor's state. Data lives in the variant that needs it.
+/// The supervisor's state. Data lives in the variant that needs it: what was last sent
+/// to the drives and how to stop exist only while they are excited.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 enum State {
     /// After boot, until the drive link reports the drives ready.
     Starting,
-    /// Drives ready and de-excited: the brakes hold the base.
+    /// Drives ready and de-excited: the brakes hold the base. The last setpoint sent
+    /// was zero.
     Standby,
-    /// Drives excited. `at_rest_since` runs while nothing is requested and the wheels stand.
-    Active { at_rest_since: Option<Instant> },
+    /// Drives excited. `setpoint` is the last one sent; `stop_accel` is how to stop
+    /// when the source in control goes away (it depends on why); `at_rest_since` runs
+    /// while nothing is requested and the wheels stand.
+    Active {
+        setpoint: Setpoint,
+        stop_accel: u32,
+        at_rest_since: Option<Instant>,
+    },
     /// The e-stop is pressed.
     Emergency,
     /// The e-stop was released; a confirm press is needed.
@@ -160,8 +168,12 @@ enum State {
     /// Confirmed; the drive link sets the drives up again.
     Recovering,
     /// A drive fault outside an e-stop; a confirm press starts the recovery. The drive
-    /// that still answers is de-excited once the base stands for `disable_time`.
-    Fault { at_rest_since: Option<Instant> },
+    /// that still answers stays excited (if it was) until the base stands for
+    /// `disable_time`.
+    Fault {
+        excited: bool,
+        at_rest_since: Option<Instant>,
+    },
 }
 
 /// A CAN velocity stored while the enable is fresh.
@@ -185,24 +197,36 @@ struct RemoteInput {
     armed: bool,
 }
 
-/// See the module documentation for the state diagram and the rules.
+impl RemoteInput {
+    const NONE: RemoteInput = RemoteInput {
+        reported: false,
+        dead_man: false,
+        twist: Twist::ZERO,
+        armed: false,
+    };
+}
+
+/// What the sources and sensors last said. The state machine reads these; they change
+/// only with the events that report them.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct Supervisor {
-    state: State,
+struct Inputs {
     enable_refreshed: Option<Instant>,
     can_command: Option<CanCommand>,
     remote: RemoteInput,
     safety_zone: bool,
     estop_pressed: bool,
     at_rest: bool,
-    excited: bool,
+}
+
+/// See the module documentation for the state diagram and the rules.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Supervisor {
+    state: State,
+    inputs: Inputs,
+    /// Latched until a recovery ends; shown in the status frame in every state.
     faults: DriveFaults,
-    /// The last setpoint sent; a new one goes out only when it differs.
-    last_setpoint: Setpoint,
-    /// The acceleration for the next stop: depends on why the request went away.
-    stop_accel: u32,
-    control: ControlSource,
 }
 
 impl Default for Supervisor {
@@ -211,22 +235,26 @@ impl Default for Supervisor {
     }
 }
 
+/// Zero speed, reached with `accel_rpm_per_s`.
+const fn zero_setpoint(accel_rpm_per_s: u32) -> Setpoint {
+    Setpoint {
+        twist: Twist::ZERO,
+        accel_rpm_per_s,
+    }
+}
+
 impl Supervisor {
     pub const fn new() -> Self {
         Self {
             state: State::Starting,
-            enable_refreshed: None,
-            can_command: None,
-            remote: RemoteInput {
-                reported: false,
-                dead_man: false,
-                twist: Twist::ZERO,
-                armed: false,
+            inputs: Inputs {
+                enable_refreshed: None,
+                can_command: None,
+                remote: RemoteInput::NONE,
+                safety_zone: false,
+                estop_pressed: false,
+                at_rest: true,
             },
-            safety_zone: false,
-            estop_pressed: false,
-            at_rest: true,
-            excited: false,
             faults: DriveFaults {
                 left_silent: false,
                 left_alarm: false,
@@ -234,27 +262,21 @@ impl Supervisor {
                 right_alarm: false,
                 last_alarm_code: 0,
             },
-            last_setpoint: Setpoint {
-                twist: Twist::ZERO,
-                accel_rpm_per_s: 0,
-            },
-            stop_accel: 0,
-            control: ControlSource::None,
         }
     }
 
     /// Handles one event at `now` and returns what must happen.
-    pub fn step(&mut self, now: Instant, event: Event, params: &SupervisorParams) -> Effects {
+    pub fn step(&mut self, now: Instant, event: Event, params: &Params) -> Effects {
         let mut effects = Effects::default();
         self.expire_can(now, params);
         match event {
-            Event::CanEnable { refresh: true } => self.enable_refreshed = Some(now),
+            Event::CanEnable { refresh: true } => self.inputs.enable_refreshed = Some(now),
             Event::CanEnable { refresh: false } => self.withdraw_enable(params),
             Event::CanVelocity(twist) => {
                 // Stored only when it may drive: no enable, remote in control or a
                 // non-driving state all mean the frame is dropped, not buffered.
                 if self.enable_fresh(now, params) && !self.remote_in_control() && self.may_drive() {
-                    self.can_command = Some(CanCommand {
+                    self.inputs.can_command = Some(CanCommand {
                         twist,
                         received: now,
                     });
@@ -263,24 +285,19 @@ impl Supervisor {
             Event::Remote { dead_man, twist } => self.remote_report(dead_man, twist, params),
             Event::RemoteLinkLost => {
                 if self.remote_in_control() {
-                    self.stop_accel = params.remote_release_accel;
+                    self.stop_with(params.remote_release_accel);
                 }
-                self.remote = RemoteInput {
-                    reported: false,
-                    dead_man: false,
-                    twist: Twist::ZERO,
-                    armed: false,
-                };
+                self.inputs.remote = RemoteInput::NONE;
             }
             Event::Estop { pressed } => {
-                self.estop_pressed = pressed;
+                self.inputs.estop_pressed = pressed;
                 if pressed {
                     self.enter_emergency(params, &mut effects);
                 } else if self.state == State::Emergency {
                     self.state = State::AwaitingConfirm;
                 }
             }
-            Event::SafetyZone { occupied } => self.safety_zone = occupied,
+            Event::SafetyZone { occupied } => self.inputs.safety_zone = occupied,
             Event::ConfirmPressed => {
                 if matches!(self.state, State::AwaitingConfirm | State::Fault { .. }) {
                     self.state = State::Recovering;
@@ -290,17 +307,13 @@ impl Supervisor {
             Event::DrivesReady => {
                 if matches!(self.state, State::Starting | State::Recovering) {
                     self.state = State::Standby;
-                    self.excited = false;
                     // A dead-man seen up when the drives come back may take control; a
                     // pad that has not reported yet has not been seen released.
-                    self.remote.armed = self.remote.reported && !self.remote.dead_man;
+                    let remote = &mut self.inputs.remote;
+                    remote.armed = remote.reported && !remote.dead_man;
                     self.faults = DriveFaults {
                         last_alarm_code: self.faults.last_alarm_code,
                         ..DriveFaults::default()
-                    };
-                    self.last_setpoint = Setpoint {
-                        twist: Twist::ZERO,
-                        accel_rpm_per_s: 0,
                     };
                 }
             }
@@ -308,7 +321,7 @@ impl Supervisor {
             Event::DriveAlarm { wheel, code } => {
                 self.drive_fault(wheel, Some(code), params, &mut effects)
             }
-            Event::AtRest(at_rest) => self.at_rest = at_rest,
+            Event::AtRest(at_rest) => self.inputs.at_rest = at_rest,
             Event::Tick => {}
         }
         self.update_motion(now, params, &mut effects);
@@ -328,9 +341,18 @@ impl Supervisor {
         }
     }
 
-    /// Which source's command the drives are following.
+    /// Which source's command the drives are following: the remote's dead-man wins over
+    /// CAN, and only a state that may drive follows anyone.
     pub fn control(&self) -> ControlSource {
-        self.control
+        if !self.may_drive() {
+            ControlSource::None
+        } else if self.remote_in_control() {
+            ControlSource::Remote
+        } else if self.inputs.can_command.is_some() {
+            ControlSource::Can
+        } else {
+            ControlSource::None
+        }
     }
 
     /// Emergency mode in the manual's sense lasts until the confirm press: no feedback
@@ -339,31 +361,36 @@ impl Supervisor {
         matches!(self.state, State::Emergency | State::AwaitingConfirm)
     }
 
-    pub fn enable_fresh(&self, now: Instant, params: &SupervisorParams) -> bool {
-        self.enable_refreshed
+    pub fn enable_fresh(&self, now: Instant, params: &Params) -> bool {
+        self.inputs
+            .enable_refreshed
             .is_some_and(|at| now.millis_since(at) < u64::from(params.enable_timeout_ms))
     }
 
     pub fn safety_zone(&self) -> bool {
-        self.safety_zone
+        self.inputs.safety_zone
     }
 
     pub fn estop_pressed(&self) -> bool {
-        self.estop_pressed
+        self.inputs.estop_pressed
     }
 
     pub fn remote_in_control(&self) -> bool {
-        self.remote.armed && self.remote.dead_man
+        self.inputs.remote.armed && self.inputs.remote.dead_man
     }
 
     /// The drives are de-excited, or unpowered (e-stop until the drives are set up
     /// again): either way their power-off brakes hold the base.
     pub fn brakes_applied(&self) -> bool {
-        !self.excited
-            || matches!(
-                self.state,
-                State::Emergency | State::AwaitingConfirm | State::Recovering
-            )
+        match self.state {
+            State::Active { .. } => false,
+            State::Fault { excited, .. } => !excited,
+            State::Starting
+            | State::Standby
+            | State::Emergency
+            | State::AwaitingConfirm
+            | State::Recovering => true,
+        }
     }
 
     pub fn faults(&self) -> DriveFaults {
@@ -374,64 +401,70 @@ impl Supervisor {
         matches!(self.state, State::Standby | State::Active { .. })
     }
 
-    fn withdraw_enable(&mut self, params: &SupervisorParams) {
-        self.enable_refreshed = None;
-        if self.can_command.take().is_some() {
-            self.stop_accel = params.can_accel;
+    /// The source in control went away: the next stop uses `accel`. Only an excited
+    /// base has anything to stop.
+    fn stop_with(&mut self, accel: u32) {
+        if let State::Active { stop_accel, .. } = &mut self.state {
+            *stop_accel = accel;
+        }
+    }
+
+    fn withdraw_enable(&mut self, params: &Params) {
+        self.inputs.enable_refreshed = None;
+        if self.inputs.can_command.take().is_some() {
+            self.stop_with(params.can_accel);
         }
     }
 
     /// Drops the stored CAN velocity when its enable lapsed or (with `cmd_timeout`) when
     /// it went stale, so a returning enable never resumes an old command.
-    fn expire_can(&mut self, now: Instant, params: &SupervisorParams) {
+    fn expire_can(&mut self, now: Instant, params: &Params) {
         if !self.enable_fresh(now, params) {
-            self.enable_refreshed = None;
-            if self.can_command.take().is_some() {
-                self.stop_accel = params.can_accel;
-            }
+            self.withdraw_enable(params);
         }
-        if let Some(command) = self.can_command {
+        if let Some(command) = self.inputs.can_command {
             let stale = params.cmd_timeout_ms != 0
                 && now.millis_since(command.received) >= u64::from(params.cmd_timeout_ms);
             if stale {
-                self.can_command = None;
-                self.stop_accel = params.can_accel;
+                self.inputs.can_command = None;
+                self.stop_with(params.can_accel);
             }
         }
     }
 
-    fn remote_report(&mut self, dead_man: bool, twist: Twist, params: &SupervisorParams) {
+    fn remote_report(&mut self, dead_man: bool, twist: Twist, params: &Params) {
         let was_in_control = self.remote_in_control();
-        if !dead_man && self.may_drive() {
-            self.remote.armed = true;
+        let may_drive = self.may_drive();
+        let remote = &mut self.inputs.remote;
+        if !dead_man && may_drive {
+            remote.armed = true;
         }
-        self.remote.reported = true;
-        self.remote.dead_man = dead_man;
-        self.remote.twist = twist;
+        remote.reported = true;
+        remote.dead_man = dead_man;
+        remote.twist = twist;
         if self.remote_in_control() && !was_in_control {
             // The remote takes over; CAN must send a fresh velocity after the release.
-            self.can_command = None;
+            self.inputs.can_command = None;
         }
         if was_in_control && !self.remote_in_control() {
-            self.stop_accel = params.remote_release_accel;
+            self.stop_with(params.remote_release_accel);
         }
     }
 
-    fn enter_emergency(&mut self, params: &SupervisorParams, effects: &mut Effects) {
+    fn enter_emergency(&mut self, params: &Params, effects: &mut Effects) {
         self.state = State::Emergency;
-        self.can_command = None;
-        self.remote.armed = false;
-        self.stop_accel = params.estop_decel;
+        self.inputs.can_command = None;
+        self.inputs.remote.armed = false;
         // Always sent, even if the last setpoint was already zero: the e-stop edge must put
         // zero on the wire at once, with the e-stop deceleration.
-        self.send_zero(params.estop_decel, effects);
+        effects.setpoint = Some(zero_setpoint(params.estop_decel));
     }
 
     fn drive_fault(
         &mut self,
         wheel: Wheel,
         alarm: Option<u8>,
-        params: &SupervisorParams,
+        params: &Params,
         effects: &mut Effects,
     ) {
         // While (re)starting nothing moves, so a drive that does not answer or keeps an
@@ -449,112 +482,117 @@ impl Supervisor {
         self.faults.record(wheel, alarm);
         debug_assert!(self.faults.any());
         self.state = State::Fault {
+            excited: matches!(self.state, State::Active { .. }),
             at_rest_since: None,
         };
-        self.can_command = None;
-        self.remote.armed = false;
-        self.stop_accel = params.estop_decel;
-        self.send_zero(params.estop_decel, effects);
-    }
-
-    fn send_zero(&mut self, accel: u32, effects: &mut Effects) {
-        let zero = Setpoint {
-            twist: Twist::ZERO,
-            accel_rpm_per_s: accel,
-        };
-        self.last_setpoint = zero;
-        self.control = ControlSource::None;
-        effects.setpoint = Some(zero);
+        self.inputs.can_command = None;
+        self.inputs.remote.armed = false;
+        effects.setpoint = Some(zero_setpoint(params.estop_decel));
     }
 
     /// Arbitrates the sources, clamps to the safety zone and runs the brake timer.
-    fn update_motion(&mut self, now: Instant, params: &SupervisorParams, effects: &mut Effects) {
-        if let State::Fault { at_rest_since } = self.state {
-            let at_rest_since = self.brake_timer(now, false, at_rest_since, params, effects);
-            self.state = State::Fault { at_rest_since };
-        }
-        if !self.may_drive() {
-            if self.last_setpoint.twist != Twist::ZERO {
-                self.send_zero(self.stop_accel, effects);
+    fn update_motion(&mut self, now: Instant, params: &Params, effects: &mut Effects) {
+        let (setpoint, stop_accel, at_rest_since) = match self.state {
+            State::Fault {
+                excited,
+                at_rest_since,
+            } => {
+                let since = self.standstill_since(now, excited, false, at_rest_since);
+                self.state = if brake_due(now, since, params) {
+                    effects.excite = Some(false);
+                    State::Fault {
+                        excited: false,
+                        at_rest_since: None,
+                    }
+                } else {
+                    State::Fault {
+                        excited,
+                        at_rest_since: since,
+                    }
+                };
+                return;
             }
-            self.control = ControlSource::None;
-            return;
-        }
-
-        let (control, twist, accel) = if self.remote_in_control() {
-            (
-                ControlSource::Remote,
-                self.remote.twist,
-                params.remote_accel,
-            )
-        } else if let Some(command) = self.can_command {
-            (ControlSource::Can, command.twist, params.can_accel)
-        } else {
-            (ControlSource::None, Twist::ZERO, self.stop_accel)
+            // The strongest stop until a source's loss says which one applies.
+            State::Standby => (zero_setpoint(0), params.estop_decel, None),
+            State::Active {
+                setpoint,
+                stop_accel,
+                at_rest_since,
+            } => (setpoint, stop_accel, at_rest_since),
+            State::Starting | State::Emergency | State::AwaitingConfirm | State::Recovering => {
+                return;
+            }
         };
-        let twist = if self.safety_zone {
+
+        let (twist, accel) = match (self.control(), self.inputs.can_command) {
+            (ControlSource::Remote, _) => (self.inputs.remote.twist, params.remote_accel),
+            (ControlSource::Can, Some(command)) => (command.twist, params.can_accel),
+            (ControlSource::Can | ControlSource::None, _) => (Twist::ZERO, stop_accel),
+        };
+        let twist = if self.inputs.safety_zone {
             twist.clamped(params.safety_limits)
         } else {
             twist
         };
-        self.control = control;
-
         let requested = twist != Twist::ZERO;
-        if requested && !self.excited {
-            self.excited = true;
+        if self.state == State::Standby {
+            if !requested {
+                return;
+            }
             effects.excite = Some(true);
-            self.state = State::Active {
-                at_rest_since: None,
-            };
         }
 
-        if twist != self.last_setpoint.twist {
-            let setpoint = Setpoint {
+        let setpoint = if twist == setpoint.twist {
+            setpoint
+        } else {
+            let new = Setpoint {
                 twist,
                 accel_rpm_per_s: accel,
             };
-            self.last_setpoint = setpoint;
-            effects.setpoint = Some(setpoint);
-        }
+            effects.setpoint = Some(new);
+            new
+        };
 
-        if let State::Active { at_rest_since } = self.state {
-            let at_rest_since = self.brake_timer(now, requested, at_rest_since, params, effects);
-            self.state = if self.excited {
-                State::Active { at_rest_since }
-            } else {
-                State::Standby
-            };
-        }
+        let since = self.standstill_since(now, true, requested, at_rest_since);
+        self.state = if brake_due(now, since, params) {
+            effects.excite = Some(false);
+            State::Standby
+        } else {
+            State::Active {
+                setpoint,
+                stop_accel,
+                at_rest_since: since,
+            }
+        };
     }
 
-    /// De-excites the drives once nothing is requested and the wheels have been measured
-    /// at rest for `disable_time`. Returns when the standstill began (if it runs).
-    fn brake_timer(
-        &mut self,
+    /// When the standstill that lets the brakes close began: none while the drives are
+    /// de-excited, something is requested or the wheels are measured moving.
+    fn standstill_since(
+        &self,
         now: Instant,
+        excited: bool,
         requested: bool,
         at_rest_since: Option<Instant>,
-        params: &SupervisorParams,
-        effects: &mut Effects,
     ) -> Option<Instant> {
-        if !self.excited || requested || !self.at_rest {
+        if !excited || requested || !self.inputs.at_rest {
             return None;
         }
-        let since = at_rest_since.unwrap_or(now);
-        if now.millis_since(since) >= u64::from(params.disable_time_ms) {
-            self.excited = false;
-            effects.excite = Some(false);
-            return None;
-        }
-        Some(since)
+        Some(at_rest_since.unwrap_or(now))
     }
+}
+
+/// The base has stood for `disable_time`: the drives may be de-excited.
+fn brake_due(now: Instant, standstill_since: Option<Instant>, params: &Params) -> bool {
+    standstill_since
+        .is_some_and(|since| now.millis_since(since) >= u64::from(params.disable_time_ms))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    const PARAMS: SupervisorParams = SupervisorParams {
+    const PARAMS: Params = Params {
         enable_timeout_ms: 500,
         cmd_timeout_ms: 0,
         disable_time_ms: 300,
@@ -629,7 +667,7 @@ mod tests {
 
     #[test]
     fn cmd_timeout_stops_a_stale_velocity_when_enabled() {
-        let params = SupervisorParams {
+        let params = Params {
             cmd_timeout_ms: 200,
             ..PARAMS
         };

@@ -148,7 +148,7 @@ impl OdometryCalibration {
 
     /// Apply one step. `Ok(Some(_))` only for `Store`: the caller writes the `Some`
     /// factors to registers 16–18 and flash.
-    pub fn handle(
+    pub fn step(
         &mut self,
         cmd: OdometryCalibrationCommand,
     ) -> Result<Option<CalibratedFactors>, OdometryCalibrationError> {
@@ -236,23 +236,23 @@ mod tests {
     fn full_flow_computes_all_three_factors_and_store_hands_them_over() {
         let mut cal = OdometryCalibration::new();
 
-        assert_eq!(cal.handle(Cmd::StartLinear), Ok(None));
+        assert_eq!(cal.step(Cmd::StartLinear), Ok(None));
         observe_in_steps(&mut cal, 2000.0, 3.0); // a little rotation noise is ignored
-        assert_eq!(cal.handle(Cmd::EndLinear { real_mm: 2014 }), Ok(None));
+        assert_eq!(cal.step(Cmd::EndLinear { real_mm: 2014 }), Ok(None));
 
-        assert_eq!(cal.handle(Cmd::StartClockwise), Ok(None));
+        assert_eq!(cal.step(Cmd::StartClockwise), Ok(None));
         observe_in_steps(&mut cal, 1.0, 6320.0);
-        assert_eq!(cal.handle(Cmd::EndClockwise { real_mrad: 6283 }), Ok(None));
+        assert_eq!(cal.step(Cmd::EndClockwise { real_mrad: 6283 }), Ok(None));
 
-        assert_eq!(cal.handle(Cmd::StartCounterClockwise), Ok(None));
+        assert_eq!(cal.step(Cmd::StartCounterClockwise), Ok(None));
         observe_in_steps(&mut cal, -1.0, -6350.0);
         assert_eq!(
-            cal.handle(Cmd::EndCounterClockwise { real_mrad: 6283 }),
+            cal.step(Cmd::EndCounterClockwise { real_mrad: 6283 }),
             Ok(None)
         );
         assert_eq!(cal.phase(), OdometryCalibrationPhase::Idle);
 
-        let stored = cal.handle(Cmd::Store);
+        let stored = cal.step(Cmd::Store);
         assert_eq!(
             stored,
             Ok(Some(CalibratedFactors {
@@ -262,17 +262,17 @@ mod tests {
             }))
         );
         assert_eq!(cal.pending(), CalibratedFactors::default());
-        assert_eq!(cal.handle(Cmd::Store), Err(E::NothingPending));
+        assert_eq!(cal.step(Cmd::Store), Err(E::NothingPending));
     }
 
     #[test]
     fn store_returns_only_the_steps_that_were_completed() {
         let mut cal = OdometryCalibration::new();
-        cal.handle(Cmd::StartClockwise).unwrap();
+        cal.step(Cmd::StartClockwise).unwrap();
         cal.observe(0.0, 1000.0);
-        cal.handle(Cmd::EndClockwise { real_mrad: 1100 }).unwrap();
+        cal.step(Cmd::EndClockwise { real_mrad: 1100 }).unwrap();
         assert_eq!(
-            cal.handle(Cmd::Store),
+            cal.step(Cmd::Store),
             Ok(Some(CalibratedFactors {
                 f_cw: Some(11000),
                 f_ccw: None,
@@ -285,7 +285,7 @@ mod tests {
     fn observe_while_idle_accumulates_nothing() {
         let mut cal = OdometryCalibration::new();
         cal.observe(500.0, 500.0);
-        cal.handle(Cmd::StartLinear).unwrap();
+        cal.step(Cmd::StartLinear).unwrap();
         cal.observe(1000.0, 0.0);
         assert_eq!(
             cal.phase(),
@@ -296,7 +296,7 @@ mod tests {
     #[test]
     fn observe_ignores_non_finite_increments() {
         let mut cal = OdometryCalibration::new();
-        cal.handle(Cmd::StartLinear).unwrap();
+        cal.step(Cmd::StartLinear).unwrap();
         cal.observe(1000.0, 0.0);
         cal.observe(f64::NAN, 0.0);
         cal.observe(f64::INFINITY, 0.0);
@@ -310,15 +310,15 @@ mod tests {
     #[test]
     fn restarting_a_phase_discards_its_raw_sum_but_keeps_pending_factors() {
         let mut cal = OdometryCalibration::new();
-        cal.handle(Cmd::StartLinear).unwrap();
+        cal.step(Cmd::StartLinear).unwrap();
         cal.observe(1000.0, 0.0);
-        cal.handle(Cmd::EndLinear { real_mm: 1010 }).unwrap();
+        cal.step(Cmd::EndLinear { real_mm: 1010 }).unwrap();
 
-        cal.handle(Cmd::StartClockwise).unwrap();
+        cal.step(Cmd::StartClockwise).unwrap();
         cal.observe(0.0, 9999.0);
-        cal.handle(Cmd::StartClockwise).unwrap();
+        cal.step(Cmd::StartClockwise).unwrap();
         cal.observe(0.0, 1000.0);
-        cal.handle(Cmd::EndClockwise { real_mrad: 990 }).unwrap();
+        cal.step(Cmd::EndClockwise { real_mrad: 990 }).unwrap();
 
         assert_eq!(
             cal.pending(),
@@ -334,15 +334,15 @@ mod tests {
     fn end_without_start_is_rejected() {
         let mut cal = OdometryCalibration::new();
         assert_eq!(
-            cal.handle(Cmd::EndLinear { real_mm: 1000 }),
+            cal.step(Cmd::EndLinear { real_mm: 1000 }),
             Err(E::EndWithoutStart)
         );
         assert_eq!(
-            cal.handle(Cmd::EndClockwise { real_mrad: 1000 }),
+            cal.step(Cmd::EndClockwise { real_mrad: 1000 }),
             Err(E::EndWithoutStart)
         );
         assert_eq!(
-            cal.handle(Cmd::EndCounterClockwise { real_mrad: 1000 }),
+            cal.step(Cmd::EndCounterClockwise { real_mrad: 1000 }),
             Err(E::EndWithoutStart)
         );
         assert_eq!(cal.pending(), CalibratedFactors::default());
@@ -351,32 +351,32 @@ mod tests {
     #[test]
     fn end_of_another_phase_is_rejected_and_keeps_the_running_measurement() {
         let mut cal = OdometryCalibration::new();
-        cal.handle(Cmd::StartLinear).unwrap();
+        cal.step(Cmd::StartLinear).unwrap();
         cal.observe(1000.0, 0.0);
         assert_eq!(
-            cal.handle(Cmd::EndClockwise { real_mrad: 1000 }),
+            cal.step(Cmd::EndClockwise { real_mrad: 1000 }),
             Err(E::EndWithoutStart)
         );
         assert_eq!(
-            cal.handle(Cmd::EndCounterClockwise { real_mrad: 1000 }),
+            cal.step(Cmd::EndCounterClockwise { real_mrad: 1000 }),
             Err(E::EndWithoutStart)
         );
         assert_eq!(
             cal.phase(),
             OdometryCalibrationPhase::Linear { raw_mm: 1000.0 }
         );
-        assert_eq!(cal.handle(Cmd::EndLinear { real_mm: 1005 }), Ok(None));
+        assert_eq!(cal.step(Cmd::EndLinear { real_mm: 1005 }), Ok(None));
         assert_eq!(cal.pending().f_lin, Some(10050));
     }
 
     #[test]
     fn end_after_an_already_ended_phase_is_rejected() {
         let mut cal = OdometryCalibration::new();
-        cal.handle(Cmd::StartLinear).unwrap();
+        cal.step(Cmd::StartLinear).unwrap();
         cal.observe(1000.0, 0.0);
-        cal.handle(Cmd::EndLinear { real_mm: 1000 }).unwrap();
+        cal.step(Cmd::EndLinear { real_mm: 1000 }).unwrap();
         assert_eq!(
-            cal.handle(Cmd::EndLinear { real_mm: 1000 }),
+            cal.step(Cmd::EndLinear { real_mm: 1000 }),
             Err(E::EndWithoutStart)
         );
     }
@@ -384,9 +384,9 @@ mod tests {
     #[test]
     fn linear_end_without_motion_is_a_zero_raw_value() {
         let mut cal = OdometryCalibration::new();
-        cal.handle(Cmd::StartLinear).unwrap();
+        cal.step(Cmd::StartLinear).unwrap();
         assert_eq!(
-            cal.handle(Cmd::EndLinear { real_mm: 1000 }),
+            cal.step(Cmd::EndLinear { real_mm: 1000 }),
             Err(E::ZeroRawValue)
         );
     }
@@ -394,10 +394,10 @@ mod tests {
     #[test]
     fn linear_end_after_driving_backwards_is_a_zero_raw_value() {
         let mut cal = OdometryCalibration::new();
-        cal.handle(Cmd::StartLinear).unwrap();
+        cal.step(Cmd::StartLinear).unwrap();
         observe_in_steps(&mut cal, -1000.0, 0.0);
         assert_eq!(
-            cal.handle(Cmd::EndLinear { real_mm: 1000 }),
+            cal.step(Cmd::EndLinear { real_mm: 1000 }),
             Err(E::ZeroRawValue)
         );
     }
@@ -405,10 +405,10 @@ mod tests {
     #[test]
     fn clockwise_end_after_turning_counter_clockwise_is_a_zero_raw_value() {
         let mut cal = OdometryCalibration::new();
-        cal.handle(Cmd::StartClockwise).unwrap();
+        cal.step(Cmd::StartClockwise).unwrap();
         observe_in_steps(&mut cal, 0.0, -6283.0);
         assert_eq!(
-            cal.handle(Cmd::EndClockwise { real_mrad: 6283 }),
+            cal.step(Cmd::EndClockwise { real_mrad: 6283 }),
             Err(E::ZeroRawValue)
         );
     }
@@ -416,10 +416,10 @@ mod tests {
     #[test]
     fn counter_clockwise_end_after_turning_clockwise_is_a_zero_raw_value() {
         let mut cal = OdometryCalibration::new();
-        cal.handle(Cmd::StartCounterClockwise).unwrap();
+        cal.step(Cmd::StartCounterClockwise).unwrap();
         observe_in_steps(&mut cal, 0.0, 6283.0);
         assert_eq!(
-            cal.handle(Cmd::EndCounterClockwise { real_mrad: 6283 }),
+            cal.step(Cmd::EndCounterClockwise { real_mrad: 6283 }),
             Err(E::ZeroRawValue)
         );
     }
@@ -434,10 +434,10 @@ mod tests {
             (1500, Ok(None)),
         ] {
             let mut cal = OdometryCalibration::new();
-            cal.handle(Cmd::StartLinear).unwrap();
+            cal.step(Cmd::StartLinear).unwrap();
             cal.observe(1000.0, 0.0);
             assert_eq!(
-                cal.handle(Cmd::EndLinear { real_mm }),
+                cal.step(Cmd::EndLinear { real_mm }),
                 expected,
                 "real {real_mm} mm over raw 1000 mm"
             );
@@ -447,12 +447,12 @@ mod tests {
     #[test]
     fn boundary_factors_are_stored_as_5000_and_15000() {
         let mut cal = OdometryCalibration::new();
-        cal.handle(Cmd::StartClockwise).unwrap();
+        cal.step(Cmd::StartClockwise).unwrap();
         cal.observe(0.0, 1000.0);
-        cal.handle(Cmd::EndClockwise { real_mrad: 500 }).unwrap();
-        cal.handle(Cmd::StartCounterClockwise).unwrap();
+        cal.step(Cmd::EndClockwise { real_mrad: 500 }).unwrap();
+        cal.step(Cmd::StartCounterClockwise).unwrap();
         cal.observe(0.0, -1000.0);
-        cal.handle(Cmd::EndCounterClockwise { real_mrad: 1500 })
+        cal.step(Cmd::EndCounterClockwise { real_mrad: 1500 })
             .unwrap();
         assert_eq!(cal.pending().f_cw, Some(FACTOR_MIN));
         assert_eq!(cal.pending().f_ccw, Some(FACTOR_MAX));
@@ -461,19 +461,19 @@ mod tests {
     #[test]
     fn rejected_end_ends_the_phase_and_leaves_pending_factors_untouched() {
         let mut cal = OdometryCalibration::new();
-        cal.handle(Cmd::StartClockwise).unwrap();
+        cal.step(Cmd::StartClockwise).unwrap();
         cal.observe(0.0, 1000.0);
-        cal.handle(Cmd::EndClockwise { real_mrad: 1010 }).unwrap();
+        cal.step(Cmd::EndClockwise { real_mrad: 1010 }).unwrap();
 
-        cal.handle(Cmd::StartLinear).unwrap();
+        cal.step(Cmd::StartLinear).unwrap();
         cal.observe(1000.0, 0.0);
         assert_eq!(
-            cal.handle(Cmd::EndLinear { real_mm: 2000 }),
+            cal.step(Cmd::EndLinear { real_mm: 2000 }),
             Err(E::FactorOutOfRange)
         );
         assert_eq!(cal.phase(), OdometryCalibrationPhase::Idle);
         assert_eq!(
-            cal.handle(Cmd::EndLinear { real_mm: 1000 }),
+            cal.step(Cmd::EndLinear { real_mm: 1000 }),
             Err(E::EndWithoutStart)
         );
         assert_eq!(
@@ -489,22 +489,22 @@ mod tests {
     #[test]
     fn store_with_nothing_pending_is_rejected() {
         let mut cal = OdometryCalibration::new();
-        assert_eq!(cal.handle(Cmd::Store), Err(E::NothingPending));
+        assert_eq!(cal.step(Cmd::Store), Err(E::NothingPending));
         // A started but unfinished step is not a result either.
-        cal.handle(Cmd::StartLinear).unwrap();
+        cal.step(Cmd::StartLinear).unwrap();
         cal.observe(1000.0, 0.0);
-        assert_eq!(cal.handle(Cmd::Store), Err(E::NothingPending));
+        assert_eq!(cal.step(Cmd::Store), Err(E::NothingPending));
     }
 
     #[test]
     fn store_does_not_interrupt_a_running_phase() {
         let mut cal = OdometryCalibration::new();
-        cal.handle(Cmd::StartLinear).unwrap();
+        cal.step(Cmd::StartLinear).unwrap();
         cal.observe(1000.0, 0.0);
-        cal.handle(Cmd::EndLinear { real_mm: 1000 }).unwrap();
-        cal.handle(Cmd::StartClockwise).unwrap();
+        cal.step(Cmd::EndLinear { real_mm: 1000 }).unwrap();
+        cal.step(Cmd::StartClockwise).unwrap();
         cal.observe(0.0, 300.0);
-        assert!(matches!(cal.handle(Cmd::Store), Ok(Some(_))));
+        assert!(matches!(cal.step(Cmd::Store), Ok(Some(_))));
         assert_eq!(
             cal.phase(),
             OdometryCalibrationPhase::Clockwise { raw_mrad: 300.0 }
