@@ -1,7 +1,7 @@
-//! Every open point of the drives' configuration (docs/drives.md) as a named
-//! setting: the robot's drives were configured with MEXE02 long ago, and these must
-//! match what is in them. The defaults are the note's best guess; the README lists
-//! what a commissioning engineer checks.
+//! Every open point of the drives' configuration as a named setting: the robot's
+//! drives were configured with MEXE02 long ago, and these must match what is in them.
+//! The defaults are the best guess from the drives' manual; docs/drives.md lists what
+//! a commissioning engineer checks.
 
 /// Parity of the RS-485 line.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -526,7 +526,7 @@ proptest! {
     }
 }
 
-/// The start of a register's table row as `docs/registers.md` and the README print it:
+/// The start of a register's table row as `docs/registers.md` prints it:
 /// address, name, unit, default and valid range.
 fn documented_row(info: &RegisterInfo) -> String {
     let name = if info.extension {
@@ -557,13 +557,4 @@ fn docs_table_matches_the_register_table() {
     }
     let golden = encode_record(15, 50).map(|b| format!("{b:02X}")).join(" ");
     assert!(docs.contains(&format!("record: {golden}")), "{golden}");
-}
-
-#[test]
-fn readme_table_matches_the_register_table() {
-    let readme = include_str!("../../../README.md");
-    for info in persistent() {
-        let row = documented_row(info);
-        assert!(readme.contains(&row), "README.md lacks the row {row:?}");
-    }
 }

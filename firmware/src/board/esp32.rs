@@ -5,7 +5,7 @@
 //! pins for analog use (ADC2 is the radio's). The input-only pins GPIO34–39 have no
 //! internal pulls, so only the battery's analog input uses one of them.
 //!
-//! Built with the `esp` toolchain (espup); the README walks through it. CI type-checks
+//! Built with the `esp` toolchain (espup); docs/flashing.md walks through it. CI type-checks
 //! and lints it without espup (`.ci/esp32-check`).
 
 use esp_hal::analog::adc::{Adc, AdcConfig, Attenuation};

@@ -3,7 +3,7 @@
 //! chip-specific type; the chip is picked by the Cargo feature the build aliases set.
 //!
 //! The manual's pin pictures are lost, so the pins are ours, chosen per chip to keep
-//! clear of the flash, strapping and USB pins; the README shows them as a table.
+//! clear of the flash, strapping and USB pins; docs/flashing.md shows them as a table.
 
 #[cfg(not(any(feature = "esp32", feature = "esp32c3", feature = "esp32c6")))]
 compile_error!(
