@@ -27,27 +27,27 @@ pub struct GamepadState {
 pub struct Buttons(pub u16);
 
 impl Buttons {
-    /// A [Cross].
+    /// A (PlayStation: Cross).
     pub const A: Buttons = Buttons(1 << 0);
-    /// B [Circle].
+    /// B (PlayStation: Circle).
     pub const B: Buttons = Buttons(1 << 1);
-    /// X [Square].
+    /// X (PlayStation: Square).
     pub const X: Buttons = Buttons(1 << 2);
-    /// Y [Triangle].
+    /// Y (PlayStation: Triangle).
     pub const Y: Buttons = Buttons(1 << 3);
-    /// Left bumper LB [L1].
+    /// Left bumper LB (PlayStation: L1).
     pub const LEFT_BUMPER: Buttons = Buttons(1 << 4);
-    /// Right bumper RB [R1]: the dead-man.
+    /// Right bumper RB (PlayStation: R1): the dead-man.
     pub const RIGHT_BUMPER: Buttons = Buttons(1 << 5);
-    /// View [Share/Select].
+    /// View (PlayStation: Share, older pads: Select).
     pub const VIEW: Buttons = Buttons(1 << 6);
-    /// Menu [Options/Start].
+    /// Menu (PlayStation: Options, older pads: Start).
     pub const MENU: Buttons = Buttons(1 << 7);
-    /// Xbox / Home [PS].
+    /// Xbox / Home (PlayStation: PS).
     pub const HOME: Buttons = Buttons(1 << 8);
-    /// Left stick pressed [L3].
+    /// Left stick pressed (PlayStation: L3).
     pub const LEFT_STICK: Buttons = Buttons(1 << 9);
-    /// Right stick pressed [R3].
+    /// Right stick pressed (PlayStation: R3).
     pub const RIGHT_STICK: Buttons = Buttons(1 << 10);
     /// Share / capture.
     pub const SHARE: Buttons = Buttons(1 << 11);

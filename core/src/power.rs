@@ -317,7 +317,7 @@ fn next(state: PowerState, now: Instant, event: Event, params: &Params) -> (Powe
     (PowerState { button, switch, pc }, out)
 }
 
-/// The button / PC-power state machine as the controller holds it; see [`next`] for
+/// The button / PC-power state machine as the controller holds it; `next` has
 /// the transition diagram and the rules.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
