@@ -31,6 +31,8 @@ impl Simulator {
             .arg(&link)
             .arg("--flash")
             .arg(directory.join("flash.bin"))
+            // A free port: tests run side by side.
+            .args(["--socketcand", "127.0.0.1:0"])
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
