@@ -3,7 +3,9 @@
 
 use std::io::Write;
 
-use base_controller::registers::{Access, RESTORE_DEFAULTS_KEY, Reg, RegisterInfo, TABLE, info};
+use base_controller::registers::{
+    Access, OPEN_PAIRING_WINDOW_KEY, RESTORE_DEFAULTS_KEY, Reg, RegisterInfo, TABLE, info,
+};
 
 use crate::controller::{Controller, Error};
 
@@ -114,6 +116,17 @@ pub fn set(
     value: u16,
     out: &mut dyn Write,
 ) -> Result<(), Error> {
+    if register.access == Access::WriteOnly {
+        // `command` reads 0 whatever was written: there is nothing to read back.
+        controller.write_register(register, value)?;
+        let done = match value {
+            RESTORE_DEFAULTS_KEY => "every writable register is back at its default",
+            OPEN_PAIRING_WINDOW_KEY => "the remote's pairing window is open",
+            _ => "done",
+        };
+        writeln!(out, "{} 0x{value:04X}: {done}", register.name)?;
+        return Ok(());
+    }
     let old = controller.read_register(register.address)?;
     controller.write_register(register, value)?;
     let new = controller.read_register(register.address)?;
