@@ -12,7 +12,8 @@ on the wall clock, with an SLCAN (Lawicel) serial port and a socketcand server f
 the robot PC's software.
 
 usage: virtual-base-controller [--link PATH | --no-link] [--socketcand ADDR:PORT |
-                               --no-socketcand] [--flash PATH] [--demo [--stay]]
+                               --no-socketcand] [--socketcan IF] [--flash PATH]
+                               [--demo [--stay]]
 
   --link PATH      symbolic link to the serial port (default {DEFAULT_LINK});
                    refused while another simulator serves it
@@ -20,6 +21,9 @@ usage: virtual-base-controller [--link PATH | --no-link] [--socketcand ADDR:PORT
   --socketcand A:P serve the bus as socketcand does, bus name {bus}, to any number
                    of programs at once (default {address})
   --no-socketcand  no socketcand server
+  --socketcan IF   also be a node on the Linux SocketCAN interface IF (e.g. vcan0,
+                   made with: ip link add vcan0 type vcan; ip link set vcan0 up),
+                   for candump, cansend and ros2_socketcan; needs a kernel with CAN
   --flash PATH     file holding the register store's flash, so registers survive
                    restarts (default {})
   --demo           drive a short path by itself, show the odometry, then quit
@@ -51,6 +55,7 @@ fn parse_options(mut args: impl Iterator<Item = String>) -> Result<Option<Option
                 .parse()
                 .expect("the default address parses"),
         ),
+        socketcan: None,
         demo: Demo::Off,
     };
     let mut stay = false;
@@ -67,6 +72,9 @@ fn parse_options(mut args: impl Iterator<Item = String>) -> Result<Option<Option
                 options.socketcand = Some(address);
             }
             "--no-socketcand" => options.socketcand = None,
+            "--socketcan" => {
+                options.socketcan = Some(args.next().ok_or("--socketcan needs an interface name")?);
+            }
             "--flash" => options.flash_path = args.next().ok_or("--flash needs a path")?.into(),
             "--demo" => options.demo = Demo::ThenQuit,
             "--stay" => stay = true,

@@ -6,6 +6,7 @@
 
 pub mod console;
 pub mod serial;
+pub mod socketcan;
 pub mod socketcand;
 pub mod status;
 
@@ -42,6 +43,8 @@ pub struct Options {
     pub link: Option<PathBuf>,
     /// Where the socketcand server listens, if at all.
     pub socketcand: Option<SocketAddr>,
+    /// A SocketCAN interface to join, if any.
+    pub socketcan: Option<String>,
     pub demo: Demo,
 }
 
@@ -83,6 +86,11 @@ pub fn run(options: &Options) -> io::Result<()> {
         .map(|link| StableLink::create(link, port.path()))
         .transpose()?;
     let (network_events, network) = cross_thread_queue();
+    let socketcan = options
+        .socketcan
+        .as_deref()
+        .map(|interface| socketcan::SocketCanLink::join(interface, network_events.clone()))
+        .transpose()?;
     let socketcand = options
         .socketcand
         .map(|address| {
@@ -101,6 +109,9 @@ pub fn run(options: &Options) -> io::Result<()> {
     output.message(&format!("SLCAN serial port: {}", port.path().display()));
     if let Some(link) = &link {
         output.message(&format!("  linked from:     {}", link.path().display()));
+    }
+    if let Some(link) = &socketcan {
+        output.message(&format!("SocketCAN:         {}", link.interface));
     }
     if let Some(address) = socketcand {
         output.message(&format!(
@@ -148,7 +159,7 @@ pub fn run(options: &Options) -> io::Result<()> {
         );
         match select4(
             app::run(hardware, robot.settings, &channels),
-            bridge(&port, &network, &view),
+            bridge(&port, &network, socketcan.as_ref(), &view),
             show_status(&view),
             ending,
         )
@@ -272,11 +283,16 @@ impl View<'_> {
     }
 }
 
-/// The bus as the PC's programs see it: the SLCAN adapter and the socketcand
-/// clients are nodes beside the controller. Every frame one of them sends reaches the
-/// controller and every other node (not itself, as on a real bus); every frame the
-/// controller sends reaches them all.
-async fn bridge(port: &SerialPort, network: &QueueReceiver<Event>, view: &View<'_>) -> ! {
+/// The bus as the PC's programs see it: the SLCAN adapter, the socketcand clients
+/// and the SocketCAN interface are nodes beside the controller. Every frame one of
+/// them sends reaches the controller and every other node (not itself, as on a real
+/// bus); every frame the controller sends reaches them all.
+async fn bridge(
+    port: &SerialPort,
+    network: &QueueReceiver<Event>,
+    socketcan: Option<&socketcan::SocketCanLink>,
+    view: &View<'_>,
+) -> ! {
     let mut slcan = SlcanNode {
         channel: slcan::Channel::new(BITRATE_BPS),
         port,
@@ -284,6 +300,7 @@ async fn bridge(port: &SerialPort, network: &QueueReceiver<Event>, view: &View<'
     };
     let mut clients = Clients {
         clients: Vec::new(),
+        socketcan,
         view,
     };
     let mut network_open = true;
@@ -322,6 +339,10 @@ async fn bridge(port: &SerialPort, network: &QueueReceiver<Event>, view: &View<'
             Either3::Third(Some(Event::Refused { client, why })) => {
                 view.output
                     .message(&format!("socketcand: client {client}: ignored: {why}"));
+            }
+            Either3::Third(Some(Event::Left { client, why })) if client == socketcan::NODE => {
+                view.output
+                    .message(&format!("socketcan: {why}; the bus runs on without it"));
             }
             Either3::Third(Some(Event::Left { client, why })) => clients.leave(client, &why),
             // No server (--no-socketcand).
@@ -407,6 +428,8 @@ impl SlcanNode<'_> {
 /// The socketcand clients in raw mode.
 struct Clients<'a> {
     clients: Vec<Client>,
+    /// The SocketCAN interface, a node like the clients.
+    socketcan: Option<&'a socketcan::SocketCanLink>,
     view: &'a View<'a>,
 }
 
@@ -434,6 +457,13 @@ impl Clients<'_> {
     /// Hands `frame` to every client but its sender. A client whose queue is full has
     /// stopped reading: it is disconnected, so that it holds up no one.
     fn offer(&mut self, frame: &crate::can::SimFrame, sender: Option<u64>) {
+        if let Some(link) = self.socketcan
+            && sender != Some(socketcan::NODE)
+            && !link.offer(*frame)
+        {
+            let network = &self.view.network;
+            network.socketcan_lost.set(network.socketcan_lost.get() + 1);
+        }
         if self.clients.is_empty() {
             return;
         }

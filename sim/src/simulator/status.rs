@@ -71,6 +71,8 @@ pub struct NetworkCounters {
     pub frames_out: Cell<u32>,
     /// Clients disconnected because they stopped reading.
     pub dropped_clients: Cell<u32>,
+    /// Frames the SocketCAN interface did not take in time.
+    pub socketcan_lost: Cell<u32>,
 }
 
 /// The width the live status line fits in: an 80-column terminal, less the cursor.
@@ -124,7 +126,10 @@ pub fn status_line(
     if network.clients.get() > 0 {
         line.push_str(&format!(" tcp {}", network.clients.get()));
     }
-    if slcan.frames_dropped.get() > 0 || network.dropped_clients.get() > 0 {
+    if slcan.frames_dropped.get() > 0
+        || network.dropped_clients.get() > 0
+        || network.socketcan_lost.get() > 0
+    {
         line.push_str(" LOST");
     }
     // ASCII only, so cutting at a byte is cutting at a character.
@@ -167,7 +172,8 @@ pub fn status_report(
          pose x {x} mm  y {y} mm  heading {heading} mrad  motors L {left} R {right} rpm\n\
          battery {battery}  load {weight}  e-stop {estop}  zone {zone}  PC {pc_power}\n\
          slcan {channel}: in {} out {} dropped {}\n\
-         socketcand: {} clients, in {} out {}, {} dropped for not reading",
+         socketcand: {} clients, in {} out {}, {} dropped for not reading; \
+         SocketCAN lost {}",
         now.as_millis() as f64 / 1000.0,
         control(telemetry),
         slcan.frames_in.get(),
@@ -177,6 +183,7 @@ pub fn status_report(
         network.frames_in.get(),
         network.frames_out.get(),
         network.dropped_clients.get(),
+        network.socketcan_lost.get(),
     )
 }
 
