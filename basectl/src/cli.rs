@@ -12,6 +12,7 @@ use crate::drive::{self, Steps};
 use crate::heartbeat;
 use crate::monitor::{self, Until};
 use crate::registers;
+use crate::{config, info};
 
 /// Commissioning of the base controller over CAN: monitor, drive, registers and the
 /// calibration wizards.
@@ -38,6 +39,10 @@ pub struct Cli {
     /// How long a register read may take to be answered, ms.
     #[arg(long, default_value_t = 500, global = true)]
     pub timeout_ms: u64,
+    /// JSON for scripts: one object per report (monitor), one object (info, reg get,
+    /// reg set), an array (reg dump).
+    #[arg(long, global = true)]
+    pub json: bool,
     #[command(subcommand)]
     pub command: CliCommand,
 }
@@ -71,6 +76,11 @@ pub enum CliCommand {
     /// Registers by name or address.
     #[command(subcommand)]
     Reg(RegCommand),
+    /// Every register to a file and back (backup and restore).
+    #[command(subcommand)]
+    Config(ConfigCommand),
+    /// Versions, mode, faults, drives, flash, error counters, battery and pose.
+    Info,
     /// The guided calibration wizards.
     #[command(subcommand)]
     Calibrate(CalibrateCommand),
@@ -97,6 +107,19 @@ pub enum RegCommand {
         /// Yes, really.
         #[arg(long)]
         yes: bool,
+    },
+}
+
+#[derive(Debug, Subcommand)]
+pub enum ConfigCommand {
+    /// Save every read-write register, with names, units and versions, as JSON.
+    Save { file: std::path::PathBuf },
+    /// Check a saved file, show the changes, write them and read them back.
+    Load {
+        file: std::path::PathBuf,
+        /// Check and show the changes, write nothing.
+        #[arg(long)]
+        dry_run: bool,
     },
 }
 
@@ -196,7 +219,19 @@ pub fn run(cli: Cli, out: &mut dyn Write) -> Result<(), Error> {
             count,
             seconds,
             scroll: _,
-        } => monitor::monitor(controller, Until { count, seconds }, out),
+        } => {
+            let style = if cli.json {
+                monitor::Style::Json
+            } else {
+                monitor::Style::Lines
+            };
+            monitor::monitor(controller, Until { count, seconds }, style, out)
+        }
+        CliCommand::Info => info::info(controller, cli.json, out),
+        CliCommand::Config(ConfigCommand::Save { file }) => config::save(controller, &file, out),
+        CliCommand::Config(ConfigCommand::Load { file, dry_run }) => {
+            config::load(controller, &file, dry_run, out)
+        }
         CliCommand::Drive {
             step_mm_s,
             step_mrad_s,
@@ -213,14 +248,17 @@ pub fn run(cli: Cli, out: &mut dyn Write) -> Result<(), Error> {
             out,
         ),
         CliCommand::Reg(RegCommand::List) => Ok(registers::list(out)?),
-        CliCommand::Reg(RegCommand::Get { .. }) => {
-            registers::get(controller, register.expect("looked up above"), out)
-        }
+        CliCommand::Reg(RegCommand::Get { .. }) => registers::get(
+            controller,
+            register.expect("looked up above"),
+            cli.json,
+            out,
+        ),
         CliCommand::Reg(RegCommand::Set { .. }) => {
             let (register, value) = register_value.expect("looked up above");
-            registers::set(controller, register, value, out)
+            registers::set(controller, register, value, cli.json, out)
         }
-        CliCommand::Reg(RegCommand::Dump) => registers::dump(controller, out),
+        CliCommand::Reg(RegCommand::Dump) => registers::dump(controller, cli.json, out),
         CliCommand::Reg(RegCommand::Restore { yes }) => registers::restore(controller, yes, out),
         CliCommand::Calibrate(CalibrateCommand::Odometry {
             drive_mm,

@@ -345,3 +345,108 @@ fn monitor_a_python_logger_register_commands_and_a_calibration_run_at_once() {
         "{statuses} status lines in {seconds} s"
     );
 }
+
+/// basectl's stdout after a successful run.
+fn run_ok(args: &[impl AsRef<str>]) -> String {
+    let args: Vec<&str> = args.iter().map(AsRef::as_ref).collect();
+    let output = basectl(&args).output().unwrap();
+    let text = printed(&output.stdout);
+    assert!(
+        output.status.success(),
+        "basectl {}: {}\n{text}",
+        args.join(" "),
+        String::from_utf8_lossy(&output.stderr)
+    );
+    text
+}
+
+#[test]
+fn config_save_then_factory_reset_then_config_load_restores_every_register() {
+    let simulator = Simulator::start("config");
+    let socketcand = simulator.socketcand.clone();
+    let with = |args: &[&str]| -> Vec<String> {
+        ["--channel", socketcand.as_str()]
+            .iter()
+            .chain(args)
+            .map(|arg| (*arg).to_owned())
+            .collect()
+    };
+    // A commissioned robot: values away from the defaults, the battery limits both
+    // above the default full voltage (so they must be written in the right order).
+    for (register, value) in [
+        ("loop_end_delay", "40"),
+        ("batt_full_mv", "30000"),
+        ("batt_empty_mv", "27000"),
+        ("f_lin", "10200"),
+        ("rad_r", "150"),
+    ] {
+        run_ok(&with(&["reg", "set", register, value]));
+    }
+    let before = run_ok(&with(&["--json", "reg", "dump"]));
+    let file = std::env::temp_dir().join(format!("pc-tools-config-{}.json", std::process::id()));
+    let file = file.to_str().unwrap();
+    let saved = run_ok(&with(&["config", "save", file]));
+    assert!(saved.contains("saved"), "{saved}");
+    let text = std::fs::read_to_string(file).unwrap();
+    assert!(text.contains("\"regmap_version\""), "{text}");
+    assert!(text.contains("\"unit\": \"mV\""), "{text}");
+
+    run_ok(&with(&["reg", "restore", "--yes"]));
+    let reset = run_ok(&with(&["--json", "reg", "dump"]));
+    assert_ne!(reset, before, "the factory reset changed the registers");
+
+    let loaded = run_ok(&with(&["config", "load", file]));
+    assert!(loaded.contains("batt_full_mv"), "{loaded}");
+    let full = loaded.find("batt_full_mv").unwrap();
+    let empty = loaded.find("batt_empty_mv").unwrap();
+    assert!(full < empty, "full is raised before empty: {loaded}");
+    let after = run_ok(&with(&["--json", "reg", "dump"]));
+    assert_eq!(after, before, "every register is back");
+
+    // Loading the same file again writes nothing.
+    let again = run_ok(&with(&["config", "load", file]));
+    assert!(again.contains("nothing to write"), "{again}");
+
+    // A file whose values break a range or a rule is refused before anything is written.
+    let broken = text.replace("\"value\": 27000", "\"value\": 31000");
+    std::fs::write(file, broken).unwrap();
+    let args = with(&["config", "load", file]);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let output = basectl(&args).output().unwrap();
+    assert!(!output.status.success());
+    let error = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        error.contains("rule batt_empty_mv < batt_full_mv is broken (batt_empty_mv = 31000, batt_full_mv = 30000)"),
+        "{error}"
+    );
+    assert_eq!(run_ok(&with(&["--json", "reg", "dump"])), before);
+    let _ = std::fs::remove_file(file);
+}
+
+#[test]
+fn info_tells_versions_mode_faults_and_counters_in_one_shot_also_as_json() {
+    let simulator = Simulator::start("info");
+    let text = run_ok(&["--channel", &simulator.socketcand, "info"]);
+    for part in [
+        "firmware",
+        "register map    2",
+        "mode            Standby",
+        "flash           ",
+        "modbus errors",
+        "battery",
+    ] {
+        assert!(text.contains(part), "{part:?} in\n{text}");
+    }
+    let json = run_ok(&["--channel", &simulator.socketcand, "--json", "info"]);
+    let value: serde_json::Value = serde_json::from_str(&json).unwrap();
+    assert_eq!(value["regmap_version"], 2);
+    assert_eq!(value["mode"], "Standby");
+    // A fresh flash file is blank, which the controller reports as a flash fault.
+    let flash_fault = value["faults"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .any(|fault| fault == "flash");
+    assert_eq!(value["flash_ok"], !flash_fault);
+    assert!(value["battery_mv"].as_u64().is_some(), "{json}");
+}
