@@ -46,7 +46,8 @@ class Simulator:
         if self.link.exists():
             self.link.unlink()
         self.process = subprocess.Popen(
-            [str(SIMULATOR), "--link", str(self.link), "--flash", str(self.flash)],
+            [str(SIMULATOR), "--link", str(self.link), "--flash", str(self.flash),
+             "--socketcand", "127.0.0.1:0"],
             stdin=subprocess.PIPE, stdout=self.log, stderr=subprocess.STDOUT, text=True)
         for _ in range(100):
             if self.link.exists():

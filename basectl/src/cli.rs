@@ -12,6 +12,7 @@ use crate::drive::{self, Steps};
 use crate::heartbeat;
 use crate::monitor::{self, Until};
 use crate::registers;
+use crate::{config, info};
 
 /// Commissioning of the base controller over CAN: monitor, drive, registers and the
 /// calibration wizards.
@@ -19,24 +20,37 @@ use crate::registers;
 #[command(version)]
 pub struct Cli {
     /// The adapter kind.
-    #[arg(long, value_enum, default_value = "slcan", global = true)]
+    #[arg(
+        long,
+        value_enum,
+        default_value = "socketcand",
+        env = "BASECTL_INTERFACE",
+        global = true
+    )]
     pub interface: Interface,
-    /// SLCAN: the tty path (e.g. /dev/ttyACM0); SocketCAN: the interface (e.g. can0).
-    #[arg(long, default_value = "/tmp/virtual-base-controller", global = true)]
-    pub channel: String,
+    /// socketcand: HOST:PORT[/BUS] (default 127.0.0.1:29536, the simulator); SLCAN:
+    /// the tty path (default /tmp/virtual-base-controller, the simulator's port);
+    /// SocketCAN: the interface (default can0).
+    #[arg(long, env = "BASECTL_CHANNEL", global = true)]
+    pub channel: Option<String>,
     /// The CAN bit rate an SLCAN adapter is set to (SocketCAN: set with `ip link`).
     #[arg(long, default_value_t = 500_000, global = true)]
     pub bitrate: u32,
     /// How long a register read may take to be answered, ms.
     #[arg(long, default_value_t = 500, global = true)]
     pub timeout_ms: u64,
+    /// JSON for scripts: one object per report (monitor), one object (info, reg get,
+    /// reg set), an array (reg dump).
+    #[arg(long, global = true)]
+    pub json: bool,
     #[command(subcommand)]
     pub command: CliCommand,
 }
 
 #[derive(Debug, Subcommand)]
 pub enum CliCommand {
-    /// Print every report (pose, battery, weight, status, register replies), decoded.
+    /// Every report (pose, battery, weight, status, register replies), decoded: a
+    /// live view on a terminal, one line per frame otherwise or with --scroll.
     Monitor {
         /// Stop after this many frames.
         #[arg(long)]
@@ -44,6 +58,9 @@ pub enum CliCommand {
         /// Stop after this many seconds.
         #[arg(long)]
         seconds: Option<u64>,
+        /// One line per frame, scrolling, even on a terminal.
+        #[arg(long)]
+        scroll: bool,
     },
     /// Keyboard teleop: arrows/WASD, space stops, q quits.
     Drive {
@@ -59,6 +76,11 @@ pub enum CliCommand {
     /// Registers by name or address.
     #[command(subcommand)]
     Reg(RegCommand),
+    /// Every register to a file and back (backup and restore).
+    #[command(subcommand)]
+    Config(ConfigCommand),
+    /// Versions, mode, faults, drives, flash, error counters, battery and pose.
+    Info,
     /// The guided calibration wizards.
     #[command(subcommand)]
     Calibrate(CalibrateCommand),
@@ -85,6 +107,19 @@ pub enum RegCommand {
         /// Yes, really.
         #[arg(long)]
         yes: bool,
+    },
+}
+
+#[derive(Debug, Subcommand)]
+pub enum ConfigCommand {
+    /// Save every read-write register, with names, units and versions, as JSON.
+    Save { file: std::path::PathBuf },
+    /// Check a saved file, show the changes, write them and read them back.
+    Load {
+        file: std::path::PathBuf,
+        /// Check and show the changes, write nothing.
+        #[arg(long)]
+        dry_run: bool,
     },
 }
 
@@ -121,6 +156,40 @@ pub enum CalibrateCommand {
     },
 }
 
+/// The whole program: parses `args` (the program name first), watches for Ctrl-C,
+/// runs the command, prints an error to stderr. Exit code 0 on success, 1 on an error,
+/// 2 for a bad command line, 130 after Ctrl-C or SIGTERM.
+pub fn main(args: impl IntoIterator<Item = std::ffi::OsString>) -> std::process::ExitCode {
+    let cli = match Cli::try_parse_from(args) {
+        Ok(cli) => cli,
+        Err(error) => error.exit(),
+    };
+    // Ctrl-C and SIGTERM close the channel too (an SLCAN adapter gets its `C`).
+    if let Err(error) = bus::exit::on_signals() {
+        eprintln!("basectl: cannot watch for Ctrl-C: {error}");
+        return std::process::ExitCode::FAILURE;
+    }
+    let result = run(cli, &mut std::io::stdout());
+    bus::exit::run_all();
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(error) => {
+            eprintln!("basectl: {error}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+/// The channel when neither `--channel` nor `BASECTL_CHANNEL` names one: the
+/// simulator's, for socketcand and SLCAN.
+pub fn default_channel(interface: Interface) -> &'static str {
+    match interface {
+        Interface::Socketcand => "127.0.0.1:29536",
+        Interface::Slcan => "/tmp/virtual-base-controller",
+        Interface::Socketcan => "can0",
+    }
+}
+
 /// Runs the parsed command; `reg list` needs no bus.
 pub fn run(cli: Cli, out: &mut dyn Write) -> Result<(), Error> {
     if let CliCommand::Reg(RegCommand::List) = cli.command {
@@ -138,12 +207,30 @@ pub fn run(cli: Cli, out: &mut dyn Write) -> Result<(), Error> {
         CliCommand::Reg(RegCommand::Get { register }) => Some(registers::lookup(register)?),
         _ => None,
     };
-    let mut bus = bus::open(cli.interface, &cli.channel, cli.bitrate)?;
+    let channel = cli
+        .channel
+        .clone()
+        .unwrap_or_else(|| default_channel(cli.interface).to_owned());
+    let mut bus = bus::open(cli.interface, &channel, cli.bitrate)?;
     let mut controller = Controller::new(bus.as_mut(), Duration::from_millis(cli.timeout_ms));
     let controller = &mut controller;
     match cli.command {
-        CliCommand::Monitor { count, seconds } => {
-            monitor::monitor(controller, Until { count, seconds }, out)
+        CliCommand::Monitor {
+            count,
+            seconds,
+            scroll: _,
+        } => {
+            let style = if cli.json {
+                monitor::Style::Json
+            } else {
+                monitor::Style::Lines
+            };
+            monitor::monitor(controller, Until { count, seconds }, style, out)
+        }
+        CliCommand::Info => info::info(controller, cli.json, out),
+        CliCommand::Config(ConfigCommand::Save { file }) => config::save(controller, &file, out),
+        CliCommand::Config(ConfigCommand::Load { file, dry_run }) => {
+            config::load(controller, &file, dry_run, out)
         }
         CliCommand::Drive {
             step_mm_s,
@@ -161,14 +248,17 @@ pub fn run(cli: Cli, out: &mut dyn Write) -> Result<(), Error> {
             out,
         ),
         CliCommand::Reg(RegCommand::List) => Ok(registers::list(out)?),
-        CliCommand::Reg(RegCommand::Get { .. }) => {
-            registers::get(controller, register.expect("looked up above"), out)
-        }
+        CliCommand::Reg(RegCommand::Get { .. }) => registers::get(
+            controller,
+            register.expect("looked up above"),
+            cli.json,
+            out,
+        ),
         CliCommand::Reg(RegCommand::Set { .. }) => {
             let (register, value) = register_value.expect("looked up above");
-            registers::set(controller, register, value, out)
+            registers::set(controller, register, value, cli.json, out)
         }
-        CliCommand::Reg(RegCommand::Dump) => registers::dump(controller, out),
+        CliCommand::Reg(RegCommand::Dump) => registers::dump(controller, cli.json, out),
         CliCommand::Reg(RegCommand::Restore { yes }) => registers::restore(controller, yes, out),
         CliCommand::Calibrate(CalibrateCommand::Odometry {
             drive_mm,
@@ -212,16 +302,37 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_simulator_is_the_default_bus() {
+    fn the_simulators_socketcand_server_is_the_default_bus() {
+        use clap::CommandFactory;
+        let command = Cli::command();
+        let argument = |name: &str| {
+            command
+                .get_arguments()
+                .find(|argument| argument.get_id() == name)
+                .unwrap()
+        };
+        assert_eq!(argument("interface").get_default_values(), ["socketcand"]);
+        assert_eq!(
+            argument("interface").get_env(),
+            Some(std::ffi::OsStr::new("BASECTL_INTERFACE"))
+        );
+        assert_eq!(
+            argument("channel").get_env(),
+            Some(std::ffi::OsStr::new("BASECTL_CHANNEL"))
+        );
+        assert_eq!(default_channel(Interface::Socketcand), "127.0.0.1:29536");
+        assert_eq!(
+            default_channel(Interface::Slcan),
+            "/tmp/virtual-base-controller"
+        );
         let cli = Cli::try_parse_from(["basectl", "monitor", "--count", "3"]).unwrap();
-        assert_eq!(cli.interface, Interface::Slcan);
-        assert_eq!(cli.channel, "/tmp/virtual-base-controller");
         assert_eq!(cli.bitrate, 500_000);
         assert!(matches!(
             cli.command,
             CliCommand::Monitor {
                 count: Some(3),
-                seconds: None
+                seconds: None,
+                scroll: false
             }
         ));
     }
@@ -239,7 +350,7 @@ mod tests {
         ])
         .unwrap();
         assert_eq!(cli.interface, Interface::Socketcan);
-        assert_eq!(cli.channel, "can0");
+        assert_eq!(cli.channel.as_deref(), Some("can0"));
     }
 
     #[test]
@@ -267,6 +378,8 @@ mod tests {
     fn an_invalid_register_value_fails_before_the_bus_is_opened() {
         let cli = Cli::try_parse_from([
             "basectl",
+            "--interface",
+            "slcan",
             "--channel",
             "/nonexistent",
             "reg",

@@ -6,9 +6,12 @@
 pub mod bus;
 pub mod calibrate;
 pub mod cli;
+pub mod config;
 pub mod controller;
 pub mod drive;
 pub mod heartbeat;
+pub mod info;
 pub mod monitor;
 pub mod registers;
 pub mod rejection;
+pub mod rules;

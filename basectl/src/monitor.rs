@@ -3,7 +3,7 @@
 use std::io::Write;
 use std::time::{Duration, Instant};
 
-use base_core::can::{Report, Status};
+use base_core::can::{Faults, Report, Status, StatusFlags};
 
 use crate::controller::{Controller, Error};
 use crate::rejection;
@@ -15,9 +15,20 @@ pub struct Until {
     pub seconds: Option<u64>,
 }
 
+/// How `monitor` prints.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Style {
+    /// One line per report.
+    #[default]
+    Lines,
+    /// One JSON object per report and line.
+    Json,
+}
+
 pub fn monitor(
     controller: &mut Controller,
     until: Until,
+    style: Style,
     out: &mut dyn Write,
 ) -> Result<(), Error> {
     let deadline = until
@@ -35,7 +46,11 @@ pub fn monitor(
         };
         match controller.next_report(wait)? {
             Some(report) => {
-                writeln!(out, "{}", describe(&report))?;
+                match style {
+                    Style::Lines => writeln!(out, "{}", describe(&report))?,
+                    Style::Json => writeln!(out, "{}", report_json(&report))?,
+                }
+                out.flush()?;
                 printed += 1;
                 quiet_since = Instant::now();
             }
@@ -75,22 +90,9 @@ pub fn describe(report: &Report) -> String {
     }
 }
 
-fn describe_status(status: &Status) -> String {
-    let flags = status.flags;
-    let faults = status.faults;
-    let set = |pairs: &[(bool, &str)]| {
-        let names: Vec<&str> = pairs
-            .iter()
-            .filter(|(on, _)| *on)
-            .map(|(_, name)| *name)
-            .collect();
-        if names.is_empty() {
-            "-".to_owned()
-        } else {
-            names.join(",")
-        }
-    };
-    let flag_names = set(&[
+/// The names of the flags that are set.
+pub fn flag_names(flags: &StatusFlags) -> Vec<&'static str> {
+    set_names(&[
         (flags.enable_fresh, "enable_fresh"),
         (flags.pc_on, "pc_on"),
         (flags.safety_zone, "safety_zone"),
@@ -99,8 +101,12 @@ fn describe_status(status: &Status) -> String {
         (flags.remote_in_control, "remote_in_control"),
         (flags.estop_pressed, "estop_pressed"),
         (flags.brakes_applied, "brakes_applied"),
-    ]);
-    let fault_names = set(&[
+    ])
+}
+
+/// The names of the faults that are set.
+pub fn fault_names(faults: &Faults) -> Vec<&'static str> {
+    set_names(&[
         (faults.left_drive_silent, "left_drive_silent"),
         (faults.left_drive_alarm, "left_drive_alarm"),
         (faults.right_drive_silent, "right_drive_silent"),
@@ -109,7 +115,27 @@ fn describe_status(status: &Status) -> String {
         (faults.scale, "scale"),
         (faults.can_bus, "can_bus"),
         (faults.watchdog_reset, "watchdog_reset"),
-    ]);
+    ])
+}
+
+fn set_names(pairs: &[(bool, &'static str)]) -> Vec<&'static str> {
+    pairs
+        .iter()
+        .filter(|(on, _)| *on)
+        .map(|(_, name)| *name)
+        .collect()
+}
+
+fn describe_status(status: &Status) -> String {
+    let joined = |names: Vec<&str>| {
+        if names.is_empty() {
+            "-".to_owned()
+        } else {
+            names.join(",")
+        }
+    };
+    let flag_names = joined(flag_names(&status.flags));
+    let fault_names = joined(fault_names(&status.faults));
     let last = match rejection::name(status.last_rejection) {
         Some(name) => format!("{name} on 0x{:02X}", status.last_rejection_subject),
         None if status.last_rejection == 0 => "none".to_owned(),
@@ -126,6 +152,46 @@ fn describe_status(status: &Status) -> String {
         status.drive_alarm,
         status.modbus_errors
     )
+}
+
+/// One report as a JSON object, with a `"report"` field naming its kind.
+pub fn report_json(report: &Report) -> serde_json::Value {
+    use serde_json::json;
+    match *report {
+        Report::Position { x_mm, y_mm } => {
+            json!({"report": "position", "x_mm": x_mm, "y_mm": y_mm})
+        }
+        Report::Heading { heading_mrad } => {
+            json!({"report": "heading", "heading_mrad": heading_mrad})
+        }
+        Report::Battery {
+            percent,
+            voltage_mv,
+        } => {
+            json!({"report": "battery", "percent": percent, "voltage_mv": voltage_mv})
+        }
+        Report::Weight { grams } => json!({"report": "weight", "grams": grams}),
+        Report::RegisterValue { value } => json!({"report": "register_value", "value": value}),
+        Report::RegisterReadError { address, reason } => json!({
+            "report": "register_read_error",
+            "address": address,
+            "reason": rejection::name(reason),
+            "reason_code": reason,
+        }),
+        Report::Status(status) => json!({
+            "report": "status",
+            "mode": format!("{:?}", status.mode),
+            "control": format!("{:?}", status.control),
+            "flags": flag_names(&status.flags),
+            "faults": fault_names(&status.faults),
+            "rejected_count": status.rejected_count,
+            "last_rejection": rejection::name(status.last_rejection),
+            "last_rejection_code": status.last_rejection,
+            "last_rejection_subject": status.last_rejection_subject,
+            "drive_alarm": status.drive_alarm,
+            "modbus_errors": status.modbus_errors,
+        }),
+    }
 }
 
 #[cfg(test)]

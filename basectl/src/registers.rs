@@ -3,9 +3,12 @@
 
 use std::io::Write;
 
-use base_core::registers::{Access, RESTORE_DEFAULTS_KEY, Reg, RegisterInfo, TABLE, info};
+use base_core::registers::{
+    Access, OPEN_PAIRING_WINDOW_KEY, RESTORE_DEFAULTS_KEY, Reg, RegisterInfo, TABLE, info,
+};
 
 use crate::controller::{Controller, Error};
+use crate::{rejection, rules};
 
 /// A register by its name (any case) or its address (decimal or `0x` hex).
 pub fn lookup(name_or_address: &str) -> Result<&'static RegisterInfo, Error> {
@@ -101,21 +104,80 @@ pub fn list(out: &mut dyn Write) -> std::io::Result<()> {
 pub fn get(
     controller: &mut Controller,
     register: &RegisterInfo,
+    json: bool,
     out: &mut dyn Write,
 ) -> Result<(), Error> {
     let value = controller.read_register(register.address)?;
-    writeln!(out, "{} = {value} {}", register.name, register.unit)?;
+    if json {
+        writeln!(out, "{}", register_json(register, value))?;
+    } else {
+        writeln!(out, "{} = {value} {}", register.name, register.unit)?;
+    }
     Ok(())
 }
 
-pub fn set(
+/// One register as a JSON object.
+pub fn register_json(register: &RegisterInfo, value: u16) -> serde_json::Value {
+    serde_json::json!({
+        "name": register.name,
+        "address": register.address,
+        "value": value,
+        "unit": register.unit,
+    })
+}
+
+/// Writes `value` and reads it back. Before writing, the rules between registers are
+/// checked against the controller's current values, so that a refusal names the rule
+/// and the other register's value; a write the controller refuses anyway says which
+/// rules the register is part of.
+pub fn write_checked(
     controller: &mut Controller,
     register: &RegisterInfo,
     value: u16,
-    out: &mut dyn Write,
 ) -> Result<(), Error> {
-    let old = controller.read_register(register.address)?;
-    controller.write_register(register, value)?;
+    for rule in rules::RULES.iter().filter(|rule| {
+        rule.registers
+            .iter()
+            .any(|reg| reg.address() == register.address)
+    }) {
+        let [first, second] = rule.registers;
+        let values = controller.read_registers([first, second])?;
+        let value_of = |reg: Reg| {
+            if reg.address() == register.address {
+                value
+            } else if reg == first {
+                values[0]
+            } else {
+                values[1]
+            }
+        };
+        if !(rule.holds)(&value_of) {
+            let other = if first.address() == register.address {
+                second
+            } else {
+                first
+            };
+            return Err(Error::InvalidInput(format!(
+                "{value} is not a valid value for {}: it breaks the rule {} ({} is {} {})",
+                register.name,
+                rule.text,
+                other.info().name,
+                value_of(other),
+                other.info().unit
+            )));
+        }
+    }
+    match controller.write_register(register, value) {
+        Err(Error::Refused { reason, .. }) if rejection::name(reason) == Some("Inconsistent") => {
+            return Err(Error::InvalidInput(format!(
+                "the base controller refused writing {value} to {}: it breaks a rule between \
+                 registers ({})",
+                register.name,
+                rules::involving(register.address).join("; ")
+            )));
+        }
+        other => other?,
+    }
     let new = controller.read_register(register.address)?;
     if new != value {
         return Err(Error::Aborted(format!(
@@ -123,14 +185,59 @@ pub fn set(
             register.name
         )));
     }
-    writeln!(out, "{}: {old} -> {new} {}", register.name, register.unit)?;
     Ok(())
 }
 
-pub fn dump(controller: &mut Controller, out: &mut dyn Write) -> Result<(), Error> {
+pub fn set(
+    controller: &mut Controller,
+    register: &RegisterInfo,
+    value: u16,
+    json: bool,
+    out: &mut dyn Write,
+) -> Result<(), Error> {
+    if register.access == Access::WriteOnly {
+        // `command` reads 0 whatever was written: there is nothing to read back.
+        controller.write_register(register, value)?;
+        let done = match value {
+            RESTORE_DEFAULTS_KEY => "every writable register is back at its default",
+            OPEN_PAIRING_WINDOW_KEY => "the remote's pairing window is open",
+            _ => "done",
+        };
+        if json {
+            writeln!(
+                out,
+                "{}",
+                serde_json::json!({"name": register.name, "key": value, "done": done})
+            )?;
+        } else {
+            writeln!(out, "{} 0x{value:04X}: {done}", register.name)?;
+        }
+        return Ok(());
+    }
+    let old = controller.read_register(register.address)?;
+    write_checked(controller, register, value)?;
+    if json {
+        let mut object = register_json(register, value);
+        object["old"] = old.into();
+        writeln!(out, "{object}")?;
+    } else {
+        writeln!(out, "{}: {old} -> {value} {}", register.name, register.unit)?;
+    }
+    Ok(())
+}
+
+pub fn dump(controller: &mut Controller, json: bool, out: &mut dyn Write) -> Result<(), Error> {
+    let mut all = Vec::new();
     for register in TABLE.iter().filter(|r| r.access != Access::WriteOnly) {
         let value = controller.read_register(register.address)?;
-        writeln!(out, "{} = {value} {}", register.name, register.unit)?;
+        if json {
+            all.push(register_json(register, value));
+        } else {
+            writeln!(out, "{} = {value} {}", register.name, register.unit)?;
+        }
+    }
+    if json {
+        writeln!(out, "{}", serde_json::Value::Array(all))?;
     }
     Ok(())
 }

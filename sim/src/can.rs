@@ -270,6 +270,12 @@ impl CanPeer {
         self.bus.borrow().sent_by_pc.clone()
     }
 
+    /// Empties the log of [`Self::sent_by_pc`]; a simulator that runs for hours calls
+    /// it so that the log does not grow without bound.
+    pub fn forget_sent_by_pc(&self) {
+        self.bus.borrow_mut().sent_by_pc.clear();
+    }
+
     /// The next frame from the firmware, waiting for one if none is queued.
     pub async fn receive(&self) -> SimFrame {
         poll_fn(|cx| {

@@ -31,6 +31,8 @@ impl Simulator {
             .arg(&link)
             .arg("--flash")
             .arg(directory.join("flash.bin"))
+            // A free port: tests run side by side.
+            .args(["--socketcand", "127.0.0.1:0"])
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
@@ -107,16 +109,24 @@ fn a_register_written_with_basectl_reads_back_and_a_bad_value_is_refused_with_it
     let mut controller = Controller::new(&mut port, Duration::from_millis(500));
     let loop_end_delay = registers::lookup("loop_end_delay").unwrap();
     let mut out = Vec::new();
-    registers::set(&mut controller, loop_end_delay, 40, &mut out).unwrap();
-    registers::get(&mut controller, loop_end_delay, &mut out).unwrap();
+    registers::set(&mut controller, loop_end_delay, 40, false, &mut out).unwrap();
+    registers::get(&mut controller, loop_end_delay, false, &mut out).unwrap();
     let text = String::from_utf8(out).unwrap();
     assert!(text.contains("loop_end_delay: 50 -> 40 ms"), "{text}");
     assert!(text.contains("loop_end_delay = 40 ms"), "{text}");
 
     // In range by itself, but empty above full breaks a cross-register rule.
     let batt_empty = registers::lookup("batt_empty_mv").unwrap();
-    let error = registers::set(&mut controller, batt_empty, 30_000, &mut Vec::new()).unwrap_err();
-    assert!(error.to_string().contains("Inconsistent"), "{error}");
+    let error = registers::set(&mut controller, batt_empty, 30_000, false, &mut Vec::new())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        error.contains(
+            "30000 is not a valid value for batt_empty_mv: it breaks the rule \
+             batt_empty_mv < batt_full_mv (batt_full_mv is 25500 mV)"
+        ),
+        "{error}"
+    );
 }
 
 #[test]
@@ -203,6 +213,7 @@ fn monitor_stops_after_count_frames_and_decodes_each() {
             count: Some(80),
             seconds: None,
         },
+        monitor::Style::Lines,
         &mut out,
     )
     .unwrap();

@@ -24,6 +24,8 @@ impl Simulator {
             .arg(&link)
             .arg("--flash")
             .arg(directory.join("flash.bin"))
+            // A free port: tests run side by side.
+            .args(["--socketcand", "127.0.0.1:0"])
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
@@ -164,4 +166,82 @@ fn a_register_written_over_slcan_is_still_there_after_a_restart() {
     };
     assert_eq!(reply, "t0043000141\r");
     simulator.quit();
+}
+
+#[test]
+fn a_pc_that_leaves_without_closing_the_channel_leaves_nothing_queued_for_the_next() {
+    let simulator = Simulator::start(&scratch_directory("leave"));
+    let (mut port, lines) = simulator.connect();
+    send(&mut port, &["C", "S6", "O"]);
+    // The channel is open and the controller's frames flow; then the program dies
+    // without sending C.
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while !lines
+        .recv_timeout(Duration::from_secs(5))
+        .unwrap()
+        .starts_with('t')
+    {
+        assert!(Instant::now() < deadline, "no frames while open");
+    }
+    drop(port);
+    drop(lines);
+    // Long enough for the controller to send dozens of frames.
+    thread::sleep(Duration::from_secs(2));
+    let (mut port, lines) = simulator.connect();
+    send(&mut port, &["V"]);
+    assert_eq!(
+        lines.recv_timeout(Duration::from_secs(2)).unwrap(),
+        "V0101\r",
+        "the next program's first line is the answer to its own command"
+    );
+    assert!(lines.recv_timeout(Duration::from_millis(500)).is_err());
+    simulator.quit();
+}
+
+#[test]
+fn a_second_simulator_on_the_same_link_is_refused_and_names_the_first() {
+    let directory = scratch_directory("twice");
+    let first = Simulator::start(&directory);
+    let second = Command::new(env!("CARGO_BIN_EXE_virtual-base-controller"))
+        .arg("--link")
+        .arg(&first.link)
+        .arg("--flash")
+        .arg(directory.join("flash2.bin"))
+        .args(["--no-socketcand"])
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    assert!(!second.status.success());
+    let error = String::from_utf8_lossy(&second.stderr);
+    assert!(
+        error.contains(&format!("another simulator (pid {})", first.child.id())),
+        "{error}"
+    );
+    // The first one's link still points at its port.
+    assert!(
+        std::fs::read_link(&first.link)
+            .unwrap()
+            .starts_with("/dev/pts")
+    );
+    first.quit();
+}
+
+#[test]
+fn sigterm_and_ctrl_c_remove_the_link_and_its_lock() {
+    use nix::sys::signal::{Signal, kill};
+    use nix::unistd::Pid;
+    for signal in [Signal::SIGTERM, Signal::SIGINT] {
+        let directory = scratch_directory(&format!("signal-{signal}"));
+        let mut simulator = Simulator::start(&directory);
+        let lock = directory.join("slcan.lock");
+        assert!(lock.exists());
+        kill(Pid::from_raw(simulator.child.id() as i32), signal).unwrap();
+        let status = simulator.child.wait().unwrap();
+        assert!(status.success(), "{signal}: {status}");
+        assert!(
+            std::fs::symlink_metadata(&simulator.link).is_err(),
+            "{signal}: the link is gone"
+        );
+        assert!(!lock.exists(), "{signal}: the lock file is gone");
+    }
 }

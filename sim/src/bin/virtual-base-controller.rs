@@ -3,29 +3,46 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use virtual_robot::simulator::{self, DEFAULT_LINK, Demo, Options, console::HELP};
+use virtual_robot::simulator::{self, DEFAULT_LINK, Demo, Options, console::HELP, socketcand};
 
 fn usage() -> String {
     format!(
         "virtual-base-controller: the base controller's firmware on a simulated robot,
-on the wall clock, with an SLCAN (Lawicel) serial port for the robot PC's software.
+on the wall clock, with an SLCAN (Lawicel) serial port and a socketcand server for
+the robot PC's software.
 
-usage: virtual-base-controller [--link PATH | --no-link] [--flash PATH] [--demo [--stay]]
+usage: virtual-base-controller [--link PATH | --no-link] [--socketcand ADDR:PORT |
+                               --no-socketcand] [--socketcan IF] [--flash PATH]
+                               [--demo [--stay]]
 
-  --link PATH   symbolic link to the serial port (default {DEFAULT_LINK})
-  --no-link     make no link; the port's /dev/pts path is printed at start
-  --flash PATH  file holding the register store's flash, so registers survive
-                restarts (default {})
-  --demo        drive a short path by itself, show the odometry, then quit
-  --stay        with --demo: keep running afterwards
-  --help        this text
+  --link PATH      symbolic link to the serial port (default {DEFAULT_LINK});
+                   refused while another simulator serves it
+  --no-link        make no link; the port's /dev/pts path is printed at start
+  --socketcand A:P serve the bus as socketcand does, bus name {bus}, to any number
+                   of programs at once (default {address})
+  --no-socketcand  no socketcand server
+  --socketcan IF   also be a node on the Linux SocketCAN interface IF (e.g. vcan0,
+                   made with: ip link add vcan0 type vcan; ip link set vcan0 up),
+                   for candump, cansend and ros2_socketcan; needs a kernel with CAN
+  --flash PATH     file holding the register store's flash, so registers survive
+                   restarts (default {})
+  --demo           drive a short path by itself, show the odometry, then quit
+  --stay           with --demo: keep running afterwards
+  --help           this text
 
-Connect: python-can  can.Bus(interface=\"slcan\", channel=\"{DEFAULT_LINK}\", bitrate=500000)
-         SocketCAN   sudo slcand -o -s6 {DEFAULT_LINK} slcan0 && sudo ip link set slcan0 up
+Connect (any number at once through socketcand, one at a time through SLCAN):
+  python-can  can.Bus(interface=\"socketcand\", host=\"127.0.0.1\", port=29536,
+                      channel=\"{bus}\")
+  basectl     basectl --interface socketcand --channel {address} monitor
+  SLCAN       can.Bus(interface=\"slcan\", channel=\"{DEFAULT_LINK}\", bitrate=500000)
+  SocketCAN   sudo slcand -o -s6 $(readlink {DEFAULT_LINK} | sed 's|^/dev/||') slcan0
+              sudo ip link set slcan0 up
 
 Console commands (one per line on stdin):
 {HELP}",
-        simulator::default_flash_path().display()
+        simulator::default_flash_path().display(),
+        bus = socketcand::BUS_NAME,
+        address = socketcand::DEFAULT_ADDRESS,
     )
 }
 
@@ -33,6 +50,12 @@ fn parse_options(mut args: impl Iterator<Item = String>) -> Result<Option<Option
     let mut options = Options {
         flash_path: simulator::default_flash_path(),
         link: Some(PathBuf::from(DEFAULT_LINK)),
+        socketcand: Some(
+            socketcand::DEFAULT_ADDRESS
+                .parse()
+                .expect("the default address parses"),
+        ),
+        socketcan: None,
         demo: Demo::Off,
     };
     let mut stay = false;
@@ -41,6 +64,17 @@ fn parse_options(mut args: impl Iterator<Item = String>) -> Result<Option<Option
             "--help" | "-h" => return Ok(None),
             "--link" => options.link = Some(args.next().ok_or("--link needs a path")?.into()),
             "--no-link" => options.link = None,
+            "--socketcand" => {
+                let address = args.next().ok_or("--socketcand needs ADDRESS:PORT")?;
+                let address = address.parse().map_err(|_| {
+                    format!("--socketcand {address:?}: not ADDRESS:PORT (e.g. 127.0.0.1:29536)")
+                })?;
+                options.socketcand = Some(address);
+            }
+            "--no-socketcand" => options.socketcand = None,
+            "--socketcan" => {
+                options.socketcan = Some(args.next().ok_or("--socketcan needs an interface name")?);
+            }
             "--flash" => options.flash_path = args.next().ok_or("--flash needs a path")?.into(),
             "--demo" => options.demo = Demo::ThenQuit,
             "--stay" => stay = true,

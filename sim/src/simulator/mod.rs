@@ -1,19 +1,23 @@
 //! The simulator: the firmware's real tasks on the virtual robot, on the wall clock,
 //! for PC software to talk to live. The PC reaches the CAN bus through an SLCAN
-//! serial port (a pseudo-terminal); a console on stdin plays the robot's inputs; a
-//! status line shows what the controller does.
+//! serial port (a pseudo-terminal) and through a socketcand server on TCP, any number
+//! of programs at once; a console on stdin plays the robot's inputs; a status line
+//! shows what the controller does.
 
 pub mod console;
 pub mod serial;
+pub mod socketcan;
+pub mod socketcand;
 pub mod status;
 
 use std::cell::RefCell;
 use std::io::{self, BufRead, IsTerminal, Write};
+use std::net::SocketAddr;
 use std::path::PathBuf;
 
 use base_core::can::Mode;
 use base_runtime::{Hardware, channels::Channels};
-use embassy_futures::select::{Either, Either4, select, select4};
+use embassy_futures::select::{Either, Either3, Either4, select, select3, select4};
 use embassy_time::{Instant, Timer};
 use embedded_hal::digital::PinState;
 
@@ -23,8 +27,9 @@ use crate::robot::{FLASH_SIZE, Pc, VirtualRobot, wait_ms};
 use crate::runtime::{QueueReceiver, block_on_realtime, cross_thread_queue, now};
 use crate::slcan;
 use console::{ConsoleCommand, HELP, parse_console_line};
-use serial::{SerialPort, StableLink};
-use status::{SlcanCounters, Telemetry, status_line};
+use serial::{PortEvent, SerialPort, StableLink};
+use socketcand::{Client, Event};
+use status::{NetworkCounters, SlcanCounters, Telemetry, status_line};
 
 /// How often the status line is redrawn.
 const STATUS_PERIOD_MS: u64 = 250;
@@ -36,6 +41,10 @@ pub struct Options {
     pub flash_path: PathBuf,
     /// A symbolic link to the serial port at a fixed path, if wanted.
     pub link: Option<PathBuf>,
+    /// Where the socketcand server listens, if at all.
+    pub socketcand: Option<SocketAddr>,
+    /// A SocketCAN interface to join, if any.
+    pub socketcan: Option<String>,
     pub demo: Demo,
 }
 
@@ -76,12 +85,39 @@ pub fn run(options: &Options) -> io::Result<()> {
         .as_deref()
         .map(|link| StableLink::create(link, port.path()))
         .transpose()?;
+    let (network_events, network) = cross_thread_queue();
+    let socketcan = options
+        .socketcan
+        .as_deref()
+        .map(|interface| socketcan::SocketCanLink::join(interface, network_events.clone()))
+        .transpose()?;
+    let socketcand = options
+        .socketcand
+        .map(|address| {
+            socketcand::serve(address, network_events).map_err(|error| {
+                io::Error::new(
+                    error.kind(),
+                    format!("socketcand on {address}: {error} (see --socketcand, --no-socketcand)"),
+                )
+            })
+        })
+        .transpose()?;
+    let signals = quit_on_signals()?;
     let output = Output {
         status_on_terminal: io::stderr().is_terminal(),
     };
     output.message(&format!("SLCAN serial port: {}", port.path().display()));
     if let Some(link) = &link {
         output.message(&format!("  linked from:     {}", link.path().display()));
+    }
+    if let Some(link) = &socketcan {
+        output.message(&format!("SocketCAN:         {}", link.interface));
+    }
+    if let Some(address) = socketcand {
+        output.message(&format!(
+            "socketcand:        {address}, bus {}",
+            socketcand::BUS_NAME
+        ));
     }
     output.message(&format!(
         "registers kept in: {}",
@@ -112,16 +148,18 @@ pub fn run(options: &Options) -> io::Result<()> {
         peer: &peer,
         telemetry: RefCell::default(),
         slcan: SlcanCounters::default(),
+        network: NetworkCounters::default(),
         output,
     };
     block_on_realtime(async {
-        let ending = select(
+        let ending = select3(
             serve_console(&console_lines, &view),
             demo(options.demo, &view),
+            signals.receive(),
         );
         match select4(
             base_runtime::run(hardware, robot.settings, &channels),
-            bridge_slcan(&port, &view),
+            bridge(&port, &network, socketcan.as_ref(), &view),
             show_status(&view),
             ending,
         )
@@ -133,6 +171,27 @@ pub fn run(options: &Options) -> io::Result<()> {
     });
     view.output.finish_status();
     Ok(())
+}
+
+/// Ctrl-C, SIGTERM and SIGHUP end the simulator as `quit` does, so that its link and
+/// lock file go away and the flash file is complete.
+fn quit_on_signals() -> io::Result<QueueReceiver<i32>> {
+    use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
+    let mut signals = signal_hook::iterator::Signals::new([SIGINT, SIGTERM, SIGHUP])?;
+    let (sender, received) = cross_thread_queue();
+    std::thread::Builder::new()
+        .name("signals".into())
+        .spawn(move || {
+            let mut signals = signals.forever();
+            if let Some(signal) = signals.next() {
+                sender.send(signal);
+            }
+            // A second signal while the first one's shutdown hangs: leave at once.
+            if signals.next().is_some() {
+                std::process::exit(130);
+            }
+        })?;
+    Ok(received)
 }
 
 /// Reads stdin on its own thread, line by line, for the console.
@@ -189,74 +248,254 @@ struct View<'a> {
     peer: &'a CanPeer,
     telemetry: RefCell<Telemetry>,
     slcan: SlcanCounters,
+    network: NetworkCounters,
     output: Output,
 }
 
 impl View<'_> {
     /// Takes the frames the controller sent since the last call into the telemetry.
-    /// Also keeps the bus's log of sent frames from growing while the simulator runs.
+    /// Also keeps the bus's logs of sent frames from growing while the simulator runs.
     fn refresh(&self) -> Telemetry {
         let mut telemetry = self.telemetry.borrow_mut();
         telemetry.absorb(self.peer.take_sent());
+        self.peer.forget_sent_by_pc();
         *telemetry
     }
 
+    fn status_report(&self) -> String {
+        status::status_report(
+            now(),
+            &self.refresh(),
+            self.robot,
+            &self.slcan,
+            &self.network,
+        )
+    }
+
     fn status_line(&self) -> String {
-        status_line(now(), &self.refresh(), self.robot, &self.slcan)
+        status_line(
+            now(),
+            &self.refresh(),
+            self.robot,
+            &self.slcan,
+            &self.network,
+        )
     }
 }
 
-/// The USB-CAN adapter: the PC's SLCAN lines go onto the bus, and the frames the
-/// controller sends go to the PC while its channel is open.
-async fn bridge_slcan(port: &SerialPort, view: &View<'_>) -> ! {
-    let mut channel = slcan::Channel::new(BITRATE_BPS);
-    let counters = &view.slcan;
+/// The bus as the PC's programs see it: the SLCAN adapter, the socketcand clients
+/// and the SocketCAN interface are nodes beside the controller. Every frame one of
+/// them sends reaches the controller and every other node (not itself, as on a real
+/// bus); every frame the controller sends reaches them all.
+async fn bridge(
+    port: &SerialPort,
+    network: &QueueReceiver<Event>,
+    socketcan: Option<&socketcan::SocketCanLink>,
+    view: &View<'_>,
+) -> ! {
+    let mut slcan = SlcanNode {
+        channel: slcan::Channel::new(BITRATE_BPS),
+        port,
+        view,
+    };
+    let mut clients = Clients {
+        clients: Vec::new(),
+        socketcan,
+        view,
+    };
+    let mut network_open = true;
     loop {
-        match select(port.lines().receive(), view.peer.receive()).await {
-            Either::First(Some(line)) => {
-                let response = channel.handle_line(&line);
-                port.send(response.reply);
-                if let Some(refusal) = response.refusal {
-                    view.output.message(&format!(
-                        "slcan: refused \"{}\": {refusal}",
-                        line.escape_ascii()
-                    ));
-                }
-                if let Some(frame) = response.transmit {
+        let network_event = async {
+            match network_open {
+                true => network.receive().await,
+                false => core::future::pending().await,
+            }
+        };
+        match select3(port.events().receive(), view.peer.receive(), network_event).await {
+            Either3::First(Some(PortEvent::Line(line))) => {
+                if let Some(frame) = slcan.handle_line(&line) {
                     view.peer.send_frame(frame);
-                    counters.frames_in.set(counters.frames_in.get() + 1);
-                }
-                if channel.is_open() != counters.open.get() {
-                    counters.open.set(channel.is_open());
-                    let state = if channel.is_open() {
-                        "opened"
-                    } else {
-                        "closed"
-                    };
-                    view.output.message(&format!("slcan: channel {state}"));
+                    clients.offer(&frame, None);
                 }
             }
-            Either::First(None) => {
+            Either3::First(Some(PortEvent::Closed)) => slcan.port_closed(),
+            Either3::First(None) => {
                 view.output.message(
                     "slcan: the serial port failed; the PC is cut off, the controller runs on",
                 );
                 core::future::pending().await
             }
-            Either::Second(frame) if channel.is_open() => {
-                // The adapter's millisecond counter, which wraps at 60 s.
-                let timestamp_ms = channel
-                    .timestamps()
-                    .then(|| (now().as_millis() % 60_000) as u16);
-                let counter = if port.send(::slcan::format_frame(&frame, timestamp_ms).as_bytes()) {
-                    &counters.frames_out
-                } else {
-                    &counters.frames_dropped
-                };
-                counter.set(counter.get() + 1);
+            Either3::Second(frame) => {
+                slcan.offer(&frame);
+                clients.offer(&frame, None);
             }
-            // A closed adapter takes no part in the bus.
-            Either::Second(_) => {}
+            Either3::Third(Some(Event::Joined(client))) => clients.join(client),
+            Either3::Third(Some(Event::Frame { client, frame })) => {
+                view.peer.send_frame(frame);
+                view.network.frames_in.set(view.network.frames_in.get() + 1);
+                slcan.offer(&frame);
+                clients.offer(&frame, Some(client));
+            }
+            Either3::Third(Some(Event::Refused { client, why })) => {
+                view.output
+                    .message(&format!("socketcand: client {client}: ignored: {why}"));
+            }
+            Either3::Third(Some(Event::Left { client, why })) if client == socketcan::NODE => {
+                view.output
+                    .message(&format!("socketcan: {why}; the bus runs on without it"));
+            }
+            Either3::Third(Some(Event::Left { client, why })) => clients.leave(client, &why),
+            // No server (--no-socketcand).
+            Either3::Third(None) => network_open = false,
         }
+    }
+}
+
+/// The SLCAN adapter on the serial port.
+struct SlcanNode<'a> {
+    channel: slcan::Channel,
+    port: &'a SerialPort,
+    view: &'a View<'a>,
+}
+
+impl SlcanNode<'_> {
+    /// Answers one line; returns the frame it puts on the bus, if any.
+    fn handle_line(&mut self, line: &[u8]) -> Option<crate::can::SimFrame> {
+        let counters = &self.view.slcan;
+        let response = self.channel.handle_line(line);
+        self.port.send(response.reply);
+        match response.refusal {
+            // python-can sends O twice when it opens a port (once after setting the bit
+            // rate, once more); the second gets BEL, as from a real adapter, and is
+            // nothing to report.
+            Some(slcan::Refusal::ChannelOpen) if line == b"O" => {}
+            Some(refusal) => self.view.output.message(&format!(
+                "slcan: refused \"{}\": {refusal}",
+                line.escape_ascii()
+            )),
+            None => {}
+        }
+        if response.transmit.is_some() {
+            counters.frames_in.set(counters.frames_in.get() + 1);
+        }
+        self.show_state();
+        response.transmit
+    }
+
+    /// The last program closed the port: the channel closes, as when an adapter is
+    /// unplugged, so no frames wait for the next program.
+    fn port_closed(&mut self) {
+        self.channel = slcan::Channel::new(BITRATE_BPS);
+        self.show_state();
+    }
+
+    fn show_state(&self) {
+        let counters = &self.view.slcan;
+        if self.channel.is_open() != counters.open.get() {
+            counters.open.set(self.channel.is_open());
+            let state = if self.channel.is_open() {
+                "opened"
+            } else {
+                "closed"
+            };
+            self.view.output.message(&format!("slcan: channel {state}"));
+        }
+    }
+
+    /// Passes a frame from the bus to the PC while the channel is open.
+    fn offer(&self, frame: &crate::can::SimFrame) {
+        if !self.channel.is_open() {
+            return;
+        }
+        let counters = &self.view.slcan;
+        // The adapter's millisecond counter, which wraps at 60 s.
+        let timestamp_ms = self
+            .channel
+            .timestamps()
+            .then(|| (now().as_millis() % 60_000) as u16);
+        let counter = if self
+            .port
+            .send(::slcan::format_frame(frame, timestamp_ms).as_bytes())
+        {
+            &counters.frames_out
+        } else {
+            &counters.frames_dropped
+        };
+        counter.set(counter.get() + 1);
+    }
+}
+
+/// The socketcand clients in raw mode.
+struct Clients<'a> {
+    clients: Vec<Client>,
+    /// The SocketCAN interface, a node like the clients.
+    socketcan: Option<&'a socketcan::SocketCanLink>,
+    view: &'a View<'a>,
+}
+
+impl Clients<'_> {
+    fn join(&mut self, client: Client) {
+        self.view.output.message(&format!(
+            "socketcand: client {} ({}) joined",
+            client.id, client.address
+        ));
+        self.clients.push(client);
+        self.count();
+    }
+
+    fn leave(&mut self, id: u64, why: &str) {
+        // A client the hub dropped already is gone from the list.
+        if let Some(index) = self.clients.iter().position(|client| client.id == id) {
+            self.clients.remove(index);
+            self.view
+                .output
+                .message(&format!("socketcand: client {id} left ({why})"));
+            self.count();
+        }
+    }
+
+    /// Hands `frame` to every client but its sender. A client whose queue is full has
+    /// stopped reading: it is disconnected, so that it holds up no one.
+    fn offer(&mut self, frame: &crate::can::SimFrame, sender: Option<u64>) {
+        if let Some(link) = self.socketcan
+            && sender != Some(socketcan::NODE)
+            && !link.offer(*frame)
+        {
+            let network = &self.view.network;
+            network.socketcan_lost.set(network.socketcan_lost.get() + 1);
+        }
+        if self.clients.is_empty() {
+            return;
+        }
+        let message = socketcand::format_frame(frame, socketcand::wall_time());
+        let network = &self.view.network;
+        let view = self.view;
+        self.clients.retain(|client| {
+            if Some(client.id) == sender {
+                return true;
+            }
+            if client.offer(message.clone()) {
+                network.frames_out.set(network.frames_out.get() + 1);
+                return true;
+            }
+            client.disconnect();
+            network
+                .dropped_clients
+                .set(network.dropped_clients.get() + 1);
+            view.output.message(&format!(
+                "socketcand: client {} ({}) dropped: it read nothing while {} frames \
+                 waited",
+                client.id,
+                client.address,
+                socketcand::CLIENT_QUEUE
+            ));
+            false
+        });
+        self.count();
+    }
+
+    fn count(&self) {
+        self.view.network.clients.set(self.clients.len() as u32);
     }
 }
 
@@ -319,7 +558,7 @@ async fn serve_console(lines: &QueueReceiver<String>, view: &View<'_>) {
             }
             ConsoleCommand::WeightGrams(grams) => robot.load_cell.set_load_grams(grams),
             ConsoleCommand::DrivesPower(on) => robot.drives.power(on),
-            ConsoleCommand::Status => view.output.message(&view.status_line()),
+            ConsoleCommand::Status => view.output.message(&view.status_report()),
             ConsoleCommand::Help => view.output.message(HELP),
             ConsoleCommand::Quit => return,
         }

@@ -2,16 +2,23 @@
 //! software opens as if it were a USB-CAN adapter. Two plain threads do the blocking
 //! I/O: one cuts what the PC writes into SLCAN lines and hands them to the executor,
 //! the other writes the adapter's output back.
+//!
+//! The simulator does not hold the far end open itself, so it learns when the last
+//! program closes the port (the near end then reads EIO), as an adapter learns it is
+//! unplugged: the bridge closes the SLCAN channel and nothing queues up for the next
+//! program while no one reads.
 
 use std::fs::File;
 use std::io::{self, Read, Write};
-use std::os::fd::OwnedFd;
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
 use std::thread;
+use std::time::Duration;
 
+use nix::errno::Errno;
+use nix::fcntl::{Flock, FlockArg};
 use nix::pty::openpty;
-use nix::sys::termios::{SetArg, cfmakeraw, tcgetattr, tcsetattr};
+use nix::sys::termios::{FlushArg, SetArg, cfmakeraw, tcflush, tcgetattr, tcsetattr};
 
 use crate::runtime::{QueueReceiver, cross_thread_queue};
 use ::slcan::LineAssembler;
@@ -21,13 +28,22 @@ use ::slcan::LineAssembler;
 /// further output is dropped, as a USB adapter's buffer overflows.
 const OUTPUT_QUEUE: usize = 256;
 
+/// How often the reader looks again while no program has the port open.
+const IDLE_POLL: Duration = Duration::from_millis(20);
+
+/// What happens on the port.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum PortEvent {
+    /// A command line from the PC, without its CR.
+    Line(Vec<u8>),
+    /// The last program that had the port open closed it (or died).
+    Closed,
+}
+
 /// A pseudo-terminal serving as the adapter's serial port.
 pub struct SerialPort {
     path: PathBuf,
-    /// The far end, kept open so that the near end stays usable while no program has
-    /// the port open (the near end reads an error once every far end is closed).
-    _far_end: OwnedFd,
-    lines: QueueReceiver<Vec<u8>>,
+    events: QueueReceiver<PortEvent>,
     output: SyncSender<Vec<u8>>,
 }
 
@@ -40,19 +56,41 @@ impl SerialPort {
         cfmakeraw(&mut termios);
         tcsetattr(&pty.slave, SetArg::TCSANOW, &termios)?;
         let path = nix::unistd::ttyname(&pty.slave)?;
+        // From here on only PC programs hold the far end.
+        drop(pty.slave);
         let near_end = File::from(pty.master);
         let reader = near_end.try_clone()?;
-        let (line_sender, lines) = cross_thread_queue();
+        let (event_sender, events) = cross_thread_queue();
         thread::Builder::new()
             .name("slcan-reader".into())
             .spawn(move || {
                 let mut reader = reader;
                 let mut assembler = LineAssembler::default();
                 let mut buffer = [0; 256];
-                // Ends on an error, which the bridge learns when the queue ends.
-                while let Ok(count @ 1..) = reader.read(&mut buffer) {
-                    for line in assembler.push(&buffer[..count]) {
-                        line_sender.send(line);
+                let mut in_use = false;
+                // Ends on an error other than "no program has the far end open", which
+                // the bridge learns when the queue ends.
+                loop {
+                    match reader.read(&mut buffer) {
+                        Ok(count @ 1..) => {
+                            in_use = true;
+                            for line in assembler.push(&buffer[..count]) {
+                                event_sender.send(PortEvent::Line(line));
+                            }
+                        }
+                        Err(error) if error.raw_os_error() == Some(Errno::EINTR as i32) => {}
+                        Ok(0) => thread::sleep(IDLE_POLL),
+                        Err(error) if error.raw_os_error() == Some(Errno::EIO as i32) => {
+                            if in_use {
+                                in_use = false;
+                                assembler = LineAssembler::default();
+                                // What the last program did not read is not the next one's.
+                                let _ = tcflush(&reader, FlushArg::TCIOFLUSH);
+                                event_sender.send(PortEvent::Closed);
+                            }
+                            thread::sleep(IDLE_POLL);
+                        }
+                        Err(_) => return,
                     }
                 }
             })?;
@@ -62,8 +100,7 @@ impl SerialPort {
             .spawn(move || write_all_output(near_end, output_queue))?;
         Ok(Self {
             path,
-            _far_end: pty.slave,
-            lines,
+            events,
             output,
         })
     }
@@ -73,9 +110,9 @@ impl SerialPort {
         &self.path
     }
 
-    /// The PC's command lines, without their CR; `None` once the port failed.
-    pub fn lines(&self) -> &QueueReceiver<Vec<u8>> {
-        &self.lines
+    /// The PC's command lines and the port's closing; `None` once the port failed.
+    pub fn events(&self) -> &QueueReceiver<PortEvent> {
+        &self.events
     }
 
     /// Queues bytes for the PC. False if they were dropped because the PC has not
@@ -97,17 +134,55 @@ fn write_all_output(mut near_end: File, output_queue: Receiver<Vec<u8>>) {
 }
 
 /// A symbolic link at a fixed path to the port, so that scripts need not learn the
-/// `/dev/pts/N` number. Removed when dropped, if it still points to this port.
+/// `/dev/pts/N` number, and a lock file beside it (`PATH.lock`, holding the pid) that
+/// says a live simulator serves it. Both are removed when dropped.
 pub struct StableLink {
     link: PathBuf,
     target: PathBuf,
+    lock_path: PathBuf,
+    _lock: Flock<File>,
+}
+
+/// The lock file of `link`: its path with `.lock` appended. basectl looks at it to
+/// tell a live simulator's link from one a killed simulator left behind.
+pub fn lock_path(link: &Path) -> PathBuf {
+    let mut path = link.as_os_str().to_owned();
+    path.push(".lock");
+    PathBuf::from(path)
 }
 
 impl StableLink {
-    /// Points `link` at `target`, replacing an earlier link there (one a simulator
-    /// killed with Ctrl-C left behind). Anything at `link` that is not a symbolic link
-    /// is not touched: that is an error.
+    /// Points `link` at `target`. Refused while another live simulator holds the
+    /// link's lock; a link a dead simulator left behind is replaced. Anything at
+    /// `link` that is not a symbolic link is not touched: that is an error.
     pub fn create(link: &Path, target: &Path) -> io::Result<Self> {
+        let lock_path = lock_path(link);
+        let lock_file = File::options()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&lock_path)?;
+        let lock = match Flock::lock(lock_file, FlockArg::LockExclusiveNonblock) {
+            Ok(lock) => lock,
+            Err((mut file, Errno::EWOULDBLOCK)) => {
+                let mut pid = String::new();
+                let _ = file.read_to_string(&mut pid);
+                return Err(io::Error::new(
+                    io::ErrorKind::AddrInUse,
+                    format!(
+                        "{} is served by another simulator (pid {}); stop it, or give this \
+                         one another --link",
+                        link.display(),
+                        pid.trim()
+                    ),
+                ));
+            }
+            Err((_, errno)) => return Err(errno.into()),
+        };
+        lock.set_len(0)?;
+        let mut file: &File = &lock;
+        writeln!(file, "{}", std::process::id())?;
         match std::fs::symlink_metadata(link) {
             Ok(metadata) if metadata.file_type().is_symlink() => std::fs::remove_file(link)?,
             Ok(_) => {
@@ -123,6 +198,8 @@ impl StableLink {
         Ok(Self {
             link: link.to_owned(),
             target: target.to_owned(),
+            lock_path,
+            _lock: lock,
         })
     }
 
@@ -133,9 +210,9 @@ impl StableLink {
 
 impl Drop for StableLink {
     fn drop(&mut self) {
-        // Another simulator may have taken the link over since.
         if std::fs::read_link(&self.link).is_ok_and(|target| target == self.target) {
             let _ = std::fs::remove_file(&self.link);
         }
+        let _ = std::fs::remove_file(&self.lock_path);
     }
 }

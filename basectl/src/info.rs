@@ -1,0 +1,142 @@
+//! `info`: the controller in one shot: firmware and register-map versions, mode,
+//! control source, flags, faults (flash among them), drive alarm, error counters,
+//! battery and pose.
+
+use std::io::Write;
+use std::time::{Duration, Instant};
+
+use base_core::registers::Reg;
+use serde_json::json;
+
+use crate::config::version_text;
+use crate::controller::{Controller, Error};
+use crate::monitor::{fault_names, flag_names};
+use crate::rejection;
+
+/// The longest `info` waits for the battery report (it comes every `volt_time`).
+const LONGEST_LISTEN: Duration = Duration::from_secs(10);
+
+pub fn info(
+    controller: &mut Controller,
+    json_output: bool,
+    out: &mut dyn Write,
+) -> Result<(), Error> {
+    let [firmware, regmap, volt_time] =
+        controller.read_registers([Reg::FwVersion, Reg::RegmapVersion, Reg::VoltTime])?;
+    let status = controller.next_status()?;
+    // The battery report comes every volt_time (5 s by default): wait for one.
+    let listen = (Duration::from_millis(u64::from(volt_time)) + Duration::from_millis(500))
+        .min(LONGEST_LISTEN);
+    let deadline = Instant::now() + listen;
+    while controller.battery().is_none() || controller.pose().is_none() {
+        let remaining = deadline.saturating_duration_since(Instant::now());
+        if remaining.is_zero() {
+            break;
+        }
+        if controller.next_report(remaining)?.is_none() {
+            break;
+        }
+    }
+    let flags = flag_names(&status.flags);
+    let faults = fault_names(&status.faults);
+    let last_rejection = rejection::name(status.last_rejection)
+        .map_or_else(|| format!("0x{:02X}", status.last_rejection), str::to_owned);
+    let battery = controller.battery();
+    let pose = controller.pose();
+    if json_output {
+        let object = json!({
+            "firmware_version": version_text(firmware),
+            "regmap_version": regmap,
+            "mode": format!("{:?}", status.mode),
+            "control": format!("{:?}", status.control),
+            "flags": flags,
+            "faults": faults,
+            "flash_ok": !status.faults.flash,
+            "drive_alarm": status.drive_alarm,
+            "rejected_count": status.rejected_count,
+            "last_rejection": if status.last_rejection == 0 { None } else { Some(last_rejection) },
+            "last_rejection_subject": status.last_rejection_subject,
+            "modbus_errors": status.modbus_errors,
+            "battery_percent": battery.map(|(percent, _)| percent),
+            "battery_mv": battery.map(|(_, millivolts)| millivolts),
+            "pose": pose.map(|pose| json!({"x_mm": pose.x_mm, "y_mm": pose.y_mm, "heading_mrad": pose.heading_mrad})),
+            "weight_g": controller.weight_g(),
+        });
+        writeln!(out, "{object}")?;
+        return Ok(());
+    }
+    let list = |names: &[&str]| {
+        if names.is_empty() {
+            "none".to_owned()
+        } else {
+            names.join(", ")
+        }
+    };
+    writeln!(out, "firmware        {}", version_text(firmware))?;
+    writeln!(out, "register map    {regmap}")?;
+    writeln!(
+        out,
+        "mode            {:?} (control: {:?})",
+        status.mode, status.control
+    )?;
+    writeln!(out, "flags           {}", list(&flags))?;
+    writeln!(out, "faults          {}", list(&faults))?;
+    writeln!(
+        out,
+        "flash           {}",
+        if status.faults.flash {
+            "FAULT (registers may be lost at power-off)"
+        } else {
+            "ok"
+        }
+    )?;
+    writeln!(
+        out,
+        "drives          {}; last alarm code 0x{:02X}",
+        if status.faults.left_drive_silent || status.faults.right_drive_silent {
+            "not answering"
+        } else if status.faults.left_drive_alarm || status.faults.right_drive_alarm {
+            "ALARM"
+        } else {
+            "ok"
+        },
+        status.drive_alarm
+    )?;
+    writeln!(out, "modbus errors   {}", status.modbus_errors)?;
+    writeln!(
+        out,
+        "rejected frames {} (last: {})",
+        status.rejected_count,
+        if status.last_rejection == 0 {
+            "none".to_owned()
+        } else {
+            format!(
+                "{last_rejection} on 0x{:02X}",
+                status.last_rejection_subject
+            )
+        }
+    )?;
+    match battery {
+        Some((percent, millivolts)) => {
+            writeln!(out, "battery         {millivolts} mV, {percent} %")?
+        }
+        None => writeln!(
+            out,
+            "battery         no report within {} ms",
+            listen.as_millis()
+        )?,
+    }
+    match pose {
+        Some(pose) => writeln!(
+            out,
+            "pose            x {} mm, y {} mm, heading {} mrad",
+            pose.x_mm, pose.y_mm, pose.heading_mrad
+        )?,
+        None => writeln!(
+            out,
+            "pose            no report within {} ms",
+            listen.as_millis()
+        )?,
+    }
+    Ok(())
+}

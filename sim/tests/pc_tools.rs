@@ -1,0 +1,452 @@
+//! The PC tools together against the simulator binary: basectl (run as a program, in
+//! a child process) and python-can share the bus through the socketcand server; an
+//! SLCAN port serves one program and tells a second it is busy; Ctrl-C closes
+//! basectl's channel.
+//!
+//! Only this package's tests can name the simulator binary, and only basectl's the
+//! basectl binary; so the test binary runs basectl's `main` in a child process of
+//! itself (see [`basectl_child`]), the same function `basectl`'s `main.rs` calls.
+
+use std::io::{BufRead, BufReader, Write};
+use std::path::PathBuf;
+use std::process::{Child, Command, Output, Stdio};
+use std::sync::mpsc::{Receiver, channel};
+use std::thread;
+use std::time::{Duration, Instant};
+
+const CHILD_ARGS: &str = "BASECTL_TEST_CHILD_ARGS";
+
+/// Not a test: the body of a basectl child process. Other tests start this test
+/// binary with `--ignored --exact basectl_child` and basectl's arguments in
+/// `BASECTL_TEST_CHILD_ARGS` (separated by newlines).
+#[test]
+#[ignore = "runs basectl for the other tests, in a child process"]
+fn basectl_child() {
+    let args =
+        std::env::var(CHILD_ARGS).expect("started by another test, with basectl's arguments");
+    let args = std::iter::once("basectl".into()).chain(args.split('\n').map(Into::into));
+    let code = basectl::cli::main(args);
+    let _ = std::io::stdout().flush();
+    // ExitCode has no accessor: compare with the two codes main returns itself.
+    std::process::exit(if code == std::process::ExitCode::SUCCESS {
+        0
+    } else {
+        1
+    });
+}
+
+/// basectl with `args`, as a child process.
+fn basectl(args: &[&str]) -> Command {
+    let mut command = Command::new(std::env::current_exe().unwrap());
+    command
+        .args([
+            "--ignored",
+            "--exact",
+            "basectl_child",
+            "--nocapture",
+            "--test-threads=1",
+        ])
+        .env(CHILD_ARGS, args.join("\n"))
+        .env_remove("BASECTL_INTERFACE")
+        .env_remove("BASECTL_CHANNEL")
+        .stdin(Stdio::null());
+    command
+}
+
+/// What basectl printed, without the test harness's own lines.
+fn printed(output: &[u8]) -> String {
+    // The harness writes "test basectl_child ... " and basectl's first line follows it.
+    String::from_utf8_lossy(output)
+        .lines()
+        .map(|line| line.strip_prefix("test basectl_child ... ").unwrap_or(line))
+        .filter(|line| {
+            !line.starts_with("running 1 test")
+                && !line.starts_with("test result")
+                && !line.trim().is_empty()
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+struct Simulator {
+    child: Child,
+    link: PathBuf,
+    socketcand: String,
+    stdout: Receiver<String>,
+}
+
+impl Simulator {
+    fn start(name: &str) -> Self {
+        let directory =
+            std::env::temp_dir().join(format!("pc-tools-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&directory);
+        std::fs::create_dir_all(&directory).unwrap();
+        let link = directory.join("slcan");
+        let mut child = Command::new(env!("CARGO_BIN_EXE_virtual-base-controller"))
+            .arg("--link")
+            .arg(&link)
+            .arg("--flash")
+            .arg(directory.join("flash.bin"))
+            .args(["--socketcand", "127.0.0.1:0"])
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("the simulator starts");
+        let (sender, stdout) = channel();
+        let lines = BufReader::new(child.stdout.take().unwrap()).lines();
+        thread::spawn(move || {
+            for line in lines.map_while(Result::ok) {
+                let _ = sender.send(line);
+            }
+        });
+        let socketcand = loop {
+            let line = stdout
+                .recv_timeout(Duration::from_secs(10))
+                .expect("the simulator names its socketcand address");
+            if let Some(address) = line.strip_prefix("socketcand:") {
+                break address.trim().split(',').next().unwrap().to_owned();
+            }
+        };
+        // The drives boot within the first second; let the controller reach standby.
+        thread::sleep(Duration::from_millis(1500));
+        Self {
+            child,
+            link,
+            socketcand,
+            stdout,
+        }
+    }
+
+    fn link(&self) -> &str {
+        self.link.to_str().unwrap()
+    }
+
+    fn wait_for_line(&self, text: &str, timeout: Duration) -> Option<String> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            let line = self
+                .stdout
+                .recv_timeout(deadline.saturating_duration_since(Instant::now()))
+                .ok()?;
+            if line.contains(text) {
+                return Some(line);
+            }
+        }
+    }
+}
+
+impl Drop for Simulator {
+    fn drop(&mut self) {
+        let _ = writeln!(self.child.stdin.as_mut().unwrap(), "quit");
+        let _ = self.child.wait();
+    }
+}
+
+fn finished(child: Child, what: &str) -> Output {
+    let output = child.wait_with_output().unwrap();
+    assert!(
+        output.status.success(),
+        "{what}: {}\nstdout:\n{}\nstderr:\n{}",
+        output.status,
+        printed(&output.stdout),
+        String::from_utf8_lossy(&output.stderr)
+    );
+    output
+}
+
+#[test]
+fn writing_the_restore_key_to_command_succeeds_and_says_what_it_did() {
+    let simulator = Simulator::start("command");
+    let output = basectl(&[
+        "--channel",
+        &simulator.socketcand,
+        "reg",
+        "set",
+        "command",
+        "0xDEF0",
+    ])
+    .output()
+    .unwrap();
+    let text = printed(&output.stdout);
+    assert!(
+        output.status.success(),
+        "{text}\n{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    assert!(
+        text.contains("command 0xDEF0: every writable register is back at its default"),
+        "{text}"
+    );
+}
+
+#[test]
+fn a_second_program_on_the_slcan_port_is_told_it_is_busy() {
+    let simulator = Simulator::start("busy");
+    let first = basectl::bus::SlcanPort::open(simulator.link(), 500_000).unwrap();
+    let output = basectl(&[
+        "--interface",
+        "slcan",
+        "--channel",
+        simulator.link(),
+        "reg",
+        "get",
+        "fw_version",
+    ])
+    .output()
+    .unwrap();
+    assert!(!output.status.success());
+    let error = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        error.contains("is busy: another program has the SLCAN adapter open"),
+        "{error}"
+    );
+    drop(first);
+    // Once the first one has closed it, the port is free again.
+    let output = basectl(&[
+        "--interface",
+        "slcan",
+        "--channel",
+        simulator.link(),
+        "reg",
+        "get",
+        "fw_version",
+    ])
+    .output()
+    .unwrap();
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+}
+
+#[test]
+fn ctrl_c_closes_basectls_slcan_channel_and_frees_the_port() {
+    use nix::sys::signal::{Signal, kill};
+    use nix::unistd::Pid;
+    let simulator = Simulator::start("ctrl-c");
+    let monitor = basectl(&[
+        "--interface",
+        "slcan",
+        "--channel",
+        simulator.link(),
+        "monitor",
+    ])
+    .stdout(Stdio::piped())
+    .spawn()
+    .unwrap();
+    simulator
+        .wait_for_line("slcan: channel opened", Duration::from_secs(10))
+        .expect("basectl opened the channel");
+    thread::sleep(Duration::from_millis(500));
+    kill(Pid::from_raw(monitor.id() as i32), Signal::SIGINT).unwrap();
+    let output = monitor.wait_with_output().unwrap();
+    assert_eq!(
+        output.status.code(),
+        Some(130),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    simulator
+        .wait_for_line("slcan: channel closed", Duration::from_secs(5))
+        .expect("Ctrl-C closed the channel");
+    basectl::bus::SlcanPort::open(simulator.link(), 500_000).expect("the port is free again");
+}
+
+#[test]
+fn monitor_a_python_logger_register_commands_and_a_calibration_run_at_once() {
+    let simulator = Simulator::start("together");
+    let address = simulator.socketcand.clone();
+    let (host, port) = address.rsplit_once(':').unwrap();
+    let started = Instant::now();
+    let monitor = basectl(&[
+        "--channel",
+        &address,
+        "monitor",
+        "--scroll",
+        "--seconds",
+        "14",
+    ])
+    .stdout(Stdio::piped())
+    .spawn()
+    .unwrap();
+    let logger = Command::new("python3")
+        .arg(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/tests/python/socketcand_logger.py"
+        ))
+        .args([host, port, "12"])
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("python3 runs (CI installs python-can, see .ci/run)");
+    let calibration = basectl(&[
+        "--channel",
+        &address,
+        "calibrate",
+        "odometry",
+        "--drive-mm",
+        "300",
+        "--turn-mrad",
+        "1500",
+        "--real-mm",
+        "300",
+        "--real-cw-mrad",
+        "1450",
+        "--real-ccw-mrad",
+        "1450",
+    ])
+    .stdout(Stdio::piped())
+    .spawn()
+    .unwrap();
+    // Two register users at once, each a stream of separate basectl runs.
+    let register_users: Vec<_> = [("status_time", "1000"), ("loop_end_delay", "40")]
+        .into_iter()
+        .map(|(register, value)| {
+            let address = address.clone();
+            thread::spawn(move || {
+                let mut outputs = Vec::new();
+                for round in 0..4 {
+                    let args: Vec<&str> = match round % 2 {
+                        0 => vec!["--channel", &address, "reg", "set", register, value],
+                        _ => vec!["--channel", &address, "reg", "dump"],
+                    };
+                    let output = basectl(&args).output().unwrap();
+                    outputs.push((args.join(" "), output));
+                }
+                outputs
+            })
+        })
+        .collect();
+    for user in register_users {
+        for (command, output) in user.join().unwrap() {
+            assert!(
+                output.status.success(),
+                "basectl {command}: {}\n{}",
+                String::from_utf8_lossy(&output.stderr),
+                printed(&output.stdout)
+            );
+        }
+    }
+    let calibration = finished(calibration, "calibrate odometry");
+    let text = printed(&calibration.stdout);
+    assert!(text.contains("f_lin"), "{text}");
+    let logger = finished(logger, "python-can logger");
+    assert!(String::from_utf8_lossy(&logger.stdout).contains("OK"));
+    let monitor = finished(monitor, "monitor");
+    let text = printed(&monitor.stdout);
+    let statuses = text
+        .lines()
+        .filter(|line| line.starts_with("status"))
+        .count();
+    let seconds = started.elapsed().as_secs().min(14);
+    assert!(
+        statuses as u64 >= seconds.saturating_sub(2),
+        "{statuses} status lines in {seconds} s"
+    );
+}
+
+/// basectl's stdout after a successful run.
+fn run_ok(args: &[impl AsRef<str>]) -> String {
+    let args: Vec<&str> = args.iter().map(AsRef::as_ref).collect();
+    let output = basectl(&args).output().unwrap();
+    let text = printed(&output.stdout);
+    assert!(
+        output.status.success(),
+        "basectl {}: {}\n{text}",
+        args.join(" "),
+        String::from_utf8_lossy(&output.stderr)
+    );
+    text
+}
+
+#[test]
+fn config_save_then_factory_reset_then_config_load_restores_every_register() {
+    let simulator = Simulator::start("config");
+    let socketcand = simulator.socketcand.clone();
+    let with = |args: &[&str]| -> Vec<String> {
+        ["--channel", socketcand.as_str()]
+            .iter()
+            .chain(args)
+            .map(|arg| (*arg).to_owned())
+            .collect()
+    };
+    // A commissioned robot: values away from the defaults, the battery limits both
+    // above the default full voltage (so they must be written in the right order).
+    for (register, value) in [
+        ("loop_end_delay", "40"),
+        ("batt_full_mv", "30000"),
+        ("batt_empty_mv", "27000"),
+        ("f_lin", "10200"),
+        ("rad_r", "150"),
+    ] {
+        run_ok(&with(&["reg", "set", register, value]));
+    }
+    let before = run_ok(&with(&["--json", "reg", "dump"]));
+    let file = std::env::temp_dir().join(format!("pc-tools-config-{}.json", std::process::id()));
+    let file = file.to_str().unwrap();
+    let saved = run_ok(&with(&["config", "save", file]));
+    assert!(saved.contains("saved"), "{saved}");
+    let text = std::fs::read_to_string(file).unwrap();
+    assert!(text.contains("\"regmap_version\""), "{text}");
+    assert!(text.contains("\"unit\": \"mV\""), "{text}");
+
+    run_ok(&with(&["reg", "restore", "--yes"]));
+    let reset = run_ok(&with(&["--json", "reg", "dump"]));
+    assert_ne!(reset, before, "the factory reset changed the registers");
+
+    let loaded = run_ok(&with(&["config", "load", file]));
+    assert!(loaded.contains("batt_full_mv"), "{loaded}");
+    let full = loaded.find("batt_full_mv").unwrap();
+    let empty = loaded.find("batt_empty_mv").unwrap();
+    assert!(full < empty, "full is raised before empty: {loaded}");
+    let after = run_ok(&with(&["--json", "reg", "dump"]));
+    assert_eq!(after, before, "every register is back");
+
+    // Loading the same file again writes nothing.
+    let again = run_ok(&with(&["config", "load", file]));
+    assert!(again.contains("nothing to write"), "{again}");
+
+    // A file whose values break a range or a rule is refused before anything is written.
+    let broken = text.replace("\"value\": 27000", "\"value\": 31000");
+    std::fs::write(file, broken).unwrap();
+    let args = with(&["config", "load", file]);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let output = basectl(&args).output().unwrap();
+    assert!(!output.status.success());
+    let error = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        error.contains("rule batt_empty_mv < batt_full_mv is broken (batt_empty_mv = 31000, batt_full_mv = 30000)"),
+        "{error}"
+    );
+    assert_eq!(run_ok(&with(&["--json", "reg", "dump"])), before);
+    let _ = std::fs::remove_file(file);
+}
+
+#[test]
+fn info_tells_versions_mode_faults_and_counters_in_one_shot_also_as_json() {
+    let simulator = Simulator::start("info");
+    let text = run_ok(&["--channel", &simulator.socketcand, "info"]);
+    for part in [
+        "firmware",
+        "register map    2",
+        "mode            Standby",
+        "flash           ",
+        "modbus errors",
+        "battery",
+    ] {
+        assert!(text.contains(part), "{part:?} in\n{text}");
+    }
+    let json = run_ok(&["--channel", &simulator.socketcand, "--json", "info"]);
+    let value: serde_json::Value = serde_json::from_str(&json).unwrap();
+    assert_eq!(value["regmap_version"], 2);
+    assert_eq!(value["mode"], "Standby");
+    // A fresh flash file is blank, which the controller reports as a flash fault.
+    let flash_fault = value["faults"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .any(|fault| fault == "flash");
+    assert_eq!(value["flash_ok"], !flash_fault);
+    assert!(value["battery_mv"].as_u64().is_some(), "{json}");
+}

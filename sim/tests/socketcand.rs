@@ -1,0 +1,193 @@
+//! The simulator's socketcand server end to end: python-can programs share the bus
+//! through it, and a client that stops reading is dropped without holding up the bus
+//! or the other clients.
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::TcpStream;
+use std::os::fd::AsFd;
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc::{Receiver, channel};
+use std::thread;
+use std::time::{Duration, Instant};
+
+/// The simulator with its socketcand server on a free port; its stdout lines are
+/// collected for the tests to look at.
+struct Simulator {
+    child: Child,
+    port: u16,
+    stdout: Receiver<String>,
+    _directory: PathBuf,
+}
+
+impl Simulator {
+    fn start(name: &str) -> Self {
+        let directory =
+            std::env::temp_dir().join(format!("socketcand-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&directory);
+        std::fs::create_dir_all(&directory).unwrap();
+        let mut child = Command::new(env!("CARGO_BIN_EXE_virtual-base-controller"))
+            .arg("--link")
+            .arg(directory.join("slcan"))
+            .arg("--flash")
+            .arg(directory.join("flash.bin"))
+            .args(["--socketcand", "127.0.0.1:0"])
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("the simulator starts");
+        let (sender, stdout) = channel();
+        let lines = BufReader::new(child.stdout.take().unwrap()).lines();
+        thread::spawn(move || {
+            for line in lines.map_while(Result::ok) {
+                let _ = sender.send(line);
+            }
+        });
+        let port = loop {
+            let line = stdout
+                .recv_timeout(Duration::from_secs(10))
+                .expect("the simulator names its socketcand address");
+            if let Some(address) = line.strip_prefix("socketcand:") {
+                let address = address.trim().split(',').next().unwrap();
+                break address.rsplit(':').next().unwrap().parse().unwrap();
+            }
+        };
+        Self {
+            child,
+            port,
+            stdout,
+            _directory: directory,
+        }
+    }
+
+    /// Waits for a stdout line containing `text`.
+    fn wait_for_line(&self, text: &str, timeout: Duration) -> Option<String> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            let line = self
+                .stdout
+                .recv_timeout(deadline.saturating_duration_since(Instant::now()))
+                .ok()?;
+            if line.contains(text) {
+                return Some(line);
+            }
+        }
+    }
+}
+
+impl Drop for Simulator {
+    fn drop(&mut self) {
+        let _ = writeln!(self.child.stdin.as_mut().unwrap(), "quit");
+        let _ = self.child.wait();
+    }
+}
+
+/// A socketcand client by hand: connects and goes through the handshake.
+fn connect(port: u16) -> TcpStream {
+    let mut stream = TcpStream::connect(("127.0.0.1", port)).unwrap();
+    stream
+        .set_read_timeout(Some(Duration::from_secs(5)))
+        .unwrap();
+    let mut expect = |send: Option<&str>, reply: &str| {
+        if let Some(send) = send {
+            stream.write_all(send.as_bytes()).unwrap();
+        }
+        let mut buffer = vec![0; reply.len()];
+        stream.read_exact(&mut buffer).unwrap();
+        assert_eq!(String::from_utf8(buffer).unwrap(), reply);
+    };
+    expect(None, "< hi >");
+    expect(Some("< open can0 >"), "< ok >");
+    expect(Some("< rawmode >"), "< ok >");
+    stream
+}
+
+#[test]
+fn python_can_programs_share_the_bus_and_none_loses_a_frame_or_a_reply() {
+    let simulator = Simulator::start("python");
+    let script = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/python/socketcand_clients.py"
+    );
+    let output = Command::new("python3")
+        .arg(script)
+        .args(["127.0.0.1", &simulator.port.to_string(), "4"])
+        .output()
+        .expect("python3 runs (CI installs python-can, see .ci/run)");
+    let text = String::from_utf8_lossy(&output.stdout);
+    let errors = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        output.status.success(),
+        "{text}\n{errors}\n(needs python-can: pip install python-can)"
+    );
+    assert!(text.contains("OK: 4 python-can clients"), "{text}");
+}
+
+#[test]
+fn a_client_that_stops_reading_is_dropped_and_the_others_get_every_frame() {
+    let simulator = Simulator::start("slow");
+    // The slow client reads nothing after its handshake, through a small receive
+    // buffer so that its backlog reaches the server's queue soon.
+    let slow = connect(simulator.port);
+    nix::sys::socket::setsockopt(&slow.as_fd(), nix::sys::socket::sockopt::RcvBuf, &2048).unwrap();
+    let mut sender = connect(simulator.port);
+    let mut listener = connect(simulator.port);
+    // Frames start flowing a moment after the handshake.
+    thread::sleep(Duration::from_millis(200));
+
+    const FRAMES: usize = 20_000;
+    let counter = thread::spawn(move || {
+        let mut reader = BufReader::new(listener.try_clone().unwrap());
+        let mut seen = 0;
+        let mut next = 0;
+        let mut message = Vec::new();
+        while seen < FRAMES {
+            message.clear();
+            if reader.read_until(b'>', &mut message).unwrap_or(0) == 0 {
+                break;
+            }
+            let text = String::from_utf8_lossy(&message);
+            if let Some(rest) = text.trim().strip_prefix("< frame 7F0 ") {
+                // "SECS.USECS DATA >": the data is the frame's number, big-endian.
+                let data = rest.split_whitespace().nth(1).unwrap();
+                let number = usize::from_str_radix(data, 16).unwrap();
+                assert_eq!(number, next, "frames arrive in order, none missing");
+                next += 1;
+                seen += 1;
+            }
+        }
+        listener.write_all(b"< send 004 2 1 f >").unwrap();
+        (seen, reader)
+    });
+    // About the most a 500 kbit/s bus carries: 40 frames every 5 ms.
+    for chunk in (0..FRAMES).collect::<Vec<_>>().chunks(40) {
+        let mut burst = String::new();
+        for &number in chunk {
+            let [high, low] = (number as u16).to_be_bytes();
+            burst.push_str(&format!("< send 7F0 2 {high:x} {low:x} >"));
+        }
+        sender.write_all(burst.as_bytes()).unwrap();
+        thread::sleep(Duration::from_millis(5));
+    }
+    let (seen, mut reader) = counter.join().unwrap();
+    assert_eq!(seen, FRAMES, "the listening client got every frame");
+    // And the bus still answers it: register 15's reply.
+    let mut message = Vec::new();
+    let deadline = Instant::now() + Duration::from_secs(5);
+    loop {
+        assert!(Instant::now() < deadline, "no register reply");
+        message.clear();
+        reader.read_until(b'>', &mut message).unwrap();
+        let text = String::from_utf8_lossy(&message);
+        if text.contains("< frame 004 ") {
+            assert!(text.trim().ends_with(" 000032 >"), "{text}");
+            break;
+        }
+    }
+    let dropped = simulator
+        .wait_for_line("dropped", Duration::from_secs(5))
+        .expect("the simulator logs the slow client's drop");
+    assert!(dropped.contains("client 1"), "{dropped}");
+    drop(slow);
+}
