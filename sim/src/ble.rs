@@ -15,6 +15,7 @@
 
 use std::io::{self, Read as _, Write as _};
 use std::net::TcpStream;
+use std::path::{Path, PathBuf};
 
 use base_controller::app::{self, channels::Channels, remote};
 use bt_hci::controller::ExternalController;
@@ -23,6 +24,7 @@ use embassy_futures::join::join;
 use embassy_futures::select::{Either, select};
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 
+use crate::file_flash::FileFlash;
 use crate::flash::{ERASE_SIZE, RamFlash};
 use crate::robot::{Pc, VirtualRobot};
 use crate::runtime::{QueueReceiver, block_on_realtime, cross_thread_queue};
@@ -233,6 +235,53 @@ impl RemoteRobot {
                 Either::Second(result) => result,
             }
         })
+    }
+}
+
+/// The live simulator's remote (`--hci`): the controller, and the bond in a file beside
+/// the register flash, so a paired pad stays paired across restarts.
+pub struct LiveRemote {
+    controller: HostController,
+    bond_flash: FileFlash,
+    pub bond_path: PathBuf,
+}
+
+impl LiveRemote {
+    /// Opens the transport and the bond file (next to `flash_path`, `.bond` added).
+    pub fn open(spec: &HciSpec, flash_path: &Path) -> io::Result<LiveRemote> {
+        let mut bond_path = flash_path.as_os_str().to_owned();
+        bond_path.push(".bond");
+        let bond_path = PathBuf::from(bond_path);
+        let bond_flash = FileFlash::open(&bond_path, BOND_FLASH_SIZE)?;
+        let controller = open(spec).map_err(|error| {
+            io::Error::new(
+                error.kind(),
+                format!("HCI transport {spec:?} does not answer: {error}"),
+            )
+        })?;
+        Ok(LiveRemote {
+            controller,
+            bond_flash,
+            bond_path,
+        })
+    }
+}
+
+/// Runs the remote if there is one; without one, waits for ever (the base runs
+/// without a remote, as a chip without its radio does).
+pub async fn run_live_remote(remote: Option<LiveRemote>, channels: &Channels) {
+    match remote {
+        Some(remote) => {
+            remote::run(
+                remote.controller,
+                remote::random_static_address(&ROBOT_MAC),
+                remote.bond_flash,
+                0..BOND_FLASH_SIZE as u32,
+                channels,
+            )
+            .await
+        }
+        None => core::future::pending().await,
     }
 }
 

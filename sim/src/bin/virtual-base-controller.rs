@@ -3,6 +3,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use virtual_robot::ble::HciSpec;
 use virtual_robot::simulator::{self, DEFAULT_LINK, Demo, Options, console::HELP};
 
 fn usage() -> String {
@@ -11,6 +12,7 @@ fn usage() -> String {
 on the wall clock, with an SLCAN (Lawicel) serial port for the robot PC's software.
 
 usage: virtual-base-controller [--link PATH | --no-link] [--flash PATH] [--demo [--stay]]
+                               [--hci tcp:HOST:PORT]
 
   --link PATH   symbolic link to the serial port (default {DEFAULT_LINK})
   --no-link     make no link; the port's /dev/pts path is printed at start
@@ -18,6 +20,12 @@ usage: virtual-base-controller [--link PATH | --no-link] [--flash PATH] [--demo 
                 restarts (default {})
   --demo        drive a short path by itself, show the odometry, then quit
   --stay        with --demo: keep running afterwards
+  --hci tcp:HOST:PORT
+                the Bluetooth remote: a Bluetooth controller behind an HCI
+                transport (H4 over TCP), e.g. the Bumble gamepad peer
+                (sim/ble-peer/bumble_gamepad.py) or a USB dongle behind Bumble's
+                HCI bridge; the bond is kept in the flash file + .bond.
+                docs/remote.md says how to pair a pad and drive
   --help        this text
 
 Connect: python-can  can.Bus(interface=\"slcan\", channel=\"{DEFAULT_LINK}\", bitrate=500000)
@@ -34,6 +42,7 @@ fn parse_options(mut args: impl Iterator<Item = String>) -> Result<Option<Option
         flash_path: simulator::default_flash_path(),
         link: Some(PathBuf::from(DEFAULT_LINK)),
         demo: Demo::Off,
+        hci: None,
     };
     let mut stay = false;
     while let Some(arg) = args.next() {
@@ -44,6 +53,10 @@ fn parse_options(mut args: impl Iterator<Item = String>) -> Result<Option<Option
             "--flash" => options.flash_path = args.next().ok_or("--flash needs a path")?.into(),
             "--demo" => options.demo = Demo::ThenQuit,
             "--stay" => stay = true,
+            "--hci" => {
+                let spec = args.next().ok_or("--hci needs tcp:HOST:PORT")?;
+                options.hci = Some(HciSpec::parse(&spec)?);
+            }
             other => return Err(format!("unknown option {other:?} (see --help)")),
         }
     }

@@ -37,6 +37,8 @@ pub struct Options {
     /// A symbolic link to the serial port at a fixed path, if wanted.
     pub link: Option<PathBuf>,
     pub demo: Demo,
+    /// The Bluetooth controller for the remote (`--hci`), if any.
+    pub hci: Option<crate::ble::HciSpec>,
 }
 
 /// Whether the simulator drives a path by itself.
@@ -89,6 +91,9 @@ pub fn run(options: &Options) -> io::Result<()> {
     ));
     output.message("type help for the console commands");
 
+    let remote = (options.hci.as_ref())
+        .map(|spec| crate::ble::LiveRemote::open(spec, &options.flash_path))
+        .transpose()?;
     let console_lines = read_stdin_lines()?;
     let (can_rx, can_tx, peer) = VirtualCan::new();
     let hardware = Hardware {
@@ -120,14 +125,17 @@ pub fn run(options: &Options) -> io::Result<()> {
             demo(options.demo, &view),
         );
         match select4(
-            app::run(hardware, robot.settings, &channels),
+            embassy_futures::join::join(
+                app::run(hardware, robot.settings, &channels),
+                crate::ble::run_live_remote(remote, &channels),
+            ),
             bridge_slcan(&port, &view),
             show_status(&view),
             ending,
         )
         .await
         {
-            Either4::First(never) | Either4::Second(never) | Either4::Third(never) => never,
+            Either4::First((never, ())) | Either4::Second(never) | Either4::Third(never) => never,
             Either4::Fourth(_) => {}
         }
     });
