@@ -23,7 +23,7 @@ use embassy_futures::select::{Either, select};
 use embassy_time::{Duration, Instant, Timer};
 use embedded_hal::digital::PinState;
 
-use crate::can::{CanPeer, VirtualCan};
+use crate::can::{CanPeer, CanRxPort, CanTxPort, VirtualCan};
 use crate::drives::{DrivesConfig, DrivesHandle, DrivesPort};
 use crate::flash::RamFlash;
 use crate::io::{SimBattery, SimLoadCell, SimPin, SimWatchdog};
@@ -33,6 +33,21 @@ use crate::runtime::block_on;
 pub const FLASH_SIZE: u32 = 4 * 4096;
 /// The board's hardware watchdog timeout.
 pub const WATCHDOG_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// The virtual robot's hardware as the firmware's tasks take it.
+pub type SimHardware = Hardware<
+    CanRxPort,
+    CanTxPort,
+    DrivesPort,
+    RamFlash,
+    SimPin,
+    SimPin,
+    SimPin,
+    SimPin,
+    SimBattery,
+    SimLoadCell,
+    SimWatchdog,
+>;
 
 pub struct VirtualRobot {
     pub settings: Settings,
@@ -84,25 +99,8 @@ impl VirtualRobot {
     /// Boots the controller and runs `script` beside it, with the robot PC's end of
     /// the CAN bus; returns what the script returns.
     pub fn run<T>(&self, script: impl AsyncFnOnce(&Pc) -> T) -> T {
-        let (can_rx, can_tx, peer) = VirtualCan::new();
-        let drives = self.drives.port();
-        let hardware = Hardware {
-            can_rx,
-            can_tx,
-            drives,
-            flash: self.flash.clone(),
-            flash_range: 0..FLASH_SIZE,
-            estop: self.estop.clone(),
-            safety_zone: self.safety_zone.clone(),
-            button: self.button.clone(),
-            pc_switch: self.pc_switch.clone(),
-            battery: self.battery.clone(),
-            load_cell: self.load_cell.clone(),
-            watchdog: self.watchdog.clone(),
-            reset_by_watchdog: self.reset_by_watchdog,
-        };
+        let (hardware, pc) = self.boot();
         let channels = Channels::new();
-        let pc = Pc { peer };
         block_on(async {
             match select(
                 base_runtime::run(hardware, self.settings, &channels),
@@ -114,6 +112,28 @@ impl VirtualRobot {
                 Either::Second(result) => result,
             }
         })
+    }
+
+    /// The hardware of one boot, and the robot PC's end of its CAN bus: for runs that
+    /// add tasks beside the firmware's (the Bluetooth remote, see [`crate::ble`]).
+    pub fn boot(&self) -> (SimHardware, Pc) {
+        let (can_rx, can_tx, peer) = VirtualCan::new();
+        let hardware = Hardware {
+            can_rx,
+            can_tx,
+            drives: self.drives.port(),
+            flash: self.flash.clone(),
+            flash_range: 0..FLASH_SIZE,
+            estop: self.estop.clone(),
+            safety_zone: self.safety_zone.clone(),
+            button: self.button.clone(),
+            pc_switch: self.pc_switch.clone(),
+            battery: self.battery.clone(),
+            load_cell: self.load_cell.clone(),
+            watchdog: self.watchdog.clone(),
+            reset_by_watchdog: self.reset_by_watchdog,
+        };
+        (hardware, Pc { peer })
     }
 
     pub fn press_estop(&self) {

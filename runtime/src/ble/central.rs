@@ -9,7 +9,17 @@
 //! Security: a pad drives only over an encrypted link with the stored bond. A new pad
 //! is paired only while the controller holds the pairing window open (a deliberate
 //! act on the robot); outside it the task connects to the bonded address alone and
-//! refuses to pair. One bond is kept: pairing a new pad replaces the old one.
+//! refuses to pair: it never asks for security itself there (trouble would answer a
+//! failed bonded encryption with a fresh Pairing Request), it lets the GATT client
+//! encrypt with the stored key, and it drops a link that is not encrypted with it or
+//! on which any pairing happens. One bond is kept: pairing a new pad replaces the old
+//! one.
+//!
+//! A failed attempt (a connection that fails, a pad that does not pair, a pad at the
+//! bonded address without its key) is followed by a back-off, 1 s doubling up to 32 s,
+//! so that a pad that keeps failing does not keep the radio and the pad busy.
+//! Connection parameter requests are answered with our own parameters, whatever the
+//! pad asks for: the 500 ms supervision timeout holds from the first packet on.
 //!
 //! Link loss is the supervision timeout (500 ms, asked for at connection), reported as
 //! [`Input::RemoteLink`] with `connected: false`; pads send reports only on change, so
@@ -20,7 +30,7 @@ use core::ops::Range;
 use bt_hci::cmd::le::LeSetScanParams;
 use bt_hci::controller::ControllerCmdSync;
 use embassy_futures::select::{Either, Either4, select, select4};
-use embassy_time::{Duration, with_timeout};
+use embassy_time::{Duration, Timer, with_timeout};
 use embedded_storage_async::nor_flash::NorFlash;
 use heapless::Vec;
 use sequential_storage::cache::Cache;
@@ -77,6 +87,50 @@ fn connection_params() -> RequestedConnParams {
 const RECONNECT_ATTEMPT: Duration = Duration::from_secs(5);
 /// How long pairing may take once a pad is connected.
 const PAIRING_TIMEOUT: Duration = Duration::from_secs(15);
+/// The first wait after a failed attempt; each further failure doubles it.
+const BACKOFF_FIRST: Duration = Duration::from_secs(1);
+/// The longest wait between failed attempts.
+const BACKOFF_MAX: Duration = Duration::from_secs(32);
+
+/// The wait before the next attempt after failures in a row: [`BACKOFF_FIRST`],
+/// doubling up to [`BACKOFF_MAX`]. A success starts over.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Backoff {
+    next: Duration,
+}
+
+impl Default for Backoff {
+    fn default() -> Self {
+        Self {
+            next: BACKOFF_FIRST,
+        }
+    }
+}
+
+impl Backoff {
+    /// The wait after this failure.
+    pub fn after_failure(&mut self) -> Duration {
+        let wait = self.next;
+        self.next = (wait * 2).min(BACKOFF_MAX);
+        wait
+    }
+
+    pub fn reset(&mut self) {
+        *self = Self::default();
+    }
+}
+
+/// How one attempt ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+enum Attempt {
+    /// A pad was served (or paired and served) until its link ended.
+    Served,
+    /// Nothing to blame: no pad answered in time, or the controller's request changed.
+    Idle,
+    /// The connection, the pairing or the encryption failed, or a pad was refused.
+    Failed,
+}
 
 /// Runs the remote forever. `address` is the chip's Bluetooth address (random static),
 /// `bond_flash` over `bond_range` holds the bond.
@@ -122,28 +176,39 @@ where
         channels,
         request: RemoteRequest::default(),
     };
+    let mut backoff = Backoff::default();
     let never = select(runner.run_with_handler(&finder), async {
         loop {
             remote.refresh_request();
-            if remote.request.pairing_open {
-                if let Some((conn, bond)) = remote.pair_new_pad(&mut central, &finder).await {
-                    if let Some(old) = bonded.replace(bond.clone()) {
-                        // The stack holds the new bond already; drop the old pad's,
-                        // unless the same pad paired again.
-                        if old.identity.addr != bond.identity.addr {
-                            let _ = stack.remove_bond_information(old.identity);
+            let attempt = if remote.request.pairing_open {
+                match remote.pair_new_pad(&mut central, &finder).await {
+                    Ok((conn, bond)) => {
+                        if let Some(old) = bonded.replace(bond.clone()) {
+                            // The stack holds the new bond already; drop the old pad's,
+                            // unless the same pad paired again.
+                            if old.identity.addr != bond.identity.addr {
+                                let _ = stack.remove_bond_information(old.identity);
+                            }
                         }
+                        if bonds.store(&bond).await.is_err() {
+                            warn!("remote: the bond could not be stored; it lasts until reboot");
+                        }
+                        report(channels, Input::RemotePaired).await;
+                        remote.serve(&conn).await;
+                        Attempt::Served
                     }
-                    if bonds.store(&bond).await.is_err() {
-                        warn!("remote: the bond could not be stored; it lasts until reboot");
-                    }
-                    report(channels, Input::RemotePaired).await;
-                    remote.serve(&conn).await;
+                    Err(attempt) => attempt,
                 }
             } else if let Some(bond) = &bonded {
-                remote.reconnect(&mut central, bond).await;
+                remote.reconnect(&mut central, bond).await
             } else {
                 remote.wait_for_request().await;
+                Attempt::Idle
+            };
+            match attempt {
+                Attempt::Served => backoff.reset(),
+                Attempt::Idle => {}
+                Attempt::Failed => remote.back_off(backoff.after_failure()).await,
             }
         }
     })
@@ -179,13 +244,24 @@ impl<C: HciController + ControllerCmdSync<LeSetScanParams>> PadLink<'_, '_, C> {
         self.request = self.channels.remote_requests.wait().await;
     }
 
+    /// Waits `wait` before the next attempt; a new request from the controller (the
+    /// pairing window opening, say) ends the wait.
+    async fn back_off(&mut self, wait: Duration) {
+        info!("remote: next attempt in {=u64} ms", wait.as_millis());
+        if let Either::Second(request) =
+            select(Timer::after(wait), self.channels.remote_requests.wait()).await
+        {
+            self.request = request;
+        }
+    }
+
     /// Scans for a gamepad while the pairing window is open, connects and pairs it;
     /// returns the connection and the new bond.
     async fn pair_new_pad<'c>(
         &mut self,
         central: &mut Central<'c, C, DefaultPacketPool>,
         finder: &PadFinder,
-    ) -> Option<(Connection<'c, DefaultPacketPool>, BondInformation)> {
+    ) -> Result<(Connection<'c, DefaultPacketPool>, BondInformation), Attempt> {
         info!("remote: pairing window open, scanning for gamepads");
         let found = {
             let mut scanner = Scanner::new(central);
@@ -194,22 +270,26 @@ impl<C: HciController + ControllerCmdSync<LeSetScanParams>> PadLink<'_, '_, C> {
                 ..ScanConfig::default()
             };
             finder.found.reset();
-            let _session = scanner.scan(&config).await.ok()?;
+            let _session = scanner.scan(&config).await.map_err(|_| Attempt::Failed)?;
             match select(finder.found.wait(), self.channels.remote_requests.wait()).await {
                 Either::First(address) => address,
                 Either::Second(request) => {
                     self.request = request;
-                    return None;
+                    return Err(Attempt::Idle);
                 }
             }
         };
         info!("remote: gamepad found, connecting");
         let targets = [found];
         let config = connect_config(&targets);
-        let conn = central.connect(&config).await.ok()?;
+        let conn = match with_timeout(RECONNECT_ATTEMPT, central.connect(&config)).await {
+            Ok(Ok(conn)) => conn,
+            // The pad stopped advertising, or the controller refused the connection.
+            _ => return Err(Attempt::Failed),
+        };
         if conn.set_bondable(true).is_err() || conn.request_security().is_err() {
             conn.disconnect();
-            return None;
+            return Err(Attempt::Failed);
         }
         let bond = with_timeout(PAIRING_TIMEOUT, async {
             loop {
@@ -219,7 +299,7 @@ impl<C: HciController + ControllerCmdSync<LeSetScanParams>> PadLink<'_, '_, C> {
                         return None;
                     }
                     ConnectionEvent::RequestConnectionParams(request) => {
-                        let _ = request.accept(None, self.stack).await;
+                        answer_params(request, self.stack).await;
                     }
                     _ => {}
                 }
@@ -231,12 +311,12 @@ impl<C: HciController + ControllerCmdSync<LeSetScanParams>> PadLink<'_, '_, C> {
         match bond {
             Some(bond) => {
                 info!("remote: paired and bonded");
-                Some((conn, bond))
+                Ok((conn, bond))
             }
             None => {
                 warn!("remote: pairing failed");
                 conn.disconnect();
-                None
+                Err(Attempt::Failed)
             }
         }
     }
@@ -246,59 +326,110 @@ impl<C: HciController + ControllerCmdSync<LeSetScanParams>> PadLink<'_, '_, C> {
         &mut self,
         central: &mut Central<'_, C, DefaultPacketPool>,
         bond: &BondInformation,
-    ) {
+    ) -> Attempt {
         let targets = [bond.identity.addr];
         let config = connect_config(&targets);
         let attempt = with_timeout(RECONNECT_ATTEMPT, central.connect(&config));
         match select(attempt, self.channels.remote_requests.wait()).await {
             Either::First(Ok(Ok(conn))) => {
-                // Encrypt with the stored bond before anything else; never pair here.
-                if conn.set_bondable(false).is_err() || conn.request_security().is_err() {
+                // Never pair here: not bondable, no security request of ours.
+                if conn.set_bondable(false).is_err() {
                     conn.disconnect();
-                    return;
+                    return Attempt::Failed;
                 }
-                if self.wait_encrypted(&conn).await {
-                    self.serve(&conn).await;
-                } else {
-                    warn!("remote: the bonded pad did not encrypt; disconnected");
-                    conn.disconnect();
+                match self.encrypt_with_bond(&conn).await {
+                    Some(client) => {
+                        self.serve_with(&conn, &client).await;
+                        Attempt::Served
+                    }
+                    None => {
+                        warn!(
+                            "remote: the pad at the bonded address did not encrypt with the bond; refused"
+                        );
+                        conn.disconnect();
+                        Attempt::Failed
+                    }
                 }
             }
-            Either::First(_) => {}
-            Either::Second(request) => self.request = request,
+            // No pad answered within the attempt: nothing failed, try again.
+            Either::First(Err(_)) => Attempt::Idle,
+            Either::First(Ok(Err(_))) => Attempt::Failed,
+            Either::Second(request) => {
+                self.request = request;
+                Attempt::Idle
+            }
         }
     }
 
-    async fn wait_encrypted(&self, conn: &Connection<'_, DefaultPacketPool>) -> bool {
-        with_timeout(PAIRING_TIMEOUT, async {
-            loop {
-                match conn.next().await {
-                    ConnectionEvent::Encrypted { .. } => return conn.is_bonded_peer(),
-                    ConnectionEvent::PairingFailed(_)
-                    | ConnectionEvent::BondLost
-                    | ConnectionEvent::Disconnected { .. } => return false,
-                    ConnectionEvent::RequestConnectionParams(request) => {
-                        let _ = request.accept(None, self.stack).await;
+    /// Encrypts the link with the stored bond, and nothing else: the GATT client asks
+    /// for the bonded encryption (and, unlike our own security request, does not fall
+    /// back to a fresh pairing when it fails). The link counts only if it is encrypted
+    /// afterwards and no failed pairing, lost bond or disconnection came up meanwhile.
+    async fn encrypt_with_bond<'c>(
+        &self,
+        conn: &Connection<'c, DefaultPacketPool>,
+    ) -> Option<GattClient<'c, C, DefaultPacketPool, MAX_SERVICES>> {
+        let secured = with_timeout(
+            PAIRING_TIMEOUT,
+            select(
+                GattClient::<C, DefaultPacketPool, MAX_SERVICES>::new(self.stack, conn),
+                async {
+                    loop {
+                        // The bonded encryption ends in PairingComplete as well; a
+                        // failed one in BondLost (and no fresh pairing, as we did not
+                        // ask for security ourselves).
+                        match conn.next().await {
+                            ConnectionEvent::PairingFailed(_)
+                            | ConnectionEvent::BondLost
+                            | ConnectionEvent::Disconnected { .. } => return,
+                            ConnectionEvent::RequestConnectionParams(request) => {
+                                answer_params(request, self.stack).await;
+                            }
+                            _ => {}
+                        }
                     }
-                    _ => {}
-                }
+                },
+            ),
+        )
+        .await;
+        match secured {
+            Ok(Either::First(Ok(client)))
+                if conn.is_bonded_peer()
+                    && conn
+                        .security_level()
+                        .is_ok_and(|level| level != SecurityLevel::NoEncryption) =>
+            {
+                Some(client)
             }
-        })
-        .await
-        .unwrap_or(false)
+            _ => None,
+        }
     }
 
     /// Discovers the pad's HID service, subscribes to its input reports and forwards
     /// them until the link drops or the controller asks to disconnect.
     async fn serve(&mut self, conn: &Connection<'_, DefaultPacketPool>) {
+        match GattClient::<C, DefaultPacketPool, MAX_SERVICES>::new(self.stack, conn).await {
+            Ok(client) => self.serve_with(conn, &client).await,
+            Err(_) => {
+                self.report_link(true).await;
+                conn.disconnect();
+                self.report_link(false).await;
+            }
+        }
+    }
+
+    /// [`Self::serve`] with the GATT client of the connection.
+    async fn serve_with(
+        &mut self,
+        conn: &Connection<'_, DefaultPacketPool>,
+        client: &GattClient<'_, C, DefaultPacketPool, MAX_SERVICES>,
+    ) {
         self.report_link(true).await;
-        if let Ok(client) =
-            GattClient::<C, DefaultPacketPool, MAX_SERVICES>::new(self.stack, conn).await
         {
             let disconnects_before = self.request.disconnects;
             let outcome = select4(
                 client.task(),
-                forward_reports(&client, self.channels),
+                forward_reports(client, self.channels),
                 watch_link(conn, self.stack),
                 async {
                     loop {
@@ -375,6 +506,9 @@ async fn forward_reports<C: HciController>(
     let mut layout = GamepadLayout::parse(&map[..len.min(MAX_REPORT_MAP)], ids)
         .map_err(|_| HidSetupError::UnusableReportMap)?;
 
+    // Listen before the first CCCD write: the pad may notify as soon as it is
+    // subscribed, and a report lost then (a released dead-man, say) is not repeated.
+    let mut listener = client.listen_all().map_err(|_| HidSetupError::Gatt)?;
     // HOGP notifications carry no report ID: the Report Reference descriptor of each
     // Report characteristic says which one it is.
     let mut inputs: Vec<(u16, u8), MAX_CHARACTERISTICS> = Vec::new();
@@ -405,7 +539,6 @@ async fn forward_reports<C: HciController>(
         let _ = inputs.push((report.handle, report_id));
     }
 
-    let mut listener = client.listen_all().map_err(|_| HidSetupError::Gatt)?;
     info!(
         "remote: gamepad ready, {=usize} input reports",
         inputs.len()
@@ -458,14 +591,24 @@ async fn watch_link<C: HciController>(
 ) {
     loop {
         match conn.next().await {
-            ConnectionEvent::Disconnected { .. } => return,
+            // The bond failed on a link in use (the pad asked for security again and
+            // the stored key did not work): this is not the pad we bonded.
+            ConnectionEvent::Disconnected { .. } | ConnectionEvent::BondLost => return,
             ConnectionEvent::RequestConnectionParams(request) => {
-                // Accept what the pad asks, but the supervision timeout stays ours.
-                let _ = request.accept(Some(&connection_params()), stack).await;
+                answer_params(request, stack).await
             }
             _ => {}
         }
     }
+}
+
+/// Answers a pad's connection parameter request with our parameters, whatever it
+/// asked for: the 500 ms supervision timeout is what stops the base on a dead link.
+async fn answer_params<C: Controller>(
+    request: ConnectionParamsRequest,
+    stack: &Stack<'_, C, DefaultPacketPool>,
+) {
+    let _ = request.accept(Some(&connection_params()), stack).await;
 }
 
 fn connect_config(targets: &[Address]) -> ConnectConfig<'_> {
@@ -579,6 +722,15 @@ mod tests {
     fn the_address_is_the_mac_reversed_with_the_random_static_bits() {
         let address = random_static_address(&[0x10, 0x20, 0x30, 0x40, 0x50, 0x60]);
         assert_eq!(address, [0x60, 0x50, 0x40, 0x30, 0x20, 0xD0]);
+    }
+
+    #[test]
+    fn failures_in_a_row_wait_one_second_doubling_up_to_32_and_a_success_starts_over() {
+        let mut backoff = Backoff::default();
+        let waits: [u64; 8] = core::array::from_fn(|_| backoff.after_failure().as_secs());
+        assert_eq!(waits, [1, 2, 4, 8, 16, 32, 32, 32]);
+        backoff.reset();
+        assert_eq!(backoff.after_failure(), Duration::from_secs(1));
     }
 
     #[test]

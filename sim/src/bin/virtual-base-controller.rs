@@ -3,6 +3,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use virtual_robot::ble::HciSpec;
 use virtual_robot::simulator::{self, DEFAULT_LINK, Demo, Options, console::HELP, socketcand};
 
 fn usage() -> String {
@@ -13,7 +14,7 @@ the robot PC's software.
 
 usage: virtual-base-controller [--link PATH | --no-link] [--socketcand ADDR:PORT |
                                --no-socketcand] [--socketcan IF] [--flash PATH]
-                               [--demo [--stay]]
+                               [--hci tcp:HOST:PORT] [--demo [--stay]]
 
   --link PATH      symbolic link to the serial port (default {DEFAULT_LINK});
                    refused while another simulator serves it
@@ -26,6 +27,12 @@ usage: virtual-base-controller [--link PATH | --no-link] [--socketcand ADDR:PORT
                    for candump, cansend and ros2_socketcan; needs a kernel with CAN
   --flash PATH     file holding the register store's flash, so registers survive
                    restarts (default {})
+  --hci tcp:HOST:PORT
+                   the Bluetooth remote: a Bluetooth controller behind an HCI
+                   transport (H4 over TCP), e.g. the Bumble gamepad peer
+                   (sim/ble-peer/bumble_gamepad.py) or a USB dongle behind Bumble's
+                   HCI bridge; the bond is kept in the flash file + .bond.
+                   docs/remote.md says how to pair a pad and drive
   --demo           drive a short path by itself, show the odometry, then quit
   --stay           with --demo: keep running afterwards
   --help           this text
@@ -57,6 +64,7 @@ fn parse_options(mut args: impl Iterator<Item = String>) -> Result<Option<Option
         ),
         socketcan: None,
         demo: Demo::Off,
+        hci: None,
     };
     let mut stay = false;
     while let Some(arg) = args.next() {
@@ -78,6 +86,10 @@ fn parse_options(mut args: impl Iterator<Item = String>) -> Result<Option<Option
             "--flash" => options.flash_path = args.next().ok_or("--flash needs a path")?.into(),
             "--demo" => options.demo = Demo::ThenQuit,
             "--stay" => stay = true,
+            "--hci" => {
+                let spec = args.next().ok_or("--hci needs tcp:HOST:PORT")?;
+                options.hci = Some(HciSpec::parse(&spec)?);
+            }
             other => return Err(format!("unknown option {other:?} (see --help)")),
         }
     }

@@ -46,6 +46,8 @@ pub struct Options {
     /// A SocketCAN interface to join, if any.
     pub socketcan: Option<String>,
     pub demo: Demo,
+    /// The Bluetooth controller for the remote (`--hci`), if any.
+    pub hci: Option<crate::ble::HciSpec>,
 }
 
 /// Whether the simulator drives a path by itself.
@@ -125,6 +127,9 @@ pub fn run(options: &Options) -> io::Result<()> {
     ));
     output.message("type help for the console commands");
 
+    let remote = (options.hci.as_ref())
+        .map(|spec| crate::ble::LiveRemote::open(spec, &options.flash_path))
+        .transpose()?;
     let console_lines = read_stdin_lines()?;
     let (can_rx, can_tx, peer) = VirtualCan::new();
     let hardware = Hardware {
@@ -158,14 +163,17 @@ pub fn run(options: &Options) -> io::Result<()> {
             signals.receive(),
         );
         match select4(
-            base_runtime::run(hardware, robot.settings, &channels),
+            embassy_futures::join::join(
+                base_runtime::run(hardware, robot.settings, &channels),
+                crate::ble::run_live_remote(remote, &channels),
+            ),
             bridge(&port, &network, socketcan.as_ref(), &view),
             show_status(&view),
             ending,
         )
         .await
         {
-            Either4::First(never) | Either4::Second(never) | Either4::Third(never) => never,
+            Either4::First((never, ())) | Either4::Second(never) | Either4::Third(never) => never,
             Either4::Fourth(_) => {}
         }
     });

@@ -1,0 +1,487 @@
+//! The Bluetooth remote end to end: the firmware's BLE central (`base_runtime::ble::run`,
+//! trouble-host) on the wall clock, through an HCI transport (H4 over TCP) to Google
+//! Bumble's virtual controllers, where a HID-over-GATT gamepad serves the Report Map of
+//! an Xbox Wireless Controller. The pad drives the virtual robot.
+//!
+//! Each scenario starts its own peer (sim/ble-peer/bumble_gamepad.py) and scripts the
+//! pad through it. The scenarios run one at a time: they follow the wall clock, and a
+//! supervision timeout of 500 ms must not depend on how busy the machine is.
+//!
+//! Without Bumble the scenarios are skipped with a message, except in CI (CI=true),
+//! where they fail.
+
+#[path = "ble/peer.rs"]
+mod peer;
+
+use std::sync::{Mutex, MutexGuard, PoisonError};
+use std::time::{Duration, Instant};
+
+use base_core::can::{Command, Mode, Status};
+use base_core::registers::{OPEN_PAIRING_WINDOW_KEY, Reg};
+use embassy_time::Timer;
+use peer::Peer;
+use virtual_robot::ble::{BOND_FLASH_SIZE, RemoteRobot};
+use virtual_robot::robot::Pc;
+
+/// The pad's random static address (the two top bits set).
+const PAD_ADDRESS: &str = "C1:11:22:33:44:55";
+const OTHER_PAD_ADDRESS: &str = "C2:66:77:88:99:AA";
+
+static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
+
+/// The scenario lock, or `None` (skip) when Bumble is missing outside CI.
+fn scenario() -> Option<MutexGuard<'static, ()>> {
+    let guard = ONE_AT_A_TIME.lock().unwrap_or_else(PoisonError::into_inner);
+    peer::bumble_available().then_some(guard)
+}
+
+fn write_register(pc: &Pc, reg: Reg, value: u16) {
+    pc.command(Command::RegisterWrite {
+        address: reg as u8,
+        value,
+    });
+}
+
+async fn open_pairing_window(pc: &Pc) {
+    // The controller is up once it sends status frames.
+    status(pc, 5_000, "the controller is up", |_| true).await;
+    write_register(pc, Reg::Command, OPEN_PAIRING_WINDOW_KEY);
+}
+
+async fn status(pc: &Pc, timeout_ms: u64, what: &str, check: impl Fn(&Status) -> bool) -> Status {
+    match pc.wait_for_status(timeout_ms, check).await {
+        Some(status) => status,
+        None => panic!(
+            "within {timeout_ms} ms: {what}; last status {:?}",
+            pc.status()
+        ),
+    }
+}
+
+/// Creates pad `name`, lets it advertise, opens the pairing window and waits until the
+/// pad is paired, subscribed and counted as connected.
+async fn pair(peer: &mut Peer, pc: &Pc, name: &str, address: &str) {
+    peer.cmd(&format!("pad {name} {address}")).await;
+    pair_created(peer, pc, name).await;
+}
+
+/// [`pair`] for a pad that exists already.
+async fn pair_created(peer: &mut Peer, pc: &Pc, name: &str) {
+    let mark = peer.mark();
+    peer.cmd(&format!("advertise {name}")).await;
+    open_pairing_window(pc).await;
+    peer.wait_for(mark, &["paired", name], 20_000).await;
+    peer.wait_for(mark, &["subscribed", name], 10_000).await;
+    status(pc, 5_000, "the paired pad is connected", |s| {
+        s.flags.remote_bonded && s.flags.remote_connected
+    })
+    .await;
+}
+
+/// Holds the dead-man and waits until the controller hands control to the remote.
+async fn take_control(peer: &mut Peer, pc: &Pc, name: &str) {
+    // The dead-man counts only once seen released while the drives are ready.
+    status(pc, 5_000, "the drives are set up", |s| {
+        s.mode != Mode::Starting
+    })
+    .await;
+    peer.cmd(&format!("release {name} RB")).await;
+    peer.cmd(&format!("press {name} RB")).await;
+    status(pc, 2_000, "the dead-man gives the remote control", |s| {
+        s.flags.remote_in_control
+    })
+    .await;
+}
+
+/// Waits until both wheels turn forward (or, `forward == false`, stand still).
+async fn wheels(robot: &RemoteRobot, timeout_ms: u64, forward: bool) {
+    let deadline = Instant::now() + Duration::from_millis(timeout_ms);
+    loop {
+        let left = robot.robot.drives.drive(1).forward_rpm();
+        let right = robot.robot.drives.drive(2).forward_rpm();
+        let done = if forward {
+            left > 10.0 && right > 10.0
+        } else {
+            left.abs() < 0.5 && right.abs() < 0.5
+        };
+        if done {
+            return;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "wheels not {} within {timeout_ms} ms: {left:.1} / {right:.1} rpm",
+            if forward {
+                "turning forward"
+            } else {
+                "stopped"
+            }
+        );
+        Timer::after_millis(5).await;
+    }
+}
+
+/// Whether the bond partition holds a bond record for the pad at `address`: its
+/// address as the record stores it (least significant byte first).
+fn bond_stored_for(robot: &RemoteRobot, address: &str) -> bool {
+    let mut raw: Vec<u8> = address
+        .split(':')
+        .map(|pair| u8::from_str_radix(pair, 16).expect("hex address"))
+        .collect();
+    raw.reverse();
+    let flash = robot.bond_flash.contents(0..BOND_FLASH_SIZE as u32);
+    flash.windows(raw.len()).any(|window| window == raw)
+}
+
+#[test]
+fn pairing_window_pairs_the_pad_stores_the_bond_and_decodes_its_reports() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    let started = Instant::now();
+    robot.run(peer.controller(), async |pc| {
+        let before = status(pc, 5_000, "the controller is up", |_| true).await;
+        assert!(!before.flags.remote_bonded, "no bond on a blank flash");
+        pair(&mut peer, pc, "pad", PAD_ADDRESS).await;
+        // A report decoded through the Xbox Report Map: RB is the dead-man.
+        take_control(&mut peer, pc, "pad").await;
+        peer.cmd("release pad RB").await;
+        status(
+            pc,
+            2_000,
+            "releasing the dead-man ends remote control",
+            |s| !s.flags.remote_in_control,
+        )
+        .await;
+    });
+    assert!(
+        bond_stored_for(&robot, PAD_ADDRESS),
+        "the bond is in its flash partition"
+    );
+    eprintln!("pairing scenario: {:?}", started.elapsed());
+}
+
+/// Pulls the left stick forward with the dead-man held: the robot drives.
+async fn drive_forward(peer: &mut Peer, robot: &RemoteRobot, pc: &Pc) {
+    take_control(peer, pc, "pad").await;
+    peer.cmd("stick pad LY 1.0").await;
+    wheels(robot, 3_000, true).await;
+}
+
+/// The deceleration of the drives' last command, (1/min)/s.
+fn last_decel(robot: &RemoteRobot) -> i32 {
+    robot
+        .robot
+        .drives
+        .drive(1)
+        .command
+        .expect("the left drive was commanded")
+        .decel_rpm_per_s
+}
+
+/// A value of `Contr_acc_high` no other rule uses, to recognise its braking.
+const RELEASE_BRAKING: u16 = 777;
+
+#[test]
+fn dead_man_and_stick_turn_the_wheels_and_release_stops_them() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        status(pc, 5_000, "the controller is up", |_| true).await;
+        write_register(pc, Reg::ContrAccHigh, RELEASE_BRAKING);
+        pair(&mut peer, pc, "pad", PAD_ADDRESS).await;
+        drive_forward(&mut peer, &robot, pc).await;
+        peer.cmd("release pad RB").await;
+        wheels(&robot, 3_000, false).await;
+        assert_eq!(last_decel(&robot), i32::from(RELEASE_BRAKING));
+    });
+}
+
+#[test]
+fn link_loss_with_the_dead_man_held_stops_with_contr_acc_high() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        status(pc, 5_000, "the controller is up", |_| true).await;
+        write_register(pc, Reg::ContrAccHigh, RELEASE_BRAKING);
+        pair(&mut peer, pc, "pad", PAD_ADDRESS).await;
+        drive_forward(&mut peer, &robot, pc).await;
+        let lost_at = Instant::now();
+        // The dead-man stays held: only the link goes.
+        peer.cmd("lose pad").await;
+        status(pc, 3_000, "the lost link is reported", |s| {
+            !s.flags.remote_connected && !s.flags.remote_in_control
+        })
+        .await;
+        wheels(&robot, 3_000, false).await;
+        let stopped_after = lost_at.elapsed();
+        assert_eq!(last_decel(&robot), i32::from(RELEASE_BRAKING));
+        // The 500 ms supervision timeout plus the ramp down from full stick.
+        assert!(stopped_after < Duration::from_secs(3), "{stopped_after:?}");
+        eprintln!("link loss to standstill: {stopped_after:?}");
+    });
+}
+
+#[test]
+fn a_dropped_pad_reconnects_encrypted_without_pairing() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        pair(&mut peer, pc, "pad", PAD_ADDRESS).await;
+        peer.cmd("disconnect pad").await;
+        status(pc, 3_000, "the drop is reported", |s| {
+            !s.flags.remote_connected
+        })
+        .await;
+        let mark = peer.mark();
+        peer.cmd("advertise pad").await;
+        peer.wait_for(mark, &["encrypted", "pad", "1"], 10_000)
+            .await;
+        peer.wait_for(mark, &["subscribed", "pad"], 10_000).await;
+        status(pc, 3_000, "the pad is back", |s| s.flags.remote_connected).await;
+        assert!(
+            peer.events_since(mark, &["pairing-started"]).is_empty(),
+            "a bonded pad is not paired again"
+        );
+        take_control(&mut peer, pc, "pad").await;
+    });
+}
+
+#[test]
+fn a_reboot_reconnects_with_the_bond_from_flash() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        pair(&mut peer, pc, "pad", PAD_ADDRESS).await;
+    });
+    // The chip lost power: the pad sees its link time out and advertises again.
+    let mark = peer.mark();
+    robot.run(peer.controller(), async |pc| {
+        status(pc, 5_000, "the bond came back from flash", |s| {
+            s.flags.remote_bonded
+        })
+        .await;
+        peer.wait_for(0, &["disconnected", "pad"], 5_000).await;
+        peer.cmd("advertise pad").await;
+        peer.wait_for(mark, &["encrypted", "pad", "1"], 10_000)
+            .await;
+        peer.wait_for(mark, &["subscribed", "pad"], 10_000).await;
+        status(pc, 3_000, "the pad is back", |s| s.flags.remote_connected).await;
+        assert!(peer.events_since(mark, &["pairing-started"]).is_empty());
+        take_control(&mut peer, pc, "pad").await;
+    });
+}
+
+#[test]
+fn a_stranger_is_ignored_outside_the_pairing_window() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        pair(&mut peer, pc, "pad", PAD_ADDRESS).await;
+        peer.cmd("disconnect pad").await;
+        status(pc, 3_000, "the drop is reported", |s| {
+            !s.flags.remote_connected
+        })
+        .await;
+        let mark = peer.mark();
+        peer.cmd(&format!("pad stranger {OTHER_PAD_ADDRESS}")).await;
+        peer.cmd("advertise stranger").await;
+        // The robot looks for its own pad only; when that one is back, the stranger
+        // has been advertising all along.
+        peer.cmd("advertise pad").await;
+        peer.wait_for(mark, &["subscribed", "pad"], 10_000).await;
+        assert!(
+            peer.events_since(mark, &["connected", "stranger"])
+                .is_empty()
+        );
+        assert!(peer.events_since(mark, &["central-scan", "on"]).is_empty());
+    });
+}
+
+/// Counts the robot's connection attempts over `window_ms` from now.
+async fn connect_attempts(peer: &Peer, window_ms: u64) -> usize {
+    let mark = peer.mark();
+    Timer::after_millis(window_ms).await;
+    peer.events_since(mark, &["central-connect"]).len()
+}
+
+#[test]
+fn an_impostor_at_the_bonded_address_is_refused_and_the_robot_backs_off() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        pair(&mut peer, pc, "pad", PAD_ADDRESS).await;
+        let bond = robot.bond_flash.contents(0..BOND_FLASH_SIZE as u32);
+        peer.cmd("remove pad").await;
+        status(pc, 3_000, "the pad is gone", |s| !s.flags.remote_connected).await;
+        let mark = peer.mark();
+        peer.cmd(&format!("pad impostor {PAD_ADDRESS}")).await;
+        peer.cmd("advertise impostor").await;
+        peer.wait_for(mark, &["connected", "impostor"], 10_000)
+            .await;
+        peer.wait_for(mark, &["disconnected", "impostor"], 10_000)
+            .await;
+        let attempts = connect_attempts(&peer, 3_000).await;
+        // Refused, not raced: the robot never even asks to pair.
+        let pairings = peer.events_since(mark, &["central-pairing-request"]).len();
+        assert_eq!(pairings, 0, "pairing requests outside the window");
+        assert!(peer.events_since(mark, &["pairing-started"]).is_empty());
+        assert!(
+            peer.events_since(mark, &["subscribed", "impostor"])
+                .is_empty()
+        );
+        assert!(attempts <= 3, "{attempts} connection attempts in 3 s");
+        assert!(!pc.status().expect("status").flags.remote_connected);
+        assert_eq!(bond, robot.bond_flash.contents(0..BOND_FLASH_SIZE as u32));
+    });
+}
+
+#[test]
+fn a_pad_that_forgot_its_bond_is_not_paired_outside_the_window() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        pair(&mut peer, pc, "pad", PAD_ADDRESS).await;
+        peer.cmd("disconnect pad").await;
+        peer.cmd("forget pad").await;
+        status(pc, 3_000, "the drop is reported", |s| {
+            !s.flags.remote_connected
+        })
+        .await;
+        let mark = peer.mark();
+        peer.cmd("advertise pad").await;
+        peer.wait_for(mark, &["connected", "pad"], 10_000).await;
+        peer.wait_for(mark, &["disconnected", "pad"], 10_000).await;
+        let attempts = connect_attempts(&peer, 3_000).await;
+        // Refused, not raced: the robot never even asks to pair.
+        let pairings = peer.events_since(mark, &["central-pairing-request"]).len();
+        assert_eq!(pairings, 0, "pairing requests outside the window");
+        assert!(peer.events_since(mark, &["pairing-started"]).is_empty());
+        assert!(attempts <= 3, "{attempts} connection attempts in 3 s");
+    });
+}
+
+#[test]
+fn a_new_pad_replaces_the_bond_inside_the_window() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        pair(&mut peer, pc, "pad", PAD_ADDRESS).await;
+        peer.cmd("remove pad").await;
+        status(pc, 3_000, "the pad is gone", |s| !s.flags.remote_connected).await;
+        pair(&mut peer, pc, "new", OTHER_PAD_ADDRESS).await;
+    });
+    assert!(bond_stored_for(&robot, OTHER_PAD_ADDRESS));
+    let mark = peer.mark();
+    robot.run(peer.controller(), async |pc| {
+        peer.wait_for(mark, &["disconnected", "new"], 5_000).await;
+        peer.cmd("advertise new").await;
+        peer.wait_for(mark, &["subscribed", "new"], 10_000).await;
+        status(pc, 3_000, "the new pad is back", |s| {
+            s.flags.remote_connected
+        })
+        .await;
+        assert!(peer.events_since(mark, &["pairing-started"]).is_empty());
+    });
+}
+
+#[test]
+fn a_pad_left_idle_is_switched_off() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        status(pc, 5_000, "the controller is up", |_| true).await;
+        // The shortest AFK time the register takes.
+        write_register(pc, Reg::PsAfkTime, 5_000);
+        let mark = peer.mark();
+        pair(&mut peer, pc, "pad", PAD_ADDRESS).await;
+        // The pad has been idle since it paired, at the latest.
+        let paired = peer.wait_for(mark, &["paired", "pad"], 0).await;
+        let off = peer.wait_for(mark, &["disconnected", "pad"], 10_000).await;
+        let idle = off.at - paired.at;
+        assert!(
+            idle >= Duration::from_millis(5_000),
+            "switched off after {idle:?}"
+        );
+        // Remote user terminated connection: the robot closed the link.
+        assert_eq!(off.words[2], "19");
+    });
+}
+
+#[test]
+fn l2_and_home_switch_the_pad_off() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        pair(&mut peer, pc, "pad", PAD_ADDRESS).await;
+        let mark = peer.mark();
+        peer.cmd("trigger pad LT 1.0").await;
+        peer.cmd("press pad XBOX").await;
+        let off = peer.wait_for(mark, &["disconnected", "pad"], 3_000).await;
+        // Remote user terminated connection: the robot closed the link.
+        assert_eq!(off.words[2], "19");
+        // The robot does not keep a pad it switched off from coming back: this one
+        // advertises again at once, and its next link is a new connection.
+        peer.wait_for(mark, &["encrypted", "pad", "1"], 10_000)
+            .await;
+    });
+}
+
+/// Every supervision timeout the robot's controller was asked for since `mark`, ms.
+fn supervision_timeouts(peer: &Peer, mark: usize) -> Vec<String> {
+    peer.events_since(mark, &["central-params"])
+        .into_iter()
+        .chain(peer.events_since(mark, &["central-connect"]))
+        .map(|line| line.words.last().cloned().unwrap_or_default())
+        .collect()
+}
+
+#[test]
+fn our_supervision_timeout_holds_through_pairing_and_encryption() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        peer.cmd(&format!("pad pad {PAD_ADDRESS}")).await;
+        // The pad asks for a 6 s supervision timeout as soon as it is connected: while
+        // pairing now, while encrypting after the reconnect below.
+        peer.cmd("greedy pad 6000").await;
+        pair_created(&mut peer, pc, "pad").await;
+        peer.wait_for(0, &["central-params"], 5_000).await;
+        peer.cmd("disconnect pad").await;
+        let mark = peer.mark();
+        peer.cmd("advertise pad").await;
+        peer.wait_for(mark, &["subscribed", "pad"], 10_000).await;
+        peer.wait_for(mark, &["central-params"], 5_000).await;
+        let timeouts = supervision_timeouts(&peer, 0);
+        assert!(timeouts.iter().all(|t| t == "500"), "{timeouts:?}");
+    });
+}
+
+#[test]
+fn a_pad_that_fails_to_pair_inside_the_window_is_retried_with_a_back_off() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        peer.cmd(&format!("pad pad {PAD_ADDRESS}")).await;
+        peer.cmd("refuse pad").await;
+        peer.cmd("advertise pad").await;
+        let mark = peer.mark();
+        open_pairing_window(pc).await;
+        peer.wait_for(mark, &["pairing-refused", "pad"], 10_000)
+            .await;
+        let attempts = connect_attempts(&peer, 3_000).await;
+        assert!(attempts <= 3, "{attempts} connection attempts in 3 s");
+        assert!(!pc.status().expect("status").flags.remote_bonded);
+    });
+}
