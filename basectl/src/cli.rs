@@ -8,7 +8,7 @@ use clap::{Parser, Subcommand};
 use crate::bus::{self, Interface};
 use crate::calibrate::{self, Driving, OdometryPlan, ScalePlan, Terminal};
 use crate::controller::{Controller, Error};
-use crate::drive::{self, Steps};
+use crate::drive::{self, Speeds};
 use crate::heartbeat;
 use crate::monitor::{self, Until};
 use crate::registers;
@@ -62,14 +62,20 @@ pub enum CliCommand {
         #[arg(long)]
         scroll: bool,
     },
-    /// Keyboard teleop: arrows/WASD, space stops, q quits.
+    /// Keyboard teleop: the base moves while w/s/a/d or an arrow key is held and
+    /// stops when it is let go; space or any other key stops, +/- change the speed,
+    /// q quits. Shows command, measured speed, pose, mode and faults live.
     Drive {
-        #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(i16).range(1..=2000))]
-        step_mm_s: i16,
-        #[arg(long, default_value_t = 200, value_parser = clap::value_parser!(i16).range(1..=6000))]
-        step_mrad_s: i16,
+        /// Speed while w/s or up/down is held, mm/s.
+        #[arg(long, default_value_t = 300, value_parser = clap::value_parser!(i16).range(1..=2000))]
+        speed_mm_s: i16,
+        /// Turn rate while a/d or left/right is held, mrad/s.
+        #[arg(long, default_value_t = 800, value_parser = clap::value_parser!(i16).range(1..=6000))]
+        turn_mrad_s: i16,
+        /// The most + can raise the speed to, mm/s.
         #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(i16).range(1..=i64::from(i16::MAX)))]
         max_mm_s: i16,
+        /// The most + can raise the turn rate to, mrad/s.
         #[arg(long, default_value_t = 1500, value_parser = clap::value_parser!(i16).range(1..=i64::from(i16::MAX)))]
         max_mrad_s: i16,
     },
@@ -233,15 +239,15 @@ pub fn run(cli: Cli, out: &mut dyn Write) -> Result<(), Error> {
             config::load(controller, &file, dry_run, out)
         }
         CliCommand::Drive {
-            step_mm_s,
-            step_mrad_s,
+            speed_mm_s,
+            turn_mrad_s,
             max_mm_s,
             max_mrad_s,
         } => drive::drive(
             controller,
-            Steps {
-                linear_mm_s: step_mm_s,
-                rotation_mrad_s: step_mrad_s,
+            Speeds {
+                linear_mm_s: speed_mm_s.min(max_mm_s),
+                rotation_mrad_s: turn_mrad_s.min(max_mrad_s),
                 max_linear_mm_s: max_mm_s,
                 max_rotation_mrad_s: max_mrad_s,
             },
