@@ -12,7 +12,7 @@ use crate::drive::{self, Speeds};
 use crate::heartbeat;
 use crate::monitor::{self, Until};
 use crate::registers;
-use crate::{config, info};
+use crate::{config, info, log};
 
 /// Commissioning of the base controller over CAN: monitor, drive, registers and the
 /// calibration wizards.
@@ -87,6 +87,20 @@ pub enum CliCommand {
     Config(ConfigCommand),
     /// Versions, mode, faults, drives, flash, error counters, battery and pose.
     Info,
+    /// Record the bus to FILE: candump's log format, or CSV for PlotJuggler (a .csv
+    /// file, or --format csv).
+    Log {
+        file: std::path::PathBuf,
+        /// The file's format (default: by its name).
+        #[arg(long, value_enum)]
+        format: Option<log::Format>,
+        /// Stop after this many seconds (default: until Ctrl-C).
+        #[arg(long)]
+        seconds: Option<u64>,
+        /// Stop after this many frames.
+        #[arg(long)]
+        count: Option<u64>,
+    },
     /// The guided calibration wizards.
     #[command(subcommand)]
     Calibrate(CalibrateCommand),
@@ -218,22 +232,36 @@ pub fn run(cli: Cli, out: &mut dyn Write) -> Result<(), Error> {
         .clone()
         .unwrap_or_else(|| default_channel(cli.interface).to_owned());
     let mut bus = bus::open(cli.interface, &channel, cli.bitrate)?;
+    if let CliCommand::Log {
+        file,
+        format,
+        seconds,
+        count,
+    } = &cli.command
+    {
+        let format = format.unwrap_or_else(|| log::Format::for_path(file));
+        return log::log(bus.as_mut(), file, format, *seconds, *count, out);
+    }
     let mut controller = Controller::new(bus.as_mut(), Duration::from_millis(cli.timeout_ms));
     let controller = &mut controller;
     match cli.command {
         CliCommand::Monitor {
             count,
             seconds,
-            scroll: _,
+            scroll,
         } => {
+            use std::io::IsTerminal;
             let style = if cli.json {
                 monitor::Style::Json
-            } else {
+            } else if scroll || !std::io::stdout().is_terminal() {
                 monitor::Style::Lines
+            } else {
+                monitor::Style::Live
             };
             monitor::monitor(controller, Until { count, seconds }, style, out)
         }
         CliCommand::Info => info::info(controller, cli.json, out),
+        CliCommand::Log { .. } => unreachable!("logged above, before the controller"),
         CliCommand::Config(ConfigCommand::Save { file }) => config::save(controller, &file, out),
         CliCommand::Config(ConfigCommand::Load { file, dry_run }) => {
             config::load(controller, &file, dry_run, out)

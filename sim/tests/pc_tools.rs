@@ -611,3 +611,81 @@ fn drive_moves_only_while_a_key_is_held_and_never_resumes_after_an_estop_by_itse
         "the screen shows the e-stop"
     );
 }
+
+#[test]
+fn log_writes_candump_logs_python_can_reads_and_csv_with_a_time_column() {
+    let simulator = Simulator::start("log");
+    let directory = std::env::temp_dir().join(format!("pc-tools-log-{}", std::process::id()));
+    std::fs::create_dir_all(&directory).unwrap();
+    let candump = directory.join("bus.log");
+    let csv = directory.join("bus.csv");
+    let channel = simulator.socketcand.clone();
+    let csv_run = {
+        let csv = csv.clone();
+        thread::spawn(move || {
+            run_ok(&[
+                "--channel",
+                &channel,
+                "log",
+                csv.to_str().unwrap(),
+                "--seconds",
+                "3",
+            ])
+        })
+    };
+    run_ok(&[
+        "--channel",
+        &simulator.socketcand,
+        "log",
+        candump.to_str().unwrap(),
+        "--seconds",
+        "3",
+    ]);
+    csv_run.join().unwrap();
+
+    let text = std::fs::read_to_string(&candump).unwrap();
+    assert!(text.lines().count() > 20, "{text}");
+    assert!(
+        text.lines().any(|line| line.contains(" can0 0EE#")),
+        "{text}"
+    );
+    // python-can's reader of candump logs takes every line.
+    let read = Command::new("python3")
+        .arg("-c")
+        .arg(
+            "import can, sys\n\
+             frames = list(can.CanutilsLogReader(sys.argv[1]))\n\
+             assert all(f.arbitration_id < 0x800 for f in frames)\n\
+             print(len(frames))",
+        )
+        .arg(&candump)
+        .output()
+        .unwrap();
+    assert!(
+        read.status.success(),
+        "{}",
+        String::from_utf8_lossy(&read.stderr)
+    );
+    let count: usize = String::from_utf8_lossy(&read.stdout)
+        .trim()
+        .parse()
+        .unwrap();
+    assert_eq!(count, text.lines().count());
+
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut lines = text.lines();
+    assert_eq!(
+        lines.next(),
+        Some(basectl::log::CSV_HEADER),
+        "the header names the columns"
+    );
+    let times: Vec<f64> = lines
+        .map(|line| line.split(',').next().unwrap().parse().unwrap())
+        .collect();
+    assert!(times.len() > 10, "{text}");
+    assert!(
+        times.windows(2).all(|pair| pair[0] <= pair[1]),
+        "time runs forward"
+    );
+    let _ = std::fs::remove_dir_all(&directory);
+}
