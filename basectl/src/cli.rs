@@ -8,11 +8,11 @@ use clap::{Parser, Subcommand};
 use crate::bus::{self, Interface};
 use crate::calibrate::{self, Driving, OdometryPlan, ScalePlan, Terminal};
 use crate::controller::{Controller, Error};
-use crate::drive::{self, Steps};
+use crate::drive::{self, Speeds};
 use crate::heartbeat;
 use crate::monitor::{self, Until};
 use crate::registers;
-use crate::{config, info};
+use crate::{config, info, log};
 
 /// Commissioning of the base controller over CAN: monitor, drive, registers and the
 /// calibration wizards.
@@ -62,14 +62,20 @@ pub enum CliCommand {
         #[arg(long)]
         scroll: bool,
     },
-    /// Keyboard teleop: arrows/WASD, space stops, q quits.
+    /// Keyboard teleop: the base moves while w/s/a/d or an arrow key is held and
+    /// stops when it is let go; space or any other key stops, +/- change the speed,
+    /// q quits. Shows command, measured speed, pose, mode and faults live.
     Drive {
-        #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(i16).range(1..=2000))]
-        step_mm_s: i16,
-        #[arg(long, default_value_t = 200, value_parser = clap::value_parser!(i16).range(1..=6000))]
-        step_mrad_s: i16,
+        /// Speed while w/s or up/down is held, mm/s.
+        #[arg(long, default_value_t = 300, value_parser = clap::value_parser!(i16).range(1..=2000))]
+        speed_mm_s: i16,
+        /// Turn rate while a/d or left/right is held, mrad/s.
+        #[arg(long, default_value_t = 800, value_parser = clap::value_parser!(i16).range(1..=6000))]
+        turn_mrad_s: i16,
+        /// The most + can raise the speed to, mm/s.
         #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(i16).range(1..=i64::from(i16::MAX)))]
         max_mm_s: i16,
+        /// The most + can raise the turn rate to, mrad/s.
         #[arg(long, default_value_t = 1500, value_parser = clap::value_parser!(i16).range(1..=i64::from(i16::MAX)))]
         max_mrad_s: i16,
     },
@@ -81,6 +87,20 @@ pub enum CliCommand {
     Config(ConfigCommand),
     /// Versions, mode, faults, drives, flash, error counters, battery and pose.
     Info,
+    /// Record the bus to FILE: candump's log format, or CSV for PlotJuggler (a .csv
+    /// file, or --format csv).
+    Log {
+        file: std::path::PathBuf,
+        /// The file's format (default: by its name).
+        #[arg(long, value_enum)]
+        format: Option<log::Format>,
+        /// Stop after this many seconds (default: until Ctrl-C).
+        #[arg(long)]
+        seconds: Option<u64>,
+        /// Stop after this many frames.
+        #[arg(long)]
+        count: Option<u64>,
+    },
     /// The guided calibration wizards.
     #[command(subcommand)]
     Calibrate(CalibrateCommand),
@@ -212,36 +232,50 @@ pub fn run(cli: Cli, out: &mut dyn Write) -> Result<(), Error> {
         .clone()
         .unwrap_or_else(|| default_channel(cli.interface).to_owned());
     let mut bus = bus::open(cli.interface, &channel, cli.bitrate)?;
+    if let CliCommand::Log {
+        file,
+        format,
+        seconds,
+        count,
+    } = &cli.command
+    {
+        let format = format.unwrap_or_else(|| log::Format::for_path(file));
+        return log::log(bus.as_mut(), file, format, *seconds, *count, out);
+    }
     let mut controller = Controller::new(bus.as_mut(), Duration::from_millis(cli.timeout_ms));
     let controller = &mut controller;
     match cli.command {
         CliCommand::Monitor {
             count,
             seconds,
-            scroll: _,
+            scroll,
         } => {
+            use std::io::IsTerminal;
             let style = if cli.json {
                 monitor::Style::Json
-            } else {
+            } else if scroll || !std::io::stdout().is_terminal() {
                 monitor::Style::Lines
+            } else {
+                monitor::Style::Live
             };
             monitor::monitor(controller, Until { count, seconds }, style, out)
         }
         CliCommand::Info => info::info(controller, cli.json, out),
+        CliCommand::Log { .. } => unreachable!("logged above, before the controller"),
         CliCommand::Config(ConfigCommand::Save { file }) => config::save(controller, &file, out),
         CliCommand::Config(ConfigCommand::Load { file, dry_run }) => {
             config::load(controller, &file, dry_run, out)
         }
         CliCommand::Drive {
-            step_mm_s,
-            step_mrad_s,
+            speed_mm_s,
+            turn_mrad_s,
             max_mm_s,
             max_mrad_s,
         } => drive::drive(
             controller,
-            Steps {
-                linear_mm_s: step_mm_s,
-                rotation_mrad_s: step_mrad_s,
+            Speeds {
+                linear_mm_s: speed_mm_s.min(max_mm_s),
+                rotation_mrad_s: turn_mrad_s.min(max_mrad_s),
                 max_linear_mm_s: max_mm_s,
                 max_rotation_mrad_s: max_mrad_s,
             },

@@ -291,7 +291,11 @@ impl<'bus> Controller<'bus> {
     /// request crossed its own it cannot tell whose reply came first, so it lets the
     /// replies pass and asks again after a pause of its own.
     pub fn read_register(&mut self, address: u8) -> Result<u16, Error> {
-        let timeout = self.reply_timeout;
+        self.read_register_within(address, self.reply_timeout)
+    }
+
+    /// [`Self::read_register`] with its own reply timeout.
+    fn read_register_within(&mut self, address: u8, timeout: Duration) -> Result<u16, Error> {
         for attempt in 0..READ_ATTEMPTS {
             self.wait_until_foreign_reads_answered()?;
             let seen_before = self.foreign_reads_seen;
@@ -366,7 +370,12 @@ impl<'bus> Controller<'bus> {
         };
         let subjects = rejection_subjects(&command);
         self.send(command)?;
-        self.read_register(Reg::RegmapVersion.address())?;
+        // A command may keep the controller busy (restoring every register writes
+        // them all to flash): its barrier may take as long as a status period.
+        self.read_register_within(
+            Reg::RegmapVersion.address(),
+            self.reply_timeout.max(STATUS_TIMEOUT),
+        )?;
         let after = self.next_status()?;
         let rejected = after.rejected_count.wrapping_sub(before.rejected_count);
         let ours = subjects.contains(&after.last_rejection_subject);

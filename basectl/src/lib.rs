@@ -11,6 +11,7 @@ pub mod controller;
 pub mod drive;
 pub mod heartbeat;
 pub mod info;
+pub mod log;
 pub mod monitor;
 pub mod registers;
 pub mod rejection;

@@ -1,4 +1,6 @@
-//! `monitor`: every report of the base controller, decoded, one line per frame.
+//! `monitor`: every report of the base controller, decoded: a live view that is
+//! redrawn in place (on a terminal), one line per frame (`--scroll`, or when the
+//! output is no terminal), or one JSON object per frame (`--json`).
 
 use std::io::Write;
 use std::time::{Duration, Instant};
@@ -23,6 +25,53 @@ pub enum Style {
     Lines,
     /// One JSON object per report and line.
     Json,
+    /// The newest report of each kind, redrawn in place at most 10 times a second.
+    Live,
+}
+
+/// How often the live view is redrawn at most.
+const LIVE_PERIOD: Duration = Duration::from_millis(100);
+
+/// The newest report of each kind, for the live view.
+#[derive(Default)]
+struct Latest {
+    /// Kind → (when, line), in a fixed order.
+    lines: [(Option<Instant>, String); 7],
+    frames: u64,
+}
+
+impl Latest {
+    fn absorb(&mut self, report: &Report) {
+        let slot = match report {
+            Report::Status(_) => 0,
+            Report::Position { .. } => 1,
+            Report::Heading { .. } => 2,
+            Report::Battery { .. } => 3,
+            Report::Weight { .. } => 4,
+            Report::RegisterValue { .. } => 5,
+            Report::RegisterReadError { .. } => 6,
+        };
+        self.lines[slot] = (Some(Instant::now()), describe(report));
+        self.frames += 1;
+    }
+
+    fn draw(&self, out: &mut dyn Write) -> std::io::Result<()> {
+        let mut text = String::from("\x1b[H\x1b[J");
+        text.push_str(&format!(
+            "basectl monitor: {} reports (Ctrl-C quits; --scroll for one line each)\n\n",
+            self.frames
+        ));
+        for (at, line) in &self.lines {
+            if let Some(at) = at {
+                text.push_str(&format!(
+                    "{line}   ({:.1} s ago)\n",
+                    at.elapsed().as_secs_f64()
+                ));
+            }
+        }
+        out.write_all(text.as_bytes())?;
+        out.flush()
+    }
 }
 
 pub fn monitor(
@@ -36,19 +85,28 @@ pub fn monitor(
         .map(|seconds| Instant::now() + Duration::from_secs(seconds));
     let mut printed = 0;
     let mut quiet_since = Instant::now();
+    let mut latest = Latest::default();
+    let mut next_draw = Instant::now();
     while until.count.is_none_or(|count| printed < count) {
+        let most = match style {
+            Style::Live => LIVE_PERIOD,
+            Style::Lines | Style::Json => Duration::from_secs(1),
+        };
         let wait = match deadline {
             Some(deadline) if Instant::now() >= deadline => break,
-            Some(deadline) => deadline
-                .saturating_duration_since(Instant::now())
-                .min(Duration::from_secs(1)),
-            None => Duration::from_secs(1),
+            Some(deadline) => deadline.saturating_duration_since(Instant::now()).min(most),
+            None => most,
         };
+        if style == Style::Live && Instant::now() >= next_draw {
+            latest.draw(out)?;
+            next_draw = Instant::now() + LIVE_PERIOD;
+        }
         match controller.next_report(wait)? {
             Some(report) => {
                 match style {
                     Style::Lines => writeln!(out, "{}", describe(&report))?,
                     Style::Json => writeln!(out, "{}", report_json(&report))?,
+                    Style::Live => latest.absorb(&report),
                 }
                 out.flush()?;
                 printed += 1;
@@ -220,6 +278,28 @@ mod tests {
             line.contains("rejected 200 (last BadVelocityMarker on 0xC8)"),
             "{line}"
         );
+    }
+
+    #[test]
+    fn the_live_view_redraws_in_place_with_the_newest_report_of_each_kind() {
+        let mut latest = Latest::default();
+        latest.absorb(&Report::Position { x_mm: 1, y_mm: 2 });
+        latest.absorb(&Report::Position { x_mm: 10, y_mm: 20 });
+        latest.absorb(&Report::Battery {
+            percent: 80,
+            voltage_mv: 24_000,
+        });
+        let mut text = Vec::new();
+        latest.draw(&mut text).unwrap();
+        let text = String::from_utf8(text).unwrap();
+        assert!(
+            text.starts_with("\x1b[H\x1b[J"),
+            "cursor home, clear: {text:?}"
+        );
+        assert!(text.contains("3 reports"), "{text}");
+        assert!(text.contains("position  x 10 mm  y 20 mm"), "{text}");
+        assert!(!text.contains("x 1 mm"), "only the newest: {text}");
+        assert!(text.contains("battery   80 %  24000 mV"), "{text}");
     }
 
     #[test]

@@ -9,30 +9,31 @@ use virtual_robot::simulator::{self, DEFAULT_LINK, Demo, Options, console::HELP,
 fn usage() -> String {
     format!(
         "virtual-base-controller: the base controller's firmware on a simulated robot,
-on the wall clock, with an SLCAN (Lawicel) serial port and a socketcand server for
-the robot PC's software.
+on the wall clock, with an SLCAN (Lawicel) serial port and a socketcand
+server for the robot PC's software.
 
-usage: virtual-base-controller [--link PATH | --no-link] [--socketcand ADDR:PORT |
-                               --no-socketcand] [--socketcan IF] [--flash PATH]
-                               [--hci tcp:HOST:PORT] [--demo [--stay]]
+usage: virtual-base-controller [--link PATH | --no-link]
+         [--socketcand ADDR:PORT | --no-socketcand] [--socketcan IF]
+         [--flash PATH] [--hci tcp:HOST:PORT] [--demo [--stay]]
 
-  --link PATH      symbolic link to the serial port (default {DEFAULT_LINK});
+  --link PATH      symbolic link to the serial port (default
+                   {DEFAULT_LINK});
                    refused while another simulator serves it
   --no-link        make no link; the port's /dev/pts path is printed at start
-  --socketcand A:P serve the bus as socketcand does, bus name {bus}, to any number
-                   of programs at once (default {address})
+  --socketcand A:P serve the bus as socketcand does, bus name {bus}, to
+                   any number of programs at once (default {address})
   --no-socketcand  no socketcand server
-  --socketcan IF   also be a node on the Linux SocketCAN interface IF (e.g. vcan0,
-                   made with: ip link add vcan0 type vcan; ip link set vcan0 up),
-                   for candump, cansend and ros2_socketcan; needs a kernel with CAN
-  --flash PATH     file holding the register store's flash, so registers survive
-                   restarts (default {})
+  --socketcan IF   also be a node on the Linux CAN interface IF (e.g.
+                   vcan0: ip link add vcan0 type vcan; ip link set vcan0 up)
+                   for candump, cansend, ros2_socketcan; needs a kernel with CAN
+  --flash PATH     file holding the register store's flash, so registers
+                   survive restarts (default
+                   {})
   --hci tcp:HOST:PORT
-                   the Bluetooth remote: a Bluetooth controller behind an HCI
-                   transport (H4 over TCP), e.g. the Bumble gamepad peer
-                   (sim/ble-peer/bumble_gamepad.py) or a USB dongle behind Bumble's
-                   HCI bridge; the bond is kept in the flash file + .bond.
-                   docs/remote.md says how to pair a pad and drive
+                   the Bluetooth remote's controller over H4/TCP: the Bumble
+                   gamepad peer (sim/ble-peer/bumble_gamepad.py) or a USB dongle
+                   behind Bumble's HCI bridge; the bond is kept in the flash
+                   file + .bond (docs/remote.md: pairing and driving)
   --demo           drive a short path by itself, show the odometry, then quit
   --stay           with --demo: keep running afterwards
   --help           this text
@@ -40,9 +41,11 @@ usage: virtual-base-controller [--link PATH | --no-link] [--socketcand ADDR:PORT
 Connect (any number at once through socketcand, one at a time through SLCAN):
   python-can  can.Bus(interface=\"socketcand\", host=\"127.0.0.1\", port=29536,
                       channel=\"{bus}\")
-  basectl     basectl --interface socketcand --channel {address} monitor
-  SLCAN       can.Bus(interface=\"slcan\", channel=\"{DEFAULT_LINK}\", bitrate=500000)
-  SocketCAN   sudo slcand -o -s6 $(readlink {DEFAULT_LINK} | sed 's|^/dev/||') slcan0
+  basectl     basectl monitor   (socketcand on {address} is its default)
+  SLCAN       can.Bus(interface=\"slcan\", bitrate=500000,
+                      channel=\"{DEFAULT_LINK}\")
+  SocketCAN   (slcand puts /dev/ in front of the tty name itself)
+              sudo slcand -o -s6 $(readlink {DEFAULT_LINK} | cut -c6-) slcan0
               sudo ip link set slcan0 up
 
 Console commands (one per line on stdin):

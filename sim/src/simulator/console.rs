@@ -17,7 +17,7 @@ pub const HELP: &str = "\
   battery MV             the battery voltage, in mV (0-65535)
   weight G               the load on the scale, in g (may be negative)
   drives power on|off    switch the drives' power (off: they stop answering)
-  status                 print the status line once
+  status                 print everything the simulator knows, on five lines
   help                   this list
   quit                   stop the simulator";
 

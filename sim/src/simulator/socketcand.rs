@@ -247,9 +247,8 @@ fn serve_client(id: u64, stream: TcpStream, events: QueueSender<Event>) {
             return;
         }
     }
-    if writer.write_all(b"< ok >").is_err() {
-        return;
-    }
+    // Join the bus before saying so: every frame sent after the client learns it is
+    // in raw mode must reach it. What comes meanwhile waits in its queue.
     let (queue, outgoing) = sync_channel(CLIENT_QUEUE);
     let Ok(hub_stream) = stream.try_clone() else {
         return;
@@ -260,6 +259,9 @@ fn serve_client(id: u64, stream: TcpStream, events: QueueSender<Event>) {
         queue,
         stream: hub_stream,
     }));
+    if writer.write_all(b"< ok >").is_err() {
+        return left("closed during the handshake".to_owned());
+    }
     let _ = thread::Builder::new()
         .name(format!("socketcand-{id}-out"))
         .spawn(move || write_frames(writer, outgoing));
