@@ -11,7 +11,7 @@ use base_core::calibration::{
 use base_core::can::{Command, Mode};
 use base_core::registers::Reg;
 
-use crate::controller::{Controller, Error, Pose};
+use crate::base::{Base, Error, Pose};
 
 /// The person at the robot: follows instructions and reads measurements off a tape.
 pub trait Person {
@@ -82,7 +82,7 @@ enum Motion {
 }
 
 pub fn odometry(
-    controller: &mut Controller,
+    base: &mut Base,
     plan: OdometryPlan,
     person: &mut dyn Person,
     out: &mut dyn Write,
@@ -92,7 +92,7 @@ pub fn odometry(
         out,
         "Odometry calibration: three measured moves, then the factors are stored."
     )?;
-    let old = controller.read_registers(FACTORS)?;
+    let old = base.read_registers(FACTORS)?;
     let steps = [
         (
             Motion::Forward,
@@ -118,12 +118,12 @@ pub fn odometry(
     ];
     for (motion, start, explanation, question, known) in steps {
         writeln!(out, "{explanation}")?;
-        controller.send_checked(Command::OdometryCalibration(start), "the step's start")?;
+        base.send_checked(Command::OdometryCalibration(start), "the step's start")?;
         let moved = match plan.driving {
             Driving::ByHand => {
-                let before = current_pose(controller)?;
+                let before = current_pose(base)?;
                 person.confirm("  drive now")?;
-                let after = current_pose(controller)?;
+                let after = current_pose(base)?;
                 difference(motion, before, after)
             }
             Driving::Automatic {
@@ -137,7 +137,7 @@ pub fn odometry(
                     Motion::Clockwise => (angle_mrad, 0, turn_mrad_s),
                     Motion::CounterClockwise => (angle_mrad, 0, -turn_mrad_s),
                 };
-                drive_until(controller, motion, i64::from(target), linear, rotation)?
+                drive_until(base, motion, i64::from(target), linear, rotation)?
             }
         };
         writeln!(out, "  the uncalibrated odometry measured {moved}")?;
@@ -150,17 +150,17 @@ pub fn odometry(
             Motion::Clockwise => Odometry::EndClockwise { real_mrad: real },
             Motion::CounterClockwise => Odometry::EndCounterClockwise { real_mrad: real },
         };
-        controller.send_checked(
+        base.send_checked(
             Command::OdometryCalibration(end),
             &format!("the real value {real}"),
         )?;
         writeln!(out, "  accepted: real {real}")?;
     }
-    controller.send_checked(
+    base.send_checked(
         Command::OdometryCalibration(Odometry::Store),
         "storing the factors",
     )?;
-    let new = controller.read_registers(FACTORS)?;
+    let new = base.read_registers(FACTORS)?;
     writeln!(out, "stored (1/10000):")?;
     for ((register, old), new) in FACTORS.iter().zip(old).zip(new) {
         writeln!(out, "  {} {old} -> {new}", register.info().name)?;
@@ -177,12 +177,12 @@ fn ask_u16(person: &mut dyn Person, question: &str) -> Result<u16, Error> {
     })
 }
 
-fn current_pose(controller: &mut Controller) -> Result<Pose, Error> {
+fn current_pose(base: &mut Base) -> Result<Pose, Error> {
     // The position frame comes every `loop_end_delay` (50 ms by default).
-    controller.wait_for("a position frame 0x0EC", Duration::from_secs(2), |report| {
+    base.wait_for("a position frame 0x0EC", Duration::from_secs(2), |report| {
         matches!(report, base_core::can::Report::Heading { .. }).then_some(())
     })?;
-    Ok(controller.pose().unwrap_or_default())
+    Ok(base.pose().unwrap_or_default())
 }
 
 /// How far the pose moved in the motion's direction: mm forward, mrad of turn.
@@ -201,13 +201,13 @@ fn difference(motion: Motion, before: Pose, after: Pose) -> i64 {
 /// Drives (enable every 100 ms, velocity with it) until the odometry shows `target`,
 /// then stops and waits for standstill. Returns what the odometry measured.
 fn drive_until(
-    controller: &mut Controller,
+    base: &mut Base,
     motion: Motion,
     target: i64,
     linear_mm_s: i16,
     rotation_mrad_s: i16,
 ) -> Result<i64, Error> {
-    let start = current_pose(controller)?;
+    let start = current_pose(base)?;
     let speed = i64::from(
         linear_mm_s
             .unsigned_abs()
@@ -217,53 +217,51 @@ fn drive_until(
     // Twice the time at full speed, plus the ramps: a base that needs longer is stuck.
     let limit = Duration::from_millis(u64::try_from(target * 2000 / speed).unwrap_or(0) + 5000);
     let started = Instant::now();
-    while difference(motion, start, current_pose(controller)?) < target {
+    while difference(motion, start, current_pose(base)?) < target {
         if started.elapsed() > limit {
-            stop(controller)?;
-            let mode = controller
-                .status()
-                .map_or(Mode::Starting, |status| status.mode);
+            stop(base)?;
+            let mode = base.status().map_or(Mode::Starting, |status| status.mode);
             return Err(Error::Aborted(format!(
                 "the base did not get there within {} s (mode {mode:?}: e-stop, or remote in control?)",
                 limit.as_secs()
             )));
         }
-        controller.send(Command::Enable { refresh: true })?;
-        controller.send(Command::Velocity {
+        base.send(Command::Enable { refresh: true })?;
+        base.send(Command::Velocity {
             linear_mm_s,
             rotation_mrad_s,
         })?;
-        pause(controller, ENABLE_PERIOD)?;
+        pause(base, ENABLE_PERIOD)?;
     }
-    stop(controller)?;
-    Ok(difference(motion, start, current_pose(controller)?))
+    stop(base)?;
+    Ok(difference(motion, start, current_pose(base)?))
 }
 
 /// Commands standstill and keeps the enable until the pose stops changing, so the
 /// base ramps down under control, then withdraws the enable.
-fn stop(controller: &mut Controller) -> Result<(), Error> {
-    let mut last = current_pose(controller)?;
+fn stop(base: &mut Base) -> Result<(), Error> {
+    let mut last = current_pose(base)?;
     let mut still_since = Instant::now();
     while still_since.elapsed() < Duration::from_millis(500) {
-        controller.send(Command::Enable { refresh: true })?;
-        controller.send(Command::Velocity {
+        base.send(Command::Enable { refresh: true })?;
+        base.send(Command::Velocity {
             linear_mm_s: 0,
             rotation_mrad_s: 0,
         })?;
-        pause(controller, ENABLE_PERIOD)?;
-        let now = current_pose(controller)?;
+        pause(base, ENABLE_PERIOD)?;
+        let now = current_pose(base)?;
         if now != last {
             last = now;
             still_since = Instant::now();
         }
     }
-    controller.send(Command::Enable { refresh: false })
+    base.send(Command::Enable { refresh: false })
 }
 
 /// Reads reports for `duration`, keeping the latest pose and status current.
-fn pause(controller: &mut Controller, duration: Duration) -> Result<(), Error> {
+fn pause(base: &mut Base, duration: Duration) -> Result<(), Error> {
     let until = Instant::now() + duration;
-    while controller
+    while base
         .next_report(until.saturating_duration_since(Instant::now()))?
         .is_some()
     {}
@@ -277,7 +275,7 @@ pub struct ScalePlan {
 }
 
 pub fn scale(
-    controller: &mut Controller,
+    base: &mut Base,
     plan: ScalePlan,
     person: &mut dyn Person,
     out: &mut dyn Write,
@@ -287,14 +285,14 @@ pub fn scale(
         out,
         "Scale calibration: an empty reading, then a known weight."
     )?;
-    let old = controller.read_registers(RESULTS)?;
-    controller.send_checked(
+    let old = base.read_registers(RESULTS)?;
+    base.send_checked(
         Command::ScaleCalibration(Scale::Start),
         "the calibration's start",
     )?;
     writeln!(out, "step 1/2: the empty reading")?;
     person.confirm("  empty the scale")?;
-    controller.send_checked(Command::ScaleCalibration(Scale::Tare), "the empty reading")?;
+    base.send_checked(Command::ScaleCalibration(Scale::Tare), "the empty reading")?;
     writeln!(out, "step 2/2: a known weight")?;
     let grams = match plan.known_g {
         Some(grams) => {
@@ -308,18 +306,18 @@ pub fn scale(
             "the known weight must be 1..=65535 g".to_owned(),
         ));
     }
-    controller.send_checked(
+    base.send_checked(
         Command::ScaleCalibration(Scale::KnownWeight { grams }),
         &format!("the known weight {grams} g"),
     )?;
-    let new = controller.read_registers(RESULTS)?;
+    let new = base.read_registers(RESULTS)?;
     writeln!(out, "stored:")?;
     for ((register, old), new) in RESULTS.iter().zip(old).zip(new) {
         writeln!(out, "  {} {old} -> {new}", register.info().name)?;
     }
     // The frame already on its way may predate the new calibration: take the second.
-    controller.next_weight()?;
-    let weight = controller.next_weight()?;
+    base.next_weight()?;
+    let weight = base.next_weight()?;
     writeln!(out, "the scale now reads {weight} g")?;
     Ok(())
 }

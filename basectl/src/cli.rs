@@ -5,9 +5,9 @@ use std::time::Duration;
 
 use clap::{Parser, Subcommand};
 
+use crate::base::{Base, Error};
 use crate::bus::{self, Interface};
 use crate::calibrate::{self, Driving, OdometryPlan, ScalePlan, Terminal};
-use crate::controller::{Controller, Error};
 use crate::drive::{self, Speeds};
 use crate::heartbeat;
 use crate::monitor::{self, Until};
@@ -242,8 +242,8 @@ pub fn run(cli: Cli, out: &mut dyn Write) -> Result<(), Error> {
         let format = format.unwrap_or_else(|| log::Format::for_path(file));
         return log::log(bus.as_mut(), file, format, *seconds, *count, out);
     }
-    let mut controller = Controller::new(bus.as_mut(), Duration::from_millis(cli.timeout_ms));
-    let controller = &mut controller;
+    let mut base = Base::new(bus.as_mut(), Duration::from_millis(cli.timeout_ms));
+    let base = &mut base;
     match cli.command {
         CliCommand::Monitor {
             count,
@@ -258,13 +258,13 @@ pub fn run(cli: Cli, out: &mut dyn Write) -> Result<(), Error> {
             } else {
                 monitor::Style::Live
             };
-            monitor::monitor(controller, Until { count, seconds }, style, out)
+            monitor::monitor(base, Until { count, seconds }, style, out)
         }
-        CliCommand::Info => info::info(controller, cli.json, out),
+        CliCommand::Info => info::info(base, cli.json, out),
         CliCommand::Log { .. } => unreachable!("logged above, before the controller"),
-        CliCommand::Config(ConfigCommand::Save { file }) => config::save(controller, &file, out),
+        CliCommand::Config(ConfigCommand::Save { file }) => config::save(base, &file, out),
         CliCommand::Config(ConfigCommand::Load { file, dry_run }) => {
-            config::load(controller, &file, dry_run, out)
+            config::load(base, &file, dry_run, out)
         }
         CliCommand::Drive {
             speed_mm_s,
@@ -272,7 +272,7 @@ pub fn run(cli: Cli, out: &mut dyn Write) -> Result<(), Error> {
             max_mm_s,
             max_mrad_s,
         } => drive::drive(
-            controller,
+            base,
             Speeds {
                 linear_mm_s: speed_mm_s.min(max_mm_s),
                 rotation_mrad_s: turn_mrad_s.min(max_mrad_s),
@@ -282,18 +282,15 @@ pub fn run(cli: Cli, out: &mut dyn Write) -> Result<(), Error> {
             out,
         ),
         CliCommand::Reg(RegCommand::List) => Ok(registers::list(out)?),
-        CliCommand::Reg(RegCommand::Get { .. }) => registers::get(
-            controller,
-            register.expect("looked up above"),
-            cli.json,
-            out,
-        ),
+        CliCommand::Reg(RegCommand::Get { .. }) => {
+            registers::get(base, register.expect("looked up above"), cli.json, out)
+        }
         CliCommand::Reg(RegCommand::Set { .. }) => {
             let (register, value) = register_value.expect("looked up above");
-            registers::set(controller, register, value, cli.json, out)
+            registers::set(base, register, value, cli.json, out)
         }
-        CliCommand::Reg(RegCommand::Dump) => registers::dump(controller, cli.json, out),
-        CliCommand::Reg(RegCommand::Restore { yes }) => registers::restore(controller, yes, out),
+        CliCommand::Reg(RegCommand::Dump) => registers::dump(base, cli.json, out),
+        CliCommand::Reg(RegCommand::Restore { yes }) => registers::restore(base, yes, out),
         CliCommand::Calibrate(CalibrateCommand::Odometry {
             drive_mm,
             turn_mrad,
@@ -313,7 +310,7 @@ pub fn run(cli: Cli, out: &mut dyn Write) -> Result<(), Error> {
                 None => Driving::ByHand,
             };
             calibrate::odometry(
-                controller,
+                base,
                 OdometryPlan {
                     driving,
                     real_mm,
@@ -325,9 +322,9 @@ pub fn run(cli: Cli, out: &mut dyn Write) -> Result<(), Error> {
             )
         }
         CliCommand::Calibrate(CalibrateCommand::Scale { grams }) => {
-            calibrate::scale(controller, ScalePlan { known_g: grams }, &mut Terminal, out)
+            calibrate::scale(base, ScalePlan { known_g: grams }, &mut Terminal, out)
         }
-        CliCommand::PcHeartbeat { seconds } => heartbeat::pc_heartbeat(controller, seconds, out),
+        CliCommand::PcHeartbeat { seconds } => heartbeat::pc_heartbeat(base, seconds, out),
     }
 }
 

@@ -18,7 +18,7 @@ use std::path::Path;
 use base_core::registers::{Access, Reg, RegisterInfo, TABLE};
 use serde_json::{Value, json};
 
-use crate::controller::{Controller, Error};
+use crate::base::{Base, Error};
 use crate::registers::{allowed, write_checked};
 use crate::rules;
 
@@ -37,11 +37,11 @@ pub fn version_text(value: u16) -> String {
 }
 
 /// Reads every read-write register and the versions, and writes the file.
-pub fn save(controller: &mut Controller, path: &Path, out: &mut dyn Write) -> Result<(), Error> {
-    let [firmware, regmap] = controller.read_registers([Reg::FwVersion, Reg::RegmapVersion])?;
+pub fn save(base: &mut Base, path: &Path, out: &mut dyn Write) -> Result<(), Error> {
+    let [firmware, regmap] = base.read_registers([Reg::FwVersion, Reg::RegmapVersion])?;
     let mut registers = Vec::new();
     for register in writable() {
-        let value = controller.read_register(register.address)?;
+        let value = base.read_register(register.address)?;
         registers.push(json!({
             "name": register.name,
             "address": register.address,
@@ -214,16 +214,11 @@ pub fn plan(
 }
 
 /// Checks the file, shows the changes, writes them and reads them back.
-pub fn load(
-    controller: &mut Controller,
-    path: &Path,
-    dry_run: bool,
-    out: &mut dyn Write,
-) -> Result<(), Error> {
+pub fn load(base: &mut Base, path: &Path, dry_run: bool, out: &mut dyn Write) -> Result<(), Error> {
     let text = std::fs::read_to_string(path)
         .map_err(|error| Error::InvalidInput(format!("cannot read {}: {error}", path.display())))?;
     let file = parse(&text)?;
-    let [firmware, regmap] = controller.read_registers([Reg::FwVersion, Reg::RegmapVersion])?;
+    let [firmware, regmap] = base.read_registers([Reg::FwVersion, Reg::RegmapVersion])?;
     if file.regmap_version != regmap {
         return Err(Error::InvalidInput(format!(
             "the file was saved from register map {}, the controller has register map {regmap}: \
@@ -242,10 +237,7 @@ pub fn load(
     }
     let mut current = BTreeMap::new();
     for register in writable() {
-        current.insert(
-            register.address,
-            controller.read_register(register.address)?,
-        );
+        current.insert(register.address, base.read_register(register.address)?);
     }
     let changes: BTreeMap<u8, u16> = file
         .values
@@ -287,7 +279,7 @@ pub fn load(
     }
     for &(address, value) in &order {
         let register = base_core::registers::info(address).expect("checked above");
-        write_checked(controller, register, value)?;
+        write_checked(base, register, value)?;
     }
     writeln!(out, "wrote {} registers and read each back", order.len())?;
     Ok(())

@@ -17,8 +17,8 @@ use base_core::can::{Command, Mode, Status};
 use crossterm::event::{self, Event, KeyCode, KeyEvent, KeyEventKind, KeyModifiers};
 use crossterm::terminal;
 
+use crate::base::{Base, Error, Pose};
 use crate::bus::exit;
-use crate::controller::{Controller, Error, Pose};
 
 /// Enable and velocity go out this often.
 const SEND_PERIOD: Duration = Duration::from_millis(100);
@@ -211,20 +211,16 @@ impl RawMode {
     }
 }
 
-pub fn drive(
-    controller: &mut Controller,
-    mut speeds: Speeds,
-    out: &mut dyn Write,
-) -> Result<(), Error> {
+pub fn drive(base: &mut Base, mut speeds: Speeds, out: &mut dyn Write) -> Result<(), Error> {
     let raw_mode = RawMode::enter()?;
-    let result = drive_loop(controller, &mut speeds, out);
+    let result = drive_loop(base, &mut speeds, out);
     // Stop before anything else: the base must not drive on while the enable lapses.
-    let stopped = controller
+    let stopped = base
         .send(Command::Velocity {
             linear_mm_s: 0,
             rotation_mrad_s: 0,
         })
-        .and_then(|()| controller.send(Command::Enable { refresh: false }));
+        .and_then(|()| base.send(Command::Enable { refresh: false }));
     drop(raw_mode);
     writeln!(out)?;
     result.and(stopped)
@@ -259,11 +255,7 @@ impl Measured {
     }
 }
 
-fn drive_loop(
-    controller: &mut Controller,
-    speeds: &mut Speeds,
-    out: &mut dyn Write,
-) -> Result<(), Error> {
+fn drive_loop(base: &mut Base, speeds: &mut Speeds, out: &mut dyn Write) -> Result<(), Error> {
     let mut teleop = Teleop::default();
     let mut measured = Measured::default();
     let mut last_status: Option<(Instant, Status)> = None;
@@ -285,11 +277,11 @@ fn drive_loop(
             }
         }
         // Then the bus, for a few ms: every report goes into the picture.
-        if let Some(report) = controller.next_report(Duration::from_millis(5))? {
+        if let Some(report) = base.next_report(Duration::from_millis(5))? {
             if let base_core::can::Report::Status(status) = report {
                 last_status = Some((Instant::now(), status));
             }
-            if let Some(pose) = controller.pose() {
+            if let Some(pose) = base.pose() {
                 measured.update(pose, Instant::now());
             }
         }
@@ -314,8 +306,8 @@ fn drive_loop(
             (Some(_), None) => Some(now),
             (None, _) => None,
         };
-        controller.send(Command::Enable { refresh: true })?;
-        controller.send(Command::Velocity {
+        base.send(Command::Enable { refresh: true })?;
+        base.send(Command::Velocity {
             linear_mm_s: linear,
             rotation_mrad_s: rotation,
         })?;
@@ -326,9 +318,9 @@ fn drive_loop(
                 linear,
                 rotation,
                 measured: &measured,
-                pose: controller.pose(),
+                pose: base.pose(),
                 status: last_status.map(|(_, status)| status),
-                battery: controller.battery(),
+                battery: base.battery(),
                 block: block.as_ref(),
                 waiting_for_release: teleop.waiting_for_release(),
             },

@@ -6,26 +6,26 @@ use std::time::{Duration, Instant};
 
 use base_core::can::Command;
 
-use crate::controller::{Controller, Error};
+use crate::base::{Base, Error};
 
 /// Twice as often as the protocol's minimum (every 2 s).
 const HEARTBEAT_PERIOD: Duration = Duration::from_secs(1);
 
 pub fn pc_heartbeat(
-    controller: &mut Controller,
+    base: &mut Base,
     seconds: Option<u64>,
     out: &mut dyn Write,
 ) -> Result<(), Error> {
     let deadline = seconds.map(|seconds| Instant::now() + Duration::from_secs(seconds));
     let mut sent: u64 = 0;
     while deadline.is_none_or(|deadline| Instant::now() < deadline) {
-        controller.send(Command::Heartbeat)?;
+        base.send(Command::Heartbeat)?;
         sent += 1;
         write!(out, "\rheartbeats sent: {sent}")?;
         out.flush()?;
         // Reading meanwhile keeps the adapter's output from piling up.
         let next = Instant::now() + HEARTBEAT_PERIOD;
-        while controller
+        while base
             .next_report(next.saturating_duration_since(Instant::now()))?
             .is_some()
         {}

@@ -8,32 +8,28 @@ use std::time::{Duration, Instant};
 use base_core::registers::Reg;
 use serde_json::json;
 
+use crate::base::{Base, Error};
 use crate::config::version_text;
-use crate::controller::{Controller, Error};
 use crate::monitor::{fault_names, flag_names};
 use crate::rejection;
 
 /// The longest `info` waits for the battery report (it comes every `volt_time`).
 const LONGEST_LISTEN: Duration = Duration::from_secs(10);
 
-pub fn info(
-    controller: &mut Controller,
-    json_output: bool,
-    out: &mut dyn Write,
-) -> Result<(), Error> {
+pub fn info(base: &mut Base, json_output: bool, out: &mut dyn Write) -> Result<(), Error> {
     let [firmware, regmap, volt_time] =
-        controller.read_registers([Reg::FwVersion, Reg::RegmapVersion, Reg::VoltTime])?;
-    let status = controller.next_status()?;
+        base.read_registers([Reg::FwVersion, Reg::RegmapVersion, Reg::VoltTime])?;
+    let status = base.next_status()?;
     // The battery report comes every volt_time (5 s by default): wait for one.
     let listen = (Duration::from_millis(u64::from(volt_time)) + Duration::from_millis(500))
         .min(LONGEST_LISTEN);
     let deadline = Instant::now() + listen;
-    while controller.battery().is_none() || controller.pose().is_none() {
+    while base.battery().is_none() || base.pose().is_none() {
         let remaining = deadline.saturating_duration_since(Instant::now());
         if remaining.is_zero() {
             break;
         }
-        if controller.next_report(remaining)?.is_none() {
+        if base.next_report(remaining)?.is_none() {
             break;
         }
     }
@@ -41,8 +37,8 @@ pub fn info(
     let faults = fault_names(&status.faults);
     let last_rejection = rejection::name(status.last_rejection)
         .map_or_else(|| format!("0x{:02X}", status.last_rejection), str::to_owned);
-    let battery = controller.battery();
-    let pose = controller.pose();
+    let battery = base.battery();
+    let pose = base.pose();
     if json_output {
         let object = json!({
             "firmware_version": version_text(firmware),
@@ -60,7 +56,7 @@ pub fn info(
             "battery_percent": battery.map(|(percent, _)| percent),
             "battery_mv": battery.map(|(_, millivolts)| millivolts),
             "pose": pose.map(|pose| json!({"x_mm": pose.x_mm, "y_mm": pose.y_mm, "heading_mrad": pose.heading_mrad})),
-            "weight_g": controller.weight_g(),
+            "weight_g": base.weight_g(),
         });
         writeln!(out, "{object}")?;
         return Ok(());

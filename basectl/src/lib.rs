@@ -1,13 +1,13 @@
 //! basectl, the base controller's commissioning CLI: the bus ([`bus`]), the controller
-//! behind it ([`controller`]) and one module per command. `main.rs` only parses the
+//! behind it ([`base`]) and one module per command. `main.rs` only parses the
 //! command line; the end-to-end tests (`sim/tests/basectl.rs`) call these functions
 //! against the simulator.
 
+pub mod base;
 pub mod bus;
 pub mod calibrate;
 pub mod cli;
 pub mod config;
-pub mod controller;
 pub mod drive;
 pub mod heartbeat;
 pub mod info;

@@ -13,8 +13,8 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use base_core::can::{RawFrame, Report};
 
+use crate::base::Error;
 use crate::bus::Bus;
-use crate::controller::Error;
 
 /// The file's format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]

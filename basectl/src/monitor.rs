@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use base_core::can::{Faults, Report, Status, StatusFlags};
 
-use crate::controller::{Controller, Error};
+use crate::base::{Base, Error};
 use crate::rejection;
 
 /// When `monitor` stops; with neither it runs until Ctrl-C.
@@ -75,7 +75,7 @@ impl Latest {
 }
 
 pub fn monitor(
-    controller: &mut Controller,
+    base: &mut Base,
     until: Until,
     style: Style,
     out: &mut dyn Write,
@@ -101,7 +101,7 @@ pub fn monitor(
             latest.draw(out)?;
             next_draw = Instant::now() + LIVE_PERIOD;
         }
-        match controller.next_report(wait)? {
+        match base.next_report(wait)? {
             Some(report) => {
                 match style {
                     Style::Lines => writeln!(out, "{}", describe(&report))?,

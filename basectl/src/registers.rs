@@ -7,7 +7,7 @@ use base_core::registers::{
     Access, OPEN_PAIRING_WINDOW_KEY, RESTORE_DEFAULTS_KEY, Reg, RegisterInfo, TABLE, info,
 };
 
-use crate::controller::{Controller, Error};
+use crate::base::{Base, Error};
 use crate::{rejection, rules};
 
 /// A register by its name (any case) or its address (decimal or `0x` hex).
@@ -102,12 +102,12 @@ pub fn list(out: &mut dyn Write) -> std::io::Result<()> {
 }
 
 pub fn get(
-    controller: &mut Controller,
+    base: &mut Base,
     register: &RegisterInfo,
     json: bool,
     out: &mut dyn Write,
 ) -> Result<(), Error> {
-    let value = controller.read_register(register.address)?;
+    let value = base.read_register(register.address)?;
     if json {
         writeln!(out, "{}", register_json(register, value))?;
     } else {
@@ -130,18 +130,14 @@ pub fn register_json(register: &RegisterInfo, value: u16) -> serde_json::Value {
 /// checked against the controller's current values, so that a refusal names the rule
 /// and the other register's value; a write the controller refuses anyway says which
 /// rules the register is part of.
-pub fn write_checked(
-    controller: &mut Controller,
-    register: &RegisterInfo,
-    value: u16,
-) -> Result<(), Error> {
+pub fn write_checked(base: &mut Base, register: &RegisterInfo, value: u16) -> Result<(), Error> {
     for rule in rules::RULES.iter().filter(|rule| {
         rule.registers
             .iter()
             .any(|reg| reg.address() == register.address)
     }) {
         let [first, second] = rule.registers;
-        let values = controller.read_registers([first, second])?;
+        let values = base.read_registers([first, second])?;
         let value_of = |reg: Reg| {
             if reg.address() == register.address {
                 value
@@ -167,7 +163,7 @@ pub fn write_checked(
             )));
         }
     }
-    match controller.write_register(register, value) {
+    match base.write_register(register, value) {
         Err(Error::Refused { reason, .. }) if rejection::name(reason) == Some("Inconsistent") => {
             return Err(Error::InvalidInput(format!(
                 "the base controller refused writing {value} to {}: it breaks a rule between \
@@ -178,7 +174,7 @@ pub fn write_checked(
         }
         other => other?,
     }
-    let new = controller.read_register(register.address)?;
+    let new = base.read_register(register.address)?;
     if new != value {
         return Err(Error::Aborted(format!(
             "{} reads back {new} after writing {value}: another client may have written it",
@@ -189,7 +185,7 @@ pub fn write_checked(
 }
 
 pub fn set(
-    controller: &mut Controller,
+    base: &mut Base,
     register: &RegisterInfo,
     value: u16,
     json: bool,
@@ -197,7 +193,7 @@ pub fn set(
 ) -> Result<(), Error> {
     if register.access == Access::WriteOnly {
         // `command` reads 0 whatever was written: there is nothing to read back.
-        controller.write_register(register, value)?;
+        base.write_register(register, value)?;
         let done = match value {
             RESTORE_DEFAULTS_KEY => "every writable register is back at its default",
             OPEN_PAIRING_WINDOW_KEY => "the remote's pairing window is open",
@@ -214,8 +210,8 @@ pub fn set(
         }
         return Ok(());
     }
-    let old = controller.read_register(register.address)?;
-    write_checked(controller, register, value)?;
+    let old = base.read_register(register.address)?;
+    write_checked(base, register, value)?;
     if json {
         let mut object = register_json(register, value);
         object["old"] = old.into();
@@ -226,10 +222,10 @@ pub fn set(
     Ok(())
 }
 
-pub fn dump(controller: &mut Controller, json: bool, out: &mut dyn Write) -> Result<(), Error> {
+pub fn dump(base: &mut Base, json: bool, out: &mut dyn Write) -> Result<(), Error> {
     let mut all = Vec::new();
     for register in TABLE.iter().filter(|r| r.access != Access::WriteOnly) {
-        let value = controller.read_register(register.address)?;
+        let value = base.read_register(register.address)?;
         if json {
             all.push(register_json(register, value));
         } else {
@@ -242,17 +238,13 @@ pub fn dump(controller: &mut Controller, json: bool, out: &mut dyn Write) -> Res
     Ok(())
 }
 
-pub fn restore(
-    controller: &mut Controller,
-    confirmed: bool,
-    out: &mut dyn Write,
-) -> Result<(), Error> {
+pub fn restore(base: &mut Base, confirmed: bool, out: &mut dyn Write) -> Result<(), Error> {
     if !confirmed {
         return Err(Error::InvalidInput(
             "restoring every register to its default needs --yes".to_owned(),
         ));
     }
-    controller.write_register(Reg::Command.info(), RESTORE_DEFAULTS_KEY)?;
+    base.write_register(Reg::Command.info(), RESTORE_DEFAULTS_KEY)?;
     writeln!(out, "every writable register is back at its default")?;
     Ok(())
 }

@@ -9,9 +9,9 @@ use std::path::PathBuf;
 use std::process::{Child, ChildStdin, Command, Stdio};
 use std::time::{Duration, Instant};
 
+use basectl::base::{Base, Error};
 use basectl::bus::SlcanPort;
 use basectl::calibrate::{self, Driving, OdometryPlan, Person, ScalePlan};
-use basectl::controller::{Controller, Error};
 use basectl::monitor::{self, Until};
 use basectl::registers;
 
@@ -106,18 +106,18 @@ impl Person for Nobody {
 fn a_register_written_with_basectl_reads_back_and_a_bad_value_is_refused_with_its_reason() {
     let simulator = Simulator::start("reg");
     let mut port = simulator.port();
-    let mut controller = Controller::new(&mut port, Duration::from_millis(500));
+    let mut base = Base::new(&mut port, Duration::from_millis(500));
     let loop_end_delay = registers::lookup("loop_end_delay").unwrap();
     let mut out = Vec::new();
-    registers::set(&mut controller, loop_end_delay, 40, false, &mut out).unwrap();
-    registers::get(&mut controller, loop_end_delay, false, &mut out).unwrap();
+    registers::set(&mut base, loop_end_delay, 40, false, &mut out).unwrap();
+    registers::get(&mut base, loop_end_delay, false, &mut out).unwrap();
     let text = String::from_utf8(out).unwrap();
     assert!(text.contains("loop_end_delay: 50 -> 40 ms"), "{text}");
     assert!(text.contains("loop_end_delay = 40 ms"), "{text}");
 
     // In range by itself, but empty above full breaks a cross-register rule.
     let batt_empty = registers::lookup("batt_empty_mv").unwrap();
-    let error = registers::set(&mut controller, batt_empty, 30_000, false, &mut Vec::new())
+    let error = registers::set(&mut base, batt_empty, 30_000, false, &mut Vec::new())
         .unwrap_err()
         .to_string();
     assert!(
@@ -133,7 +133,7 @@ fn a_register_written_with_basectl_reads_back_and_a_bad_value_is_refused_with_it
 fn the_odometry_wizard_runs_end_to_end_and_stores_new_factors() {
     let simulator = Simulator::start("odometry");
     let mut port = simulator.port();
-    let mut controller = Controller::new(&mut port, Duration::from_millis(500));
+    let mut base = Base::new(&mut port, Duration::from_millis(500));
     let plan = OdometryPlan {
         driving: Driving::Automatic {
             distance_mm: 300,
@@ -147,7 +147,7 @@ fn the_odometry_wizard_runs_end_to_end_and_stores_new_factors() {
         real_ccw_mrad: Some(1450),
     };
     let mut out = Vec::new();
-    calibrate::odometry(&mut controller, plan, &mut Nobody, &mut out).unwrap();
+    calibrate::odometry(&mut base, plan, &mut Nobody, &mut out).unwrap();
     let text = String::from_utf8(out).unwrap();
     for factor in ["f_cw", "f_ccw", "f_lin"] {
         let line = text
@@ -172,14 +172,14 @@ fn the_odometry_wizard_runs_end_to_end_and_stores_new_factors() {
 fn the_scale_wizard_runs_end_to_end_and_the_scale_then_reads_the_known_weight() {
     let mut simulator = Simulator::start("scale");
     let mut port = simulator.port();
-    let mut controller = Controller::new(&mut port, Duration::from_millis(500));
+    let mut base = Base::new(&mut port, Duration::from_millis(500));
     let mut person = ScriptedPerson {
         console: simulator.child.stdin.as_mut().unwrap(),
         known_g: 2000,
     };
     let mut out = Vec::new();
     calibrate::scale(
-        &mut controller,
+        &mut base,
         ScalePlan {
             known_g: Some(2000),
         },
@@ -205,10 +205,10 @@ fn the_scale_wizard_runs_end_to_end_and_the_scale_then_reads_the_known_weight() 
 fn monitor_stops_after_count_frames_and_decodes_each() {
     let simulator = Simulator::start("monitor");
     let mut port = simulator.port();
-    let mut controller = Controller::new(&mut port, Duration::from_millis(500));
+    let mut base = Base::new(&mut port, Duration::from_millis(500));
     let mut out = Vec::new();
     monitor::monitor(
-        &mut controller,
+        &mut base,
         Until {
             count: Some(80),
             seconds: None,

@@ -117,7 +117,9 @@ pub struct Pose {
     pub heading_mrad: i32,
 }
 
-pub struct Controller<'bus> {
+/// The base controller as basectl sees it over the bus: a command and its answer, and
+/// the newest reports that passed by meanwhile.
+pub struct Base<'bus> {
     bus: &'bus mut dyn Bus,
     reply_timeout: Duration,
     status: Option<Status>,
@@ -145,7 +147,7 @@ const FOREIGN_READS_RECENT: Duration = Duration::from_secs(2);
 /// The first byte of a register read request on 0x004 (replies start with 00 or FF).
 const READ_REQUEST: u8 = 0x01;
 
-impl<'bus> Controller<'bus> {
+impl<'bus> Base<'bus> {
     /// `reply_timeout`: how long a register read may take to be answered.
     pub fn new(bus: &'bus mut dyn Bus, reply_timeout: Duration) -> Self {
         Self {
