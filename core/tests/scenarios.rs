@@ -2056,3 +2056,34 @@ fn a_ramp_starts_from_the_measured_wheel_speeds_so_both_arrive_together() {
         ],
     );
 }
+
+/// The hand-over after a link loss is the same as after a release.
+#[test]
+fn after_a_remote_link_loss_can_drives_only_after_standstill_with_a_fresh_frame() {
+    run(
+        defaults(),
+        &[
+            (0, pad_link(true), &[]),
+            (0, buttons(Buttons::NONE), &[]),
+            (10, dead_man(1.0, 0.0), &[remote_forward(250)]),
+            (100, moving(30), &[]),
+            (
+                110,
+                pad_link(false),
+                &[Stop { accel: STOP_DECEL }, Control(ControlSource::None)],
+            ),
+            (120, enable(), &[]),
+            (120, velocity(500, 0), &[NoWheels, NoExcite]),
+            (150, moving(10), &[NoWheels]),
+            (160, enable(), &[]),
+            (160, velocity(500, 0), &[NoWheels]),
+            (200, moving(1), &[NoWheels]),
+            (210, enable(), &[]),
+            (
+                210,
+                velocity(500, 0),
+                &[FORWARD_500, Control(ControlSource::Can)],
+            ),
+        ],
+    );
+}
