@@ -9,14 +9,15 @@ use crate::battery::{self, BatteryFilter, BatteryParams};
 use crate::calibration::odometry::OdometryCalibration;
 use crate::calibration::scale::{ScaleCalibration, ScaleUpdate};
 use crate::can::{Command, FrameError, RawFrame, Report};
-use crate::can::{Faults, Status, StatusFlags};
+use crate::can::{Faults, Mode, Status, StatusFlags};
 use crate::feedback::{FeedbackPeriods, FeedbackSchedule};
 use crate::gamepad::GamepadState;
 use crate::kinematics::{self, KinematicsParams, MotorRpm, SafetyLimits, Twist, WheelCommand};
 use crate::odometry::{EncoderCounts, Odometry, OdometryParams};
 use crate::power::{self, PowerControl, SwitchLevel};
 use crate::registers::{
-    MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, Reg, RegisterError, Registers, WriteOutcome,
+    MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, RESTORE_DEFAULTS_KEY, Reg, RegisterError,
+    Registers, WriteOutcome,
 };
 use crate::remote::{self, Control, PairingWindow, Remote};
 use crate::scale::{self, RawAverage};
@@ -173,8 +174,10 @@ pub struct Controller {
     feedback: FeedbackSchedule,
     /// The supervisor's latest setpoint: what the wheels follow until the next one.
     setpoint: Setpoint,
-    /// The motor speeds last commanded; the next ramp starts from here.
-    commanded: MotorRpm,
+    /// The wheel command last sent: the drives ramp towards it.
+    in_force: WheelCommand,
+    /// What the drives run at, from the latest measurement; the next ramp starts here.
+    speed: SpeedEstimate,
     rejections: Rejections,
     faults: ShellFaults,
     /// The link as the BLE task reports it, for the status frame.
@@ -202,7 +205,8 @@ impl Controller {
                 twist: Twist::ZERO,
                 accel_rpm_per_s: 0,
             },
-            commanded: MotorRpm { left: 0, right: 0 },
+            in_force: STANDING,
+            speed: SpeedEstimate::standing(now),
             rejections: Rejections::default(),
             faults: ShellFaults::default(),
             remote_link: RemoteLink::default(),
@@ -268,9 +272,14 @@ impl Controller {
             Input::DriveFeedback { counts, rpm } => self.drive_feedback(now, counts, rpm, &mut out),
             Input::DrivesReady => {
                 // The counters restarted with the drives' power: the next sample is a
-                // baseline, and the wheels were told nothing yet.
+                // baseline. Set up from scratch (only a starting or recovering base asked
+                // for it), the drives stand and were told nothing yet; one that comes
+                // unasked changes nothing about what the wheels do.
                 self.odometry.rebaseline();
-                self.commanded = MotorRpm { left: 0, right: 0 };
+                if matches!(self.supervisor.mode(), Mode::Starting | Mode::Recovering) {
+                    self.in_force = STANDING;
+                    self.speed = SpeedEstimate::standing(now);
+                }
                 self.supervise(now, supervisor::Event::DrivesReady, &mut out);
             }
             Input::DriveSilent(wheel) => {
@@ -307,6 +316,26 @@ impl Controller {
         }
         self.periodic_frames(now, &mut out);
         out
+    }
+
+    /// The motor speeds the drives are estimated to run at now (as sent to each drive,
+    /// inversion applied): the latest measurement, moved along the commanded ramp since.
+    /// The next wheel command ramps from here. Limited to ±`max_motor_vel`: no command
+    /// is ever faster, so a reading beyond it is garbage, and believing it would stretch
+    /// the other wheel's share of a stop without bound.
+    pub fn estimated_rpm(&self, now: Instant) -> MotorRpm {
+        let limit = i32::from(self.registers.get(Reg::MaxMotorVel));
+        let rpm = self.speed.advanced(now, &self.in_force).rpm();
+        MotorRpm {
+            left: rpm.left.clamp(-limit, limit),
+            right: rpm.right.clamp(-limit, limit),
+        }
+    }
+
+    /// The base stands: zero is commanded and the latest feedback measured both wheels
+    /// at rest. Only then are motion registers and restore-defaults accepted.
+    pub fn at_standstill(&self) -> bool {
+        self.in_force.rpm == MotorRpm::ZERO && self.supervisor.at_rest()
     }
 
     /// The status frame as it would be sent now.
@@ -430,7 +459,23 @@ impl Controller {
     /// Validates and applies a register write; a change is handed to the flash task and
     /// takes effect at once, because every parameter struct is built from the registers
     /// at the moment it is used, and a supervisor step applies it to the running command.
+    /// A new value for a motion register, and restore-defaults, are refused with
+    /// `NotAtRest` unless the base stands: a geometry, direction or limit that changes
+    /// under a moving base turns a straight drive into a spin.
     fn write_register(&mut self, now: Instant, address: u8, value: u16, out: &mut Output) {
+        let changes_motion = match Reg::from_address(address) {
+            Some(Reg::Command) => value == RESTORE_DEFAULTS_KEY,
+            Some(reg) => {
+                reg.changes_motion()
+                    && reg.info().accepts(value)
+                    && self.registers.get(reg) != value
+            }
+            None => false,
+        };
+        if changes_motion && !self.at_standstill() {
+            self.reject_register(address, RegisterError::NotAtRest);
+            return;
+        }
         let outcome = self.registers.write(address, value);
         if matches!(
             outcome,
@@ -480,6 +525,7 @@ impl Controller {
             self.odometry_calibration
                 .observe(motion.distance_mm, motion.rotation_mrad);
         }
+        self.speed = SpeedEstimate::measured(now, rpm);
         // A range, not `abs()`: i32::MIN from a drive would overflow (and, wrapped, read
         // as standing).
         let standing = -AT_REST_RPM..=AT_REST_RPM;
@@ -493,13 +539,32 @@ impl Controller {
             self.setpoint = setpoint;
         }
         // Mapped on every step, not only for a new setpoint, so that registers written
-        // since then apply to the running command too. A new setpoint always goes out,
-        // even an unchanged zero (the e-stop edge).
-        let target = kinematics::motor_rpm(&self.kinematics_params(), self.setpoint.twist);
-        if effects.setpoint.is_some() || target != self.commanded {
-            let accel = self.setpoint.accel_rpm_per_s;
-            out.wheels = Some(kinematics::ramp(self.commanded, target, accel));
-            self.commanded = target;
+        // since then (and the safety zone's motor limit) apply to the running command
+        // too. A new setpoint always goes out, even an unchanged zero (the e-stop edge).
+        let zone = self.supervisor.safety_zone();
+        let target = kinematics::motor_rpm(&self.kinematics_params(zone), self.setpoint.twist);
+        // The ramp starts from what the wheels run at, not from the last target: a
+        // command that interrupts a ramp then still brings both wheels in together.
+        let start = self.estimated_rpm(now);
+        let estop_decel = u32::from(self.registers.get(Reg::EstopDecel));
+        // In the safety zone every slowing down brakes at least with estop_decel: a base
+        // faster than the zone allows reaches its limits within 300 ms (the estop_decel
+        // rule), whatever the source's own acceleration.
+        let zone_brake = zone && slows_down(start, target);
+        let weak_brake_in_force =
+            self.in_force.left_accel.max(self.in_force.right_accel) < estop_decel;
+        if effects.setpoint.is_some()
+            || target != self.in_force.rpm
+            || (zone_brake && weak_brake_in_force)
+        {
+            let mut accel = self.setpoint.accel_rpm_per_s;
+            if zone_brake {
+                accel = accel.max(estop_decel);
+            }
+            let command = kinematics::ramp(start, target, accel);
+            self.speed = self.speed.advanced(now, &self.in_force);
+            self.in_force = command;
+            out.wheels = Some(command);
         }
         if effects.excite.is_some() {
             out.excite = effects.excite;
@@ -615,6 +680,7 @@ impl Controller {
             remote_accel: u32::from(r.get(Reg::ContrAccNorm)),
             remote_release_accel: u32::from(r.get(Reg::ContrAccHigh)),
             estop_decel: u32::from(r.get(Reg::EstopDecel)),
+            stop_decel: u32::from(r.get(Reg::StopDecel)),
             safety_limits: SafetyLimits {
                 linear_mm_s: r.get(Reg::SecLinVel),
                 rotation_mrad_s: r.get(Reg::SecTurnVel),
@@ -632,14 +698,21 @@ impl Controller {
         }
     }
 
-    fn kinematics_params(&self) -> KinematicsParams {
+    /// The kinematics the registers describe. In the safety zone the motor limit is
+    /// `sec_motor_vel` too: it holds in motor r/min, so a wrong radius or gear ratio
+    /// cannot defeat the zone's limits the way it defeats the twist clamp.
+    fn kinematics_params(&self, safety_zone: bool) -> KinematicsParams {
         let g = Geometry::of(&self.registers);
+        let mut max_motor_rpm = self.registers.get(Reg::MaxMotorVel);
+        if safety_zone {
+            max_motor_rpm = max_motor_rpm.min(self.registers.get(Reg::SecMotorVel));
+        }
         KinematicsParams {
             left_radius_mm: g.left_radius_mm as f32,
             right_radius_mm: g.right_radius_mm as f32,
             wheel_distance_mm: g.wheel_distance_mm as f32,
             gear_ratio: g.gear_ratio as f32,
-            max_motor_rpm: f32::from(self.registers.get(Reg::MaxMotorVel)),
+            max_motor_rpm: f32::from(max_motor_rpm),
             invert_left: g.invert_left,
             invert_right: g.invert_right,
         }
@@ -687,6 +760,81 @@ impl Geometry {
             invert_right: motor_dir & MOTOR_DIR_INVERT_RIGHT != 0,
         }
     }
+}
+
+/// The drives after setup: standing, nothing commanded.
+const STANDING: WheelCommand = WheelCommand {
+    rpm: MotorRpm::ZERO,
+    left_accel: 0,
+    right_accel: 0,
+};
+
+/// What the drives run at: the latest measured motor speeds and when they were
+/// measured. Between two measurements each drive is taken to ramp linearly towards the
+/// command in force at its commanded rate, as the drives do.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+struct SpeedEstimate {
+    left: f32,
+    right: f32,
+    at: Instant,
+}
+
+impl SpeedEstimate {
+    fn standing(now: Instant) -> Self {
+        Self {
+            left: 0.0,
+            right: 0.0,
+            at: now,
+        }
+    }
+
+    fn measured(now: Instant, rpm: MotorRpm) -> Self {
+        Self {
+            left: rpm.left as f32,
+            right: rpm.right as f32,
+            at: now,
+        }
+    }
+
+    /// Moved along `command` until `now`.
+    fn advanced(self, now: Instant, command: &WheelCommand) -> Self {
+        let seconds = now.millis_since(self.at) as f32 / 1000.0;
+        let toward = |speed: f32, target: i32, accel: u32| {
+            let target = target as f32;
+            let step = accel as f32 * seconds;
+            if speed < target {
+                (speed + step).min(target)
+            } else {
+                (speed - step).max(target)
+            }
+        };
+        Self {
+            left: toward(self.left, command.rpm.left, command.left_accel),
+            right: toward(self.right, command.rpm.right, command.right_accel),
+            at: now,
+        }
+    }
+
+    /// Rounded to whole r/min (`as` saturates a garbage measurement at the i32 range).
+    fn rpm(self) -> MotorRpm {
+        MotorRpm {
+            left: libm::roundf(self.left) as i32,
+            right: libm::roundf(self.right) as i32,
+        }
+    }
+}
+
+/// Some wheel must slow down to go from `start` to `target`: it is faster than its
+/// target, or must reverse, by more than the measurement noise.
+fn slows_down(start: MotorRpm, target: MotorRpm) -> bool {
+    let slows = |start: i32, target: i32| {
+        let (start, target) = (i64::from(start), i64::from(target));
+        let reverses = start.signum() * target.signum() < 0;
+        let faster = start.abs() > target.abs() + i64::from(AT_REST_RPM);
+        start.abs() > i64::from(AT_REST_RPM) && (reverses || faster)
+    };
+    slows(start.left, target.left) || slows(start.right, target.right)
 }
 
 fn power_params(r: &Registers) -> power::Params {
@@ -754,37 +902,39 @@ mod tests {
     }
 
     #[test]
-    fn lowering_max_motor_vel_while_driving_slows_the_running_command_at_once() {
+    fn a_motion_register_written_while_driving_is_refused_and_the_command_runs_on() {
         let mut controller = driving_forward();
         let out = controller.handle(at(10), write(Reg::MaxMotorVel, 100));
-        assert_eq!(
-            out.wheels,
-            Some(kinematics::WheelCommand {
-                rpm: MotorRpm {
-                    left: 100,
-                    right: -100
-                },
-                left_accel: 700,
-                right_accel: 700,
-            })
-        );
-        // The PC keeps sending the same velocity: nothing new to send, the limit holds.
-        controller.handle(at(20), can(Command::Enable { refresh: true }));
-        let out = controller.handle(
-            at(20),
-            can(Command::Velocity {
-                linear_mm_s: 500,
-                rotation_mrad_s: 0,
-            }),
-        );
         assert_eq!(out.wheels, None);
+        assert_eq!(out.persist, Persist::default());
+        assert_eq!(controller.registers().get(Reg::MaxMotorVel), 900);
+        let status = controller.status(at(10));
+        assert_eq!(
+            (status.last_rejection, status.last_rejection_subject),
+            (RegisterError::NotAtRest.code(), Reg::MaxMotorVel.address())
+        );
+        // Stopped and measured at rest: the same write is accepted and persisted.
+        controller.handle(at(20), can(Command::Enable { refresh: false }));
+        controller.handle(
+            at(400),
+            Input::DriveFeedback {
+                counts: EncoderCounts { left: 0, right: 0 },
+                rpm: MotorRpm::ZERO,
+            },
+        );
+        assert!(controller.at_standstill());
+        let out = controller.handle(at(410), write(Reg::MaxMotorVel, 100));
+        assert_eq!(
+            out.persist.changed.as_slice(),
+            [(Reg::MaxMotorVel.address(), 100)]
+        );
     }
 
     #[test]
     fn a_register_write_after_the_enable_lapsed_stops_the_wheels_instead_of_resending() {
         let mut controller = driving_forward();
         // enable_timeout is 500 ms and no tick came since: the write's step sees the lapse.
-        let out = controller.handle(at(600), write(Reg::GearRatio, 2000));
+        let out = controller.handle(at(600), write(Reg::CanAccel, 2000));
         assert_eq!(out.wheels.map(|command| command.rpm), Some(MotorRpm::ZERO));
     }
 

@@ -26,7 +26,14 @@
 //!   stored command (CAN velocity, remote dead-man): nothing resumes by itself.
 //! - CAN drives only while the enable is fresh and a velocity frame arrived while it was;
 //!   a lapse clears the stored velocity, so a returning enable alone never moves the base.
-//! - The remote's dead-man wins over CAN; its release brakes with `Contr_acc_high`.
+//! - A held dead-man wins over CAN, armed or not: it drops the CAN velocity and stops
+//!   the base; it drives only once armed (seen released while the base could drive).
+//! - Every stop of a source that went away (enable lapse or withdrawal, `cmd_timeout`,
+//!   dead-man release, remote link loss, a dead-man taking control from CAN) brakes
+//!   with the source's own register, but never gentler than `stop_decel`.
+//! - After the dead-man lets go (release or link loss), CAN velocity frames are dropped
+//!   until a drive feedback measures both wheels at rest; after that a fresh frame is
+//!   needed, so a PC that kept streaming cannot drive into a base that still rolls.
 
 use crate::can::{ControlSource, Mode};
 use crate::kinematics::{SafetyLimits, Twist};
@@ -106,6 +113,8 @@ pub struct Params {
     pub remote_accel: u32,
     pub remote_release_accel: u32,
     pub estop_decel: u32,
+    /// The floor of every stop but the e-stop (`stop_decel`).
+    pub stop_decel: u32,
     pub safety_limits: SafetyLimits,
 }
 
@@ -217,6 +226,9 @@ struct Inputs {
     safety_zone: bool,
     estop_pressed: bool,
     at_rest: bool,
+    /// The dead-man let go: CAN velocity is dropped until a drive feedback measures
+    /// both wheels at rest (or the drives are set up from scratch).
+    can_waits_for_rest: bool,
 }
 
 /// See the module documentation for the state diagram and the rules.
@@ -254,6 +266,7 @@ impl Supervisor {
                 safety_zone: false,
                 estop_pressed: false,
                 at_rest: true,
+                can_waits_for_rest: false,
             },
             faults: DriveFaults {
                 left_silent: false,
@@ -273,9 +286,14 @@ impl Supervisor {
             Event::CanEnable { refresh: true } => self.inputs.enable_refreshed = Some(now),
             Event::CanEnable { refresh: false } => self.withdraw_enable(params),
             Event::CanVelocity(twist) => {
-                // Stored only when it may drive: no enable, remote in control or a
-                // non-driving state all mean the frame is dropped, not buffered.
-                if self.enable_fresh(now, params) && !self.remote_in_control() && self.may_drive() {
+                // Stored only when it may drive: no enable, a held dead-man, a base still
+                // rolling after the dead-man let go or a non-driving state all mean the
+                // frame is dropped, not buffered.
+                if self.enable_fresh(now, params)
+                    && !self.remote_in_control()
+                    && !self.inputs.can_waits_for_rest
+                    && self.may_drive()
+                {
                     self.inputs.can_command = Some(CanCommand {
                         twist,
                         received: now,
@@ -285,7 +303,8 @@ impl Supervisor {
             Event::Remote { dead_man, twist } => self.remote_report(dead_man, twist, params),
             Event::RemoteLinkLost => {
                 if self.remote_in_control() {
-                    self.stop_with(params.remote_release_accel);
+                    self.stop_with(params.remote_release_accel, params);
+                    self.inputs.can_waits_for_rest = true;
                 }
                 self.inputs.remote = RemoteInput::NONE;
             }
@@ -311,6 +330,9 @@ impl Supervisor {
                     // pad that has not reported yet has not been seen released.
                     let remote = &mut self.inputs.remote;
                     remote.armed = remote.reported && !remote.dead_man;
+                    // Set up from scratch: the drives stand, de-excited.
+                    self.inputs.at_rest = true;
+                    self.inputs.can_waits_for_rest = false;
                     self.faults = DriveFaults {
                         last_alarm_code: self.faults.last_alarm_code,
                         ..DriveFaults::default()
@@ -321,7 +343,12 @@ impl Supervisor {
             Event::DriveAlarm { wheel, code } => {
                 self.drive_fault(wheel, Some(code), params, &mut effects)
             }
-            Event::AtRest(at_rest) => self.inputs.at_rest = at_rest,
+            Event::AtRest(at_rest) => {
+                self.inputs.at_rest = at_rest;
+                if at_rest {
+                    self.inputs.can_waits_for_rest = false;
+                }
+            }
             Event::Tick => {}
         }
         self.update_motion(now, params, &mut effects);
@@ -375,8 +402,22 @@ impl Supervisor {
         self.inputs.estop_pressed
     }
 
+    /// The dead-man is held, armed or not: the remote has control and CAN velocity is
+    /// ignored. Only an armed dead-man drives ([`Supervisor::remote_drives`]); a held
+    /// one that is not armed keeps the base stopped.
     pub fn remote_in_control(&self) -> bool {
-        self.inputs.remote.armed && self.inputs.remote.dead_man
+        self.inputs.remote.reported && self.inputs.remote.dead_man
+    }
+
+    /// The dead-man is held and armed: the sticks drive.
+    pub fn remote_drives(&self) -> bool {
+        self.inputs.remote.armed && self.remote_in_control()
+    }
+
+    /// The latest drive feedback measured both wheels at rest (or the drives were just
+    /// set up from scratch).
+    pub fn at_rest(&self) -> bool {
+        self.inputs.at_rest
     }
 
     /// The drives are de-excited, or unpowered (e-stop until the drives are set up
@@ -401,18 +442,18 @@ impl Supervisor {
         matches!(self.state, State::Standby | State::Active { .. })
     }
 
-    /// The source in control went away: the next stop uses `accel`. Only an excited
-    /// base has anything to stop.
-    fn stop_with(&mut self, accel: u32) {
+    /// The source in control went away: the next stop uses `accel`, or `stop_decel`
+    /// when that brakes harder. Only an excited base has anything to stop.
+    fn stop_with(&mut self, accel: u32, params: &Params) {
         if let State::Active { stop_accel, .. } = &mut self.state {
-            *stop_accel = accel;
+            *stop_accel = accel.max(params.stop_decel);
         }
     }
 
     fn withdraw_enable(&mut self, params: &Params) {
         self.inputs.enable_refreshed = None;
         if self.inputs.can_command.take().is_some() {
-            self.stop_with(params.can_accel);
+            self.stop_with(params.can_accel, params);
         }
     }
 
@@ -427,7 +468,7 @@ impl Supervisor {
                 && now.millis_since(command.received) >= u64::from(params.cmd_timeout_ms);
             if stale {
                 self.inputs.can_command = None;
-                self.stop_with(params.can_accel);
+                self.stop_with(params.can_accel, params);
             }
         }
     }
@@ -443,11 +484,16 @@ impl Supervisor {
         remote.dead_man = dead_man;
         remote.twist = twist;
         if self.remote_in_control() && !was_in_control {
-            // The remote takes over; CAN must send a fresh velocity after the release.
-            self.inputs.can_command = None;
+            // The remote takes over, armed or not; CAN must send a fresh velocity after
+            // the release. A CAN drive it interrupts stops as if its enable lapsed (an
+            // armed dead-man drives with its own twist instead).
+            if self.inputs.can_command.take().is_some() {
+                self.stop_with(params.can_accel, params);
+            }
         }
         if was_in_control && !self.remote_in_control() {
-            self.stop_with(params.remote_release_accel);
+            self.stop_with(params.remote_release_accel, params);
+            self.inputs.can_waits_for_rest = true;
         }
     }
 
@@ -525,7 +571,11 @@ impl Supervisor {
         };
 
         let (twist, accel) = match (self.control(), self.inputs.can_command) {
-            (ControlSource::Remote, _) => (self.inputs.remote.twist, params.remote_accel),
+            (ControlSource::Remote, _) if self.inputs.remote.armed => {
+                (self.inputs.remote.twist, params.remote_accel)
+            }
+            // Held but not armed: it has control, and stops the base.
+            (ControlSource::Remote, _) => (Twist::ZERO, stop_accel),
             (ControlSource::Can, Some(command)) => (command.twist, params.can_accel),
             (ControlSource::Can | ControlSource::None, _) => (Twist::ZERO, stop_accel),
         };
@@ -600,6 +650,7 @@ mod tests {
         remote_accel: 350,
         remote_release_accel: 500,
         estop_decel: 4500,
+        stop_decel: 600,
         safety_limits: SafetyLimits {
             linear_mm_s: 200,
             rotation_mrad_s: 100,
@@ -701,7 +752,8 @@ mod tests {
         supervisor.step(at(40), Event::ConfirmPressed, &PARAMS);
         let effects = supervisor.step(at(50), Event::DrivesReady, &PARAMS);
         assert_eq!(effects.setpoint, None);
-        assert!(!supervisor.remote_in_control());
+        assert!(!supervisor.remote_drives());
+        assert_eq!(supervisor.control(), ControlSource::Remote);
         // Released and pressed again: now it drives.
         supervisor.step(
             at(60),
@@ -732,7 +784,8 @@ mod tests {
         };
         let mut supervisor = ready();
         assert_eq!(supervisor.step(at(10), held, &PARAMS).setpoint, None);
-        assert!(!supervisor.remote_in_control());
+        assert!(!supervisor.remote_drives());
+        assert_eq!(supervisor.control(), ControlSource::Remote);
 
         let mut supervisor = ready();
         supervisor.step(at(0), Event::RemoteLinkLost, &PARAMS);
@@ -741,7 +794,7 @@ mod tests {
         supervisor.step(at(30), Event::ConfirmPressed, &PARAMS);
         supervisor.step(at(40), Event::DrivesReady, &PARAMS);
         assert_eq!(supervisor.step(at(50), held, &PARAMS).setpoint, None);
-        assert!(!supervisor.remote_in_control());
+        assert!(!supervisor.remote_drives());
     }
 
     #[test]
@@ -768,10 +821,19 @@ mod tests {
     }
 
     #[test]
-    fn remote_link_loss_while_held_brakes_with_contr_acc_high() {
+    fn remote_link_loss_while_held_brakes_with_contr_acc_high_or_stop_decel() {
+        let mut supervisor = remote_driving_forward();
+        let params = Params {
+            stop_decel: 400,
+            ..PARAMS
+        };
+        let effects = supervisor.step(at(20), Event::RemoteLinkLost, &params);
+        assert_eq!(effects.setpoint, setpoint(Twist::ZERO, 500));
+        assert_eq!(supervisor.control(), ControlSource::None);
+        // stop_decel above Contr_acc_high: the floor applies.
         let mut supervisor = remote_driving_forward();
         let effects = supervisor.step(at(20), Event::RemoteLinkLost, &PARAMS);
-        assert_eq!(effects.setpoint, setpoint(Twist::ZERO, 500));
+        assert_eq!(effects.setpoint, setpoint(Twist::ZERO, 600));
         assert_eq!(supervisor.control(), ControlSource::None);
     }
 

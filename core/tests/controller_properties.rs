@@ -7,13 +7,13 @@
 
 use base_core::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
 use base_core::can::{Command, ControlSource, Mode, RawFrame, Report, Status, id};
-use base_core::controller::{Controller, Input, Output};
+use base_core::controller::{AT_REST_RPM, Controller, Input, Output};
 use base_core::gamepad::{Buttons, Dpad, GamepadState};
 use base_core::kinematics::{self, KinematicsParams, MotorRpm, SafetyLimits, Twist};
 use base_core::odometry::{EncoderCounts, Pose};
 use base_core::registers::{
     MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, OPEN_PAIRING_WINDOW_KEY, RESTORE_DEFAULTS_KEY,
-    Reg, Registers,
+    Reg, RegisterError, Registers,
 };
 use base_core::remote::{MODIFIER_THRESHOLD, PAIRING_WINDOW_MS};
 use base_core::supervisor::Wheel;
@@ -495,10 +495,13 @@ mod model {
         remote_reported: bool,
         remote_held: bool,
         /// The dead-man was seen released while the base could drive (or was seen up
-        /// when the drives came back): only then may holding it take control, so a pad
-        /// that connects with the button held, or a button held through an e-stop,
-        /// does not drive.
+        /// when the drives came back): only then may holding it drive, so a pad that
+        /// connects with the button held, or a button held through an e-stop, does not
+        /// drive. Held, armed or not, it has control: CAN does not drive.
         remote_armed: bool,
+        /// The dead-man let go (released, link lost): CAN velocity is dropped until a
+        /// drive feedback measures both wheels at rest, or the drives are set up again.
+        can_waits_for_rest: bool,
         /// §13 asks for the pad's disconnect with the input just observed: L2 + Home,
         /// AFK, or a report from a pad already asked to go.
         pub disconnect_due: bool,
@@ -521,8 +524,14 @@ mod model {
                 .is_some_and(|at| now.millis_since(at) < timeout)
         }
 
+        /// The dead-man is held, armed or not: the remote has control.
+        pub fn remote_holds(&self) -> bool {
+            self.remote_reported && self.remote_held
+        }
+
+        /// The dead-man is held and armed: the sticks drive.
         pub fn remote_in_control(&self) -> bool {
-            self.remote_armed && self.remote_held
+            self.remote_armed && self.remote_holds()
         }
 
         /// The CAN velocity that may drive now, if any.
@@ -533,7 +542,7 @@ mod model {
             (velocity.session == self.session
                 && self.enable_fresh(now, registers)
                 && current
-                && !self.remote_in_control())
+                && !self.remote_holds())
             .then_some(velocity.twist)
         }
 
@@ -548,6 +557,9 @@ mod model {
                 None
             } else if self.remote_in_control() {
                 Some((ControlSource::Remote, self.remote_twist(registers)))
+            } else if self.remote_holds() {
+                // Held but not armed: control without motion.
+                Some((ControlSource::Remote, Twist::ZERO))
             } else {
                 self.can_twist(now, registers)
                     .map(|twist| (ControlSource::Can, twist))
@@ -582,6 +594,9 @@ mod model {
 
         /// The remote stops counting: the link is down or the pad is being switched off.
         fn remote_lost(&mut self) {
+            if self.remote_holds() {
+                self.can_waits_for_rest = true;
+            }
             self.remote_reported = false;
             self.remote_held = false;
             self.remote_armed = false;
@@ -636,15 +651,19 @@ mod model {
             };
 
             let dead_man = dead_man(&pad);
-            let was_in_control = self.remote_in_control();
+            let was_holding = self.remote_holds();
             if !dead_man && may_drive(before) {
                 self.remote_armed = true;
             }
             self.remote_reported = true;
             self.remote_held = dead_man;
-            if self.remote_in_control() && !was_in_control {
-                // The remote takes over: CAN needs a fresh velocity afterwards.
+            if self.remote_holds() && !was_holding {
+                // The remote takes over, armed or not: CAN needs a fresh velocity
+                // afterwards.
                 self.can = None;
+            }
+            if was_holding && !self.remote_holds() {
+                self.can_waits_for_rest = true;
             }
         }
 
@@ -683,7 +702,8 @@ mod model {
                         rotation_mrad_s,
                     })) if self.enable_fresh(now, registers)
                         && may_drive(before)
-                        && !self.remote_in_control() =>
+                        && !self.remote_holds()
+                        && !self.can_waits_for_rest =>
                     {
                         self.can = Some(CanVelocity {
                             twist: Twist {
@@ -750,6 +770,13 @@ mod model {
                 Input::SafetyZone(occupied) => self.safety_zone = occupied,
                 Input::DrivesReady if matches!(before, Mode::Starting | Mode::Recovering) => {
                     self.remote_armed = self.remote_reported && !self.remote_held;
+                    self.can_waits_for_rest = false;
+                }
+                Input::DriveFeedback { rpm, .. } => {
+                    let standing = -AT_REST_RPM..=AT_REST_RPM;
+                    if standing.contains(&rpm.left) && standing.contains(&rpm.right) {
+                        self.can_waits_for_rest = false;
+                    }
                 }
                 // A drive fault outside an emergency forgets every command, like an e-stop.
                 Input::DriveSilent(_) | Input::DriveAlarm { .. } if may_drive(before) => {
@@ -776,11 +803,14 @@ struct Snapshot {
     emergency: bool,
     status: Status,
     pose: Pose,
+    /// What the controller takes the drives to run at: a new ramp starts here.
+    estimated: MotorRpm,
 }
 
 impl Snapshot {
     fn of(controller: &Controller, now: Instant) -> Self {
         Self {
+            estimated: controller.estimated_rpm(now),
             registers: controller.registers().clone(),
             mode: controller.supervisor().mode(),
             emergency: controller.supervisor().in_emergency(),
@@ -803,6 +833,9 @@ struct Step<'a> {
     in_force: MotorRpm,
     /// The drives were told to excite (brakes released) and not to de-excite since.
     excited: bool,
+    /// The latest drive feedback before this event measured a wheel turning (and the
+    /// drives were not set up from scratch since).
+    measured_moving: bool,
     /// The model after this event.
     model: &'a Model,
 }
@@ -822,6 +855,7 @@ fn run(
     // does its DrivesReady mean "set up from scratch". The sequences also carry
     // unrequested ones, which must not break any invariant either.
     let mut setup_requested = true;
+    let mut measured_moving = false;
     for (gap, input) in events {
         now = now.plus_millis(*gap);
         let before = Snapshot::of(&controller, now);
@@ -829,12 +863,18 @@ fn run(
         let after = Snapshot::of(&controller, now);
 
         let in_force_before = in_force;
+        let measured_moving_before = measured_moving;
         if *input == Input::DrivesReady && setup_requested {
             // The drives were set up from scratch: they stand, de-excited, until told
             // otherwise.
             in_force = MotorRpm::ZERO;
             excited = false;
             setup_requested = false;
+            measured_moving = false;
+        }
+        if let Input::DriveFeedback { rpm, .. } = input {
+            let standing = -AT_REST_RPM..=AT_REST_RPM;
+            measured_moving = !(standing.contains(&rpm.left) && standing.contains(&rpm.right));
         }
         setup_requested |= out.setup_drives;
         if let Some(command) = out.wheels {
@@ -855,6 +895,7 @@ fn run(
             in_force_before,
             in_force,
             excited,
+            measured_moving: measured_moving_before,
             model: &model,
         })?;
     }
@@ -890,9 +931,14 @@ fn kinematics_params(registers: &Registers) -> KinematicsParams {
     }
 }
 
-/// The motor speeds `twist` asks for under the registers and the safety zone.
+/// The motor speeds `twist` asks for under the registers and the safety zone: in the
+/// zone the twist is clamped and the motors are limited to `sec_motor_vel` as well.
 fn expected_rpm(twist: Twist, safety_zone: bool, registers: &Registers) -> MotorRpm {
+    let mut params = kinematics_params(registers);
     let twist = if safety_zone {
+        params.max_motor_rpm = params
+            .max_motor_rpm
+            .min(registers.get(Reg::SecMotorVel).into());
         twist.clamped(SafetyLimits {
             linear_mm_s: registers.get(Reg::SecLinVel),
             rotation_mrad_s: registers.get(Reg::SecTurnVel),
@@ -900,7 +946,7 @@ fn expected_rpm(twist: Twist, safety_zone: bool, registers: &Registers) -> Motor
     } else {
         twist
     };
-    kinematics::motor_rpm(&kinematics_params(registers), twist)
+    kinematics::motor_rpm(&params, twist)
 }
 
 /// Inputs the supervisor never sees: they must never touch the wheels. (A frame that
@@ -1069,7 +1115,8 @@ proptest! {
                 )));
             };
             prop_assert!(is_zero(command.rpm), "{:?} after {:?}", command, step.input);
-            let from = step.in_force_before;
+            // The ramp starts from the speed the drives run at.
+            let from = step.before.estimated;
             let delta_left = i64::from(from.left).unsigned_abs();
             let delta_right = i64::from(from.right).unsigned_abs();
             let largest = delta_left.max(delta_right);
@@ -1354,6 +1401,189 @@ proptest! {
 }
 
 // ---------------------------------------------------------------------------------------
+// Invariant 8: stops a safety engineer signs off
+// ---------------------------------------------------------------------------------------
+
+/// The longest any stop but the e-stop may take: `max_motor_vel` at `stop_decel`'s
+/// lowest value, 4000 1/min at 2000 (1/min)/s.
+const STOP_BOUND_MS: u64 = 2000;
+
+/// A zero command that stops a moving base after every source went away (the model
+/// allows none), other than the e-stop and a drive fault (checked above): its
+/// command, and the speeds it ramps from.
+fn lost_source_stop(step: &Step) -> Option<kinematics::WheelCommand> {
+    let command = step.out.wheels.filter(|c| is_zero(c.rpm))?;
+    let estop_or_fault = matches!(
+        step.input,
+        Input::Estop(true) | Input::DriveSilent(_) | Input::DriveAlarm { .. }
+    );
+    (!estop_or_fault
+        && !is_zero(step.in_force_before)
+        && step.before.mode == Mode::Active
+        && step.model.source(step.now, &step.after.registers).is_none())
+    .then_some(command)
+}
+
+proptest! {
+    #![proptest_config(proptest_config(CASES))]
+
+    /// Every stop of a source that went away (enable lapse or withdrawal, `cmd_timeout`,
+    /// dead-man release, link loss) brakes with at least `stop_decel`, whatever
+    /// `CAN_accel` and `Contr_acc_high` say, so both wheels stand within
+    /// `max_motor_vel / stop_decel` ≤ 2 s of the command.
+    #[test]
+    fn every_stop_completes_within_its_bound(events in sequence()) {
+        run(&events, |step| {
+            let Some(command) = lost_source_stop(step) else {
+                return Ok(());
+            };
+            let registers = &step.after.registers;
+            let stop_decel = u32::from(registers.get(Reg::StopDecel));
+            let accel = command.left_accel.max(command.right_accel);
+            prop_assert!(
+                accel >= stop_decel,
+                "{:?} after {:?}: gentler than stop_decel {}", command, step.input, stop_decel
+            );
+            // The wheel with the larger change ramps with `accel`, the other arrives with
+            // it; the drives never run faster than max_motor_vel.
+            let from = step.before.estimated;
+            let largest = i64::from(from.left).abs().max(i64::from(from.right).abs());
+            let max = i64::from(registers.get(Reg::MaxMotorVel));
+            prop_assert!(largest <= max, "estimate {:?} above max_motor_vel", from);
+            let stop_ms = (max * 1000).unsigned_abs().div_ceil(u64::from(accel));
+            prop_assert!(
+                stop_ms <= STOP_BOUND_MS,
+                "{:?}: {} ms to stop from max_motor_vel {}", command, stop_ms, max
+            );
+            Ok(())
+        })?;
+    }
+
+    /// The motion registers (geometry, gear ratio, motor directions, speed and zone
+    /// limits) never change while the base moves: commanded to move, or measured
+    /// moving. A write then is refused with `NotAtRest`.
+    #[test]
+    fn motion_registers_change_only_at_standstill(events in sequence()) {
+        run(&events, |step| {
+            if is_zero(step.in_force_before) && !step.measured_moving {
+                return Ok(());
+            }
+            for reg in Reg::ALL.into_iter().filter(|reg| reg.changes_motion()) {
+                prop_assert_eq!(
+                    step.before.registers.get(reg),
+                    step.after.registers.get(reg),
+                    "{:?} changed while moving ({:?} in force) after {:?}",
+                    reg, step.in_force_before, step.input
+                );
+            }
+            Ok(())
+        })?;
+    }
+}
+
+/// Drives as the controller's model of them: each ramps linearly from its speed towards
+/// the command in force at the command's rate.
+#[derive(Debug, Clone, Copy, Default)]
+struct DriveModel {
+    left: f64,
+    right: f64,
+    command: Option<kinematics::WheelCommand>,
+}
+
+impl DriveModel {
+    fn advance(&mut self, ms: u64) {
+        let Some(command) = self.command else { return };
+        let toward = |speed: f64, target: i32, accel: u32| {
+            let step = f64::from(accel) * ms as f64 / 1000.0;
+            let target = f64::from(target);
+            if speed < target {
+                (speed + step).min(target)
+            } else {
+                (speed - step).max(target)
+            }
+        };
+        self.left = toward(self.left, command.rpm.left, command.left_accel);
+        self.right = toward(self.right, command.rpm.right, command.right_accel);
+    }
+
+    fn measured(&self) -> MotorRpm {
+        MotorRpm {
+            left: self.left.round() as i32,
+            right: self.right.round() as i32,
+        }
+    }
+}
+
+proptest! {
+    #![proptest_config(proptest_config(CASES))]
+
+    /// The real wheel speed never exceeds the safety zone's limit, whatever the
+    /// registers: the drives here ramp as real ones do and report their real speed in
+    /// every drive feedback. Once someone is in the zone, every command is within
+    /// `sec_motor_vel` (a motor limit: a wrong radius or gear ratio cannot defeat it;
+    /// the wheel's real speed is this over the real gear times the real circumference),
+    /// and within `max_motor_vel / estop_decel` (≤ 300 ms by the e-stop rule) the motors
+    /// run within it, up to the 2 r/min the drives' readings wobble by.
+    #[test]
+    fn the_motor_speed_never_exceeds_the_safety_zone_limit(events in sequence()) {
+        let mut now = Instant::BOOT;
+        let mut controller = Controller::new(now, Registers::defaults());
+        let mut drives = DriveModel::default();
+        let mut zone_since: Option<Instant> = None;
+        for (gap, input) in &events {
+            drives.advance(*gap);
+            now = now.plus_millis(*gap);
+            let input = match *input {
+                Input::DriveFeedback { counts, .. } => Input::DriveFeedback {
+                    counts,
+                    rpm: drives.measured(),
+                },
+                Input::DrivesReady if matches!(
+                    controller.supervisor().mode(),
+                    Mode::Starting | Mode::Recovering
+                ) => {
+                    // Set up from scratch: the drives stand.
+                    drives = DriveModel::default();
+                    Input::DrivesReady
+                }
+                // Unasked, it means nothing to the drives.
+                Input::DrivesReady => Input::Tick,
+                other => other,
+            };
+            let out = controller.handle(now, input);
+            if out.wheels.is_some() {
+                drives.command = out.wheels;
+            }
+            let registers = controller.registers();
+            let zone = controller.supervisor().safety_zone();
+            zone_since = match (zone, zone_since) {
+                (false, _) => None,
+                (true, None) => Some(now),
+                (true, since) => since,
+            };
+            let Some(since) = zone_since else { continue };
+            let limit = i32::from(registers.get(Reg::SecMotorVel).min(registers.get(Reg::MaxMotorVel)));
+            if let Some(command) = out.wheels {
+                prop_assert!(
+                    command.rpm.left.abs() <= limit && command.rpm.right.abs() <= limit,
+                    "{:?} in the zone (limit {}) after {:?}", command, limit, input
+                );
+            }
+            let brake_ms = (u64::from(registers.get(Reg::MaxMotorVel)) * 1000)
+                .div_ceil(u64::from(registers.get(Reg::EstopDecel)));
+            if now.millis_since(since) > brake_ms {
+                let tolerance = f64::from(limit + AT_REST_RPM) + 0.5;
+                prop_assert!(
+                    drives.left.abs() <= tolerance && drives.right.abs() <= tolerance,
+                    "drives at ({:.1}, {:.1}) r/min {} ms into the zone (limit {}) at {:?}",
+                    drives.left, drives.right, now.millis_since(since), limit, now
+                );
+            }
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------
 // The strategies reach what the properties are about
 // ---------------------------------------------------------------------------------------
 
@@ -1375,7 +1605,7 @@ type Situation = (&'static str, fn(&Step) -> bool);
 /// pass vacuously. Each must occur in at least a fifth of the sequences.
 #[test]
 fn event_sequences_reach_every_situation_checked() {
-    let situations: [Situation; 15] = [
+    let situations: [Situation; 17] = [
         ("CAN drives", |step| {
             moving_command(step).is_some() && step.after.status.control == ControlSource::Can
         }),
@@ -1400,8 +1630,16 @@ fn event_sequences_reach_every_situation_checked() {
         ("safety zone while moving", |step| {
             step.model.safety_zone && moving_command(step).is_some()
         }),
-        ("limit or geometry written while moving", |step| {
-            !is_zero(step.in_force_before) && changes_kinematics(step)
+        ("motion register refused while moving", |step| {
+            !is_zero(step.in_force_before)
+                && step.after.status.rejected_count != step.before.status.rejected_count
+                && step.after.status.last_rejection == RegisterError::NotAtRest.code()
+        }),
+        ("limit or geometry written at standstill", |step| {
+            is_zero(step.in_force_before) && changes_kinematics(step)
+        }),
+        ("a lost source stopped with its floor", |step| {
+            lost_source_stop(step).is_some()
         }),
         ("e-stop while moving", |step| {
             !is_zero(step.in_force_before) && *step.input == Input::Estop(true)
@@ -1430,13 +1668,13 @@ fn event_sequences_reach_every_situation_checked() {
     let mut runner = TestRunner::deterministic();
     let strategy = sequence();
     let sequences = 200;
-    let mut counts = [0u32; 15];
+    let mut counts = [0u32; 17];
     for _ in 0..sequences {
         let events = strategy
             .new_tree(&mut runner)
             .expect("the strategy generates")
             .current();
-        let mut seen = [false; 15];
+        let mut seen = [false; 17];
         run(&events, |step| {
             for (seen, (_, occurs)) in seen.iter_mut().zip(&situations) {
                 *seen |= occurs(step);

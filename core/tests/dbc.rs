@@ -177,11 +177,12 @@ const FRAME_ERRORS: [FrameError; 3] = [
     FrameError::BadVelocityMarker,
     FrameError::UnknownSubcommand,
 ];
-const REGISTER_ERRORS: [RegisterError; 4] = [
+const REGISTER_ERRORS: [RegisterError; 5] = [
     RegisterError::UnknownAddress,
     RegisterError::ReadOnly,
     RegisterError::OutOfRange,
     RegisterError::Inconsistent,
+    RegisterError::NotAtRest,
 ];
 const ODOMETRY_CALIBRATION_ERRORS: [OdometryCalibrationError; 4] = [
     OdometryCalibrationError::EndWithoutStart,

@@ -352,7 +352,11 @@ fn enable_lapse_brakes_and_closes_the_brakes_after_disable_time() {
             (
                 500,
                 Input::Tick,
-                &[Stop { accel: 700 }, NoExcite, Control(ControlSource::None)],
+                &[
+                    Stop { accel: STOP_DECEL },
+                    NoExcite,
+                    Control(ControlSource::None),
+                ],
             ),
             (600, moving(150), &[NoExcite]),
             (980, moving(0), &[NoExcite, Mode(Mode::Active)]),
@@ -370,7 +374,7 @@ fn a_stale_command_never_resumes_after_the_enable_returns() {
         &[
             (0, enable(), &[]),
             (0, velocity(500, 0), &[FORWARD_500]),
-            (500, Input::Tick, &[Stop { accel: 700 }]),
+            (500, Input::Tick, &[Stop { accel: STOP_DECEL }]),
             (600, enable(), &[NoWheels, NoExcite]),
             (650, enable(), &[NoWheels]),
             (700, Input::Tick, &[NoWheels]),
@@ -398,7 +402,7 @@ fn withdrawn_enable_stops_at_once() {
             (
                 20,
                 raw(id::ENABLE, &[0, 0, 0, 0, 0, 0, 0, 0]),
-                &[Stop { accel: 700 }],
+                &[Stop { accel: STOP_DECEL }],
             ),
         ],
     );
@@ -451,6 +455,8 @@ fn estop_while_driving_stops_at_once_and_needs_release_confirm_and_setup() {
                         flags: base_core::can::StatusFlags {
                             remote_bonded: true,
                             remote_connected: true,
+                            // Held (since 90 ms): CAN would be ignored.
+                            remote_in_control: true,
                             estop_pressed: true,
                             brakes_applied: true,
                             ..Default::default()
@@ -488,6 +494,17 @@ fn estop_while_driving_stops_at_once_and_needs_release_confirm_and_setup() {
                 Input::DrivesReady,
                 &[Mode(Mode::Standby), NoWheels, NoExcite],
             ),
+            // The dead-man held since 90 ms keeps control from CAN (it does not drive:
+            // not armed) until it is released, and then CAN waits for a feedback that
+            // measures the wheels at rest.
+            (2805, enable(), &[]),
+            (
+                2805,
+                velocity(500, 0),
+                &[NoWheels, Control(ControlSource::Remote)],
+            ),
+            (2806, buttons(Buttons::NONE), &[NoWheels]),
+            (2807, moving(0), &[NoWheels]),
             // The command sent during the recovery is not replayed.
             (2810, enable(), &[NoWheels]),
             (
@@ -500,7 +517,7 @@ fn estop_while_driving_stops_at_once_and_needs_release_confirm_and_setup() {
 }
 
 #[test]
-fn remote_dead_man_overrides_can_and_its_release_brakes_hard() {
+fn remote_dead_man_overrides_can_and_its_release_brakes_with_at_least_stop_decel() {
     run(
         defaults(),
         &[
@@ -537,15 +554,19 @@ fn remote_dead_man_overrides_can_and_its_release_brakes_hard() {
                 velocity(500, 0),
                 &[NoWheels, Control(ControlSource::Remote)],
             ),
-            // Released: brake with Contr_acc_high; the CAN command was dropped on takeover.
+            // Released: brake with Contr_acc_high (500), at least stop_decel; the CAN
+            // command was dropped on takeover.
             (
                 50,
                 buttons(Buttons::NONE),
-                &[Stop { accel: 500 }, Control(ControlSource::None)],
+                &[Stop { accel: STOP_DECEL }, Control(ControlSource::None)],
             ),
             (60, enable(), &[NoWheels]),
+            // No feedback since: the wheels are not known to stand, CAN waits.
+            (70, velocity(500, 0), &[NoWheels]),
+            (100, moving(0), &[NoWheels]),
             (
-                70,
+                110,
                 velocity(500, 0),
                 &[FORWARD_500, Control(ControlSource::Can)],
             ),
@@ -554,7 +575,7 @@ fn remote_dead_man_overrides_can_and_its_release_brakes_hard() {
 }
 
 #[test]
-fn remote_link_loss_while_driving_brakes_with_contr_acc_high() {
+fn remote_link_loss_while_driving_brakes_with_at_least_stop_decel() {
     run(
         defaults(),
         &[
@@ -564,14 +585,15 @@ fn remote_link_loss_while_driving_brakes_with_contr_acc_high() {
             (
                 20,
                 pad_link(false),
-                &[Stop { accel: 500 }, Control(ControlSource::None)],
+                &[Stop { accel: STOP_DECEL }, Control(ControlSource::None)],
             ),
-            // Back with the dead-man still held: it must be seen released first.
+            // Back with the dead-man still held: it must be seen released before it
+            // drives, but it has control.
             (30, pad_link(true), &[NoWheels]),
             (
                 40,
                 dead_man(1.0, 0.0),
-                &[NoWheels, Control(ControlSource::None)],
+                &[NoWheels, Control(ControlSource::Remote)],
             ),
         ],
     );
@@ -626,14 +648,16 @@ fn dead_man_drives_with_contr_acc_norm_and_its_release_brakes_then_closes_the_br
             ),
             // Right stick right turns clockwise on the spot (docs/behaviour.md: + clockwise):
             // the left wheel forward, the right one backward (its motor is mirrored, so
-            // both motors turn positive), each at the level's 250 mm/s.
+            // both motors turn positive), each at the level's 250 mm/s. 10 ms into the
+            // ramp the wheels run (+4, −4): the left changes by 164, the right by 172,
+            // so the left gets 350 · 164 / 172 = 334.
             (
                 30,
                 dead_man(0.0, 1.0),
                 &[Wheels {
                     left: 168,
                     right: 168,
-                    left_accel: 350,
+                    left_accel: 334,
                     right_accel: 350,
                 }],
             ),
@@ -641,7 +665,11 @@ fn dead_man_drives_with_contr_acc_norm_and_its_release_brakes_then_closes_the_br
             (
                 50,
                 buttons(Buttons::NONE),
-                &[Stop { accel: 500 }, Control(ControlSource::None), NoExcite],
+                &[
+                    Stop { accel: STOP_DECEL },
+                    Control(ControlSource::None),
+                    NoExcite,
+                ],
             ),
             // disable_time (300 ms) from the measured standstill, as under CAN.
             (60, moving(0), &[NoExcite]),
@@ -663,12 +691,13 @@ fn gamepad_reports_drive_only_from_a_connected_pad_seen_released_first() {
                 dead_man(1.0, 0.0),
                 &[NoWheels, Control(ControlSource::None)],
             ),
-            // Connected with the dead-man already down: not a press, no driving.
+            // Connected with the dead-man already down: not a press, no driving; but
+            // held, it has control (CAN is ignored).
             (20, pad_link(true), &[NoWheels]),
             (
                 30,
                 dead_man(1.0, 0.0),
-                &[NoWheels, Control(ControlSource::None)],
+                &[NoWheels, Control(ControlSource::Remote)],
             ),
             (40, buttons(Buttons::NONE), &[NoWheels]),
             (50, dead_man(1.0, 0.0), &[remote_forward(250)]),
@@ -715,7 +744,7 @@ fn dpad_steps_the_speed_level_within_its_limits_and_each_connection_starts_over(
         (240, level_press(false), &[NoWheels]),
         (250, dead_man(1.0, 0.0), &[]),
         (260, level_press(true), &[remote_forward(100)]),
-        (270, buttons(Buttons::NONE), &[Stop { accel: 500 }]),
+        (270, buttons(Buttons::NONE), &[Stop { accel: STOP_DECEL }]),
         // A new connection starts at PS_rel_max_vel again.
         (280, pad_link(false), &[]),
         (290, pad_link(true), &[]),
@@ -822,7 +851,7 @@ fn l2_with_home_asks_for_the_disconnect_and_brakes_a_held_dead_man() {
                 pad(l2_home),
                 &[
                     Disconnect,
-                    Stop { accel: 500 },
+                    Stop { accel: STOP_DECEL },
                     Control(ControlSource::None),
                 ],
             ),
@@ -871,7 +900,11 @@ fn a_held_dead_man_counts_as_input_so_a_long_straight_drive_is_not_cut_off() {
                 Input::Tick,
                 &[NoDisconnect, NoWheels, Control(ControlSource::Remote)],
             ),
-            (120_010, buttons(Buttons::NONE), &[Stop { accel: 500 }]),
+            (
+                120_010,
+                buttons(Buttons::NONE),
+                &[Stop { accel: STOP_DECEL }],
+            ),
             (150_009, Input::Tick, &[NoDisconnect]),
             (150_010, Input::Tick, &[Disconnect]),
         ],
@@ -942,6 +975,8 @@ fn safety_zone_clamps_speed_and_rotation() {
                     right_accel: 617,
                 }],
             ),
+            // 10 ms into that ramp the wheels run (+7, −6): the left changes by 354,
+            // the right by 305, so the right gets 700 · 305 / 354 = 603.
             (
                 20,
                 Input::SafetyZone(false),
@@ -949,10 +984,12 @@ fn safety_zone_clamps_speed_and_rotation() {
                     left: 361,
                     right: -311,
                     left_accel: 700,
-                    right_accel: 594,
+                    right_accel: 603,
                 }],
             ),
-            // Entering the zone while driving re-clamps at once.
+            // Entering the zone while driving re-clamps at once. The wheels are still
+            // below the zone's speeds (+14, −12), so they speed up with CAN_accel:
+            // changes of 129 and 114, the right gets 700 · 114 / 129 = 619.
             (
                 30,
                 Input::SafetyZone(true),
@@ -960,7 +997,7 @@ fn safety_zone_clamps_speed_and_rotation() {
                     left: 143,
                     right: -126,
                     left_accel: 700,
-                    right_accel: 594,
+                    right_accel: 619,
                 }],
             ),
         ],
@@ -1549,5 +1586,504 @@ fn feedback_frames_carry_pose_battery_and_weight_at_their_periods() {
     assert!(
         out.frames
             .contains(&Report::Weight { grams: 1234 }.encode())
+    );
+}
+
+// ---------------------------------------------------------------------------------------
+// Stops a safety engineer signs off: floors, the hand-over, motion registers at rest,
+// ramps from the measured speeds
+// ---------------------------------------------------------------------------------------
+
+/// The defaults with these registers written (each write must be accepted).
+fn with(writes: &[(Reg, u16)]) -> Registers {
+    let mut registers = Registers::defaults();
+    for (reg, value) in writes {
+        registers
+            .write(reg.address(), *value)
+            .unwrap_or_else(|error| panic!("{reg:?} = {value}: {error:?}"));
+    }
+    registers
+}
+
+/// The floor of every stop but the e-stop: the `stop_decel` default, (1/min)/s.
+const STOP_DECEL: u32 = 2000;
+
+/// Why 1: an enable lapse braked with `CAN_accel`, down to 1 (1/min)/s: 334 s from
+/// 500 mm/s. Every lost-source stop now brakes with at least `stop_decel`.
+#[test]
+fn an_enable_lapse_brakes_at_least_with_stop_decel_even_with_can_accel_1() {
+    for can_accel in [1, 700] {
+        run(
+            with(&[(Reg::CanAccel, can_accel)]),
+            &[
+                (0, enable(), &[]),
+                (0, velocity(500, 0), &[Control(ControlSource::Can)]),
+                (100, moving(336), &[NoWheels]),
+                (
+                    500,
+                    Input::Tick,
+                    &[Stop { accel: STOP_DECEL }, Control(ControlSource::None)],
+                ),
+            ],
+        );
+    }
+}
+
+/// A source's own register wins when it brakes harder than the floor.
+#[test]
+fn a_stop_register_stronger_than_stop_decel_is_used_as_it_is() {
+    run(
+        with(&[(Reg::CanAccel, 3000)]),
+        &[
+            (0, enable(), &[]),
+            (0, velocity(500, 0), &[]),
+            (100, moving(336), &[]),
+            (500, Input::Tick, &[Stop { accel: 3000 }]),
+        ],
+    );
+}
+
+#[test]
+fn a_withdrawn_enable_and_a_stale_velocity_brake_at_least_with_stop_decel() {
+    run(
+        with(&[(Reg::CanAccel, 1)]),
+        &[
+            (0, enable(), &[]),
+            (0, velocity(500, 0), &[]),
+            (
+                20,
+                raw(id::ENABLE, &[0, 0, 0, 0, 0, 0, 0, 0]),
+                &[Stop { accel: STOP_DECEL }],
+            ),
+        ],
+    );
+    run(
+        with(&[(Reg::CanAccel, 1), (Reg::CmdTimeout, 200)]),
+        &[
+            (0, enable(), &[]),
+            (0, velocity(500, 0), &[]),
+            (150, enable(), &[NoWheels]),
+            (200, Input::Tick, &[Stop { accel: STOP_DECEL }]),
+        ],
+    );
+}
+
+/// Why 1: the dead-man's release and the remote's link loss braked with
+/// `Contr_acc_high`; at 1 (1/min)/s that is 168 s from 336 r/min.
+#[test]
+fn a_dead_man_release_and_a_link_loss_brake_at_least_with_stop_decel() {
+    let registers = with(&[(Reg::ContrAccHigh, 1)]);
+    run(
+        registers.clone(),
+        &[
+            (0, pad_link(true), &[]),
+            (0, buttons(Buttons::NONE), &[]),
+            (10, dead_man(1.0, 0.0), &[Control(ControlSource::Remote)]),
+            (20, buttons(Buttons::NONE), &[Stop { accel: STOP_DECEL }]),
+        ],
+    );
+    run(
+        registers,
+        &[
+            (0, pad_link(true), &[]),
+            (0, buttons(Buttons::NONE), &[]),
+            (10, dead_man(1.0, 0.0), &[Control(ControlSource::Remote)]),
+            (20, pad_link(false), &[Stop { accel: STOP_DECEL }]),
+        ],
+    );
+}
+
+/// Why 1: entering the safety zone at 1.2 m/s ramped down with `CAN_accel` (0.67 m
+/// above `sec_lin_vel`). Now with `estop_decel`: 807 → 134 r/min in 150 ms, 75 mm
+/// above 200 mm/s.
+#[test]
+fn entering_the_safety_zone_brakes_to_its_limits_with_estop_decel() {
+    run(
+        defaults(),
+        &[
+            (0, enable(), &[]),
+            (0, velocity(1200, 0), &[]),
+            (400, enable(), &[]),
+            (800, enable(), &[]),
+            (1200, enable(), &[]),
+            (1200, moving(807), &[]),
+            (
+                1210,
+                Input::SafetyZone(true),
+                &[Wheels {
+                    left: 134,
+                    right: -134,
+                    left_accel: 4500,
+                    right_accel: 4500,
+                }],
+            ),
+        ],
+    );
+    // Under the remote (with Contr_acc_norm it was 1.35 m): 250 mm/s → 200 mm/s.
+    run(
+        defaults(),
+        &[
+            (0, pad_link(true), &[]),
+            (0, buttons(Buttons::NONE), &[]),
+            (10, dead_man(1.0, 0.0), &[remote_forward(250)]),
+            (600, moving(168), &[]),
+            (
+                610,
+                Input::SafetyZone(true),
+                &[Wheels {
+                    left: 134,
+                    right: -134,
+                    left_accel: 4500,
+                    right_accel: 4500,
+                }],
+            ),
+        ],
+    );
+}
+
+/// Why 4: `rad_l = rad_r = 10` inside the zone gave 1338 mm/s at the real wheels: the
+/// zone clamped the twist and trusted the geometry. The zone's own motor limit
+/// `sec_motor_vel` (150 r/min) holds whatever the radius says.
+#[test]
+fn the_safety_zone_limits_the_motor_speed_whatever_the_geometry_registers_say() {
+    run(
+        with(&[(Reg::RadL, 10), (Reg::RadR, 10)]),
+        &[
+            (0, enable(), &[]),
+            (
+                0,
+                velocity(500, 0),
+                &[Wheels {
+                    left: 900,
+                    right: -900,
+                    left_accel: 700,
+                    right_accel: 700,
+                }],
+            ),
+            (400, enable(), &[]),
+            (800, enable(), &[]),
+            (1200, enable(), &[]),
+            (1500, enable(), &[]),
+            (1500, moving(900), &[]),
+            (
+                1510,
+                Input::SafetyZone(true),
+                &[Wheels {
+                    left: 150,
+                    right: -150,
+                    left_accel: 4500,
+                    right_accel: 4500,
+                }],
+            ),
+        ],
+    );
+}
+
+/// Why 2: after the dead-man's release a PC that kept streaming drove again 50 ms
+/// later, before standstill. Now CAN velocity is dropped until both wheels are
+/// measured at rest, and a fresh frame is needed after that.
+#[test]
+fn after_a_dead_man_release_can_drives_only_after_standstill_with_a_fresh_frame() {
+    run(
+        defaults(),
+        &[
+            (0, enable(), &[]),
+            (0, velocity(500, 0), &[Control(ControlSource::Can)]),
+            (5, pad_link(true), &[]),
+            (10, buttons(Buttons::NONE), &[Control(ControlSource::Can)]),
+            (20, dead_man(1.0, 0.0), &[Control(ControlSource::Remote)]),
+            (40, moving(168), &[]),
+            (
+                50,
+                buttons(Buttons::NONE),
+                &[Stop { accel: STOP_DECEL }, Control(ControlSource::None)],
+            ),
+            (60, enable(), &[NoWheels]),
+            (
+                100,
+                velocity(500, 0),
+                &[NoWheels, NoExcite, Control(ControlSource::None)],
+            ),
+            (110, moving(60), &[NoWheels]),
+            (150, enable(), &[NoWheels]),
+            (150, velocity(500, 0), &[NoWheels]),
+            // Both wheels measured at rest: nothing resumes by itself ...
+            (160, moving(0), &[NoWheels, Control(ControlSource::None)]),
+            (200, enable(), &[NoWheels]),
+            // ... the next frame drives.
+            (
+                200,
+                velocity(500, 0),
+                &[FORWARD_500, Control(ControlSource::Can)],
+            ),
+        ],
+    );
+}
+
+/// Why 3: a dead-man held when the pad connected (not armed) did not take control from
+/// CAN. Held, armed or not, it takes control and stops the base; it drives only once
+/// it was seen released.
+#[test]
+fn a_held_dead_man_not_yet_armed_takes_control_from_can_and_stops_the_base() {
+    run(
+        defaults(),
+        &[
+            (0, enable(), &[]),
+            (
+                0,
+                velocity(500, 0),
+                &[FORWARD_500, Control(ControlSource::Can)],
+            ),
+            (40, moving(336), &[]),
+            (45, pad_link(true), &[NoWheels]),
+            (
+                50,
+                dead_man(1.0, 0.0),
+                &[Stop { accel: STOP_DECEL }, Control(ControlSource::Remote)],
+            ),
+            (60, enable(), &[NoWheels]),
+            (
+                70,
+                velocity(500, 0),
+                &[NoWheels, Control(ControlSource::Remote)],
+            ),
+            (400, moving(0), &[NoWheels]),
+            (410, enable(), &[]),
+            (420, velocity(500, 0), &[NoWheels]),
+            // Released (now armed) and held again: the remote drives.
+            (500, buttons(Buttons::NONE), &[NoWheels]),
+            (510, dead_man(1.0, 0.0), &[remote_forward(250)]),
+        ],
+    );
+}
+
+/// Why 4: `motor_dir` 2 → 0 while driving straight spun the base in place. Motion
+/// registers are refused with `NotAtRest` (0x14) while the base moves; at rest they
+/// are accepted.
+#[test]
+fn motion_registers_are_refused_while_moving_and_accepted_at_rest() {
+    run(
+        defaults(),
+        &[
+            (0, enable(), &[]),
+            (0, velocity(500, 0), &[FORWARD_500]),
+            (40, moving(336), &[]),
+            (
+                50,
+                raw(id::REGISTER_WRITE, &[28, 0x00, 0x00]),
+                &[
+                    NoWheels,
+                    NothingPersisted,
+                    Register(Reg::MotorDir, 2),
+                    Rejected {
+                        code: 0x14,
+                        subject: 28,
+                    },
+                    RejectedCount(1),
+                ],
+            ),
+            // Every motion register, the same way.
+            (
+                60,
+                raw(id::REGISTER_WRITE, &[1, 0x00, 0x0A]),
+                &[
+                    NoWheels,
+                    Register(Reg::RadL, 142),
+                    Rejected {
+                        code: 0x14,
+                        subject: 1,
+                    },
+                ],
+            ),
+            (
+                70,
+                raw(id::REGISTER_WRITE, &[24, 0x07, 0xD0]),
+                &[
+                    NoWheels,
+                    Register(Reg::GearRatio, 1000),
+                    Rejected {
+                        code: 0x14,
+                        subject: 24,
+                    },
+                ],
+            ),
+            (
+                80,
+                raw(id::REGISTER_WRITE, &[6, 0x00, 0x64]),
+                &[
+                    NoWheels,
+                    Register(Reg::MaxMotorVel, 900),
+                    Rejected {
+                        code: 0x14,
+                        subject: 6,
+                    },
+                ],
+            ),
+            (
+                90,
+                raw(id::REGISTER_WRITE, &[9, 0x01, 0xF4]),
+                &[
+                    NoWheels,
+                    Register(Reg::SecLinVel, 200),
+                    Rejected {
+                        code: 0x14,
+                        subject: 9,
+                    },
+                ],
+            ),
+            (
+                100,
+                raw(id::REGISTER_WRITE, &[2, 0x01, 0x00]),
+                &[
+                    NoWheels,
+                    Register(Reg::WheelDist, 250),
+                    Rejected {
+                        code: 0x14,
+                        subject: 2,
+                    },
+                    RejectedCount(6),
+                ],
+            ),
+            // Writing the value a motion register already holds changes nothing: accepted.
+            (
+                110,
+                raw(id::REGISTER_WRITE, &[28, 0x00, 0x02]),
+                &[NoWheels, RejectedCount(6)],
+            ),
+            // Other registers stay writable while moving.
+            (
+                120,
+                raw(id::REGISTER_WRITE, &[3, 0x01, 0xF4]),
+                &[Persists(Reg::CanAccel, 500)],
+            ),
+            // Stopped and measured at rest: accepted.
+            (130, velocity(0, 0), &[Stop { accel: 500 }]),
+            (200, enable(), &[]),
+            (200, moving(100), &[]),
+            (
+                210,
+                raw(id::REGISTER_WRITE, &[28, 0x00, 0x00]),
+                &[
+                    Register(Reg::MotorDir, 2),
+                    Rejected {
+                        code: 0x14,
+                        subject: 28,
+                    },
+                ],
+            ),
+            (300, enable(), &[]),
+            (300, moving(0), &[]),
+            (
+                310,
+                raw(id::REGISTER_WRITE, &[28, 0x00, 0x00]),
+                &[
+                    Persists(Reg::MotorDir, 0),
+                    Register(Reg::MotorDir, 0),
+                    NoWheels,
+                ],
+            ),
+        ],
+    );
+}
+
+/// Why 4: restore-defaults mid-motion also reset the direction and the gear ratio.
+#[test]
+fn restore_defaults_is_refused_while_moving() {
+    run(
+        with(&[(Reg::GearRatio, 2000), (Reg::LoopEndDelay, 20)]),
+        &[
+            (0, enable(), &[]),
+            (
+                0,
+                velocity(250, 0),
+                &[Wheels {
+                    left: 336,
+                    right: -336,
+                    left_accel: 700,
+                    right_accel: 700,
+                }],
+            ),
+            (40, moving(336), &[]),
+            (
+                50,
+                raw(id::REGISTER_WRITE, &[40, 0xDE, 0xF0]),
+                &[
+                    NoWheels,
+                    NothingPersisted,
+                    Register(Reg::GearRatio, 2000),
+                    Register(Reg::LoopEndDelay, 20),
+                    Rejected {
+                        code: 0x14,
+                        subject: 40,
+                    },
+                ],
+            ),
+        ],
+    );
+}
+
+/// Why 5: a synchronized ramp started from the previous target, not from the speed the
+/// wheels had: a spin 100 ms into a ramp made them arrive 187 ms apart. Now it starts
+/// from the measured speed (moved along the ramp in force since the measurement).
+#[test]
+fn a_ramp_starts_from_the_measured_wheel_speeds_so_both_arrive_together() {
+    // 100 ms into the 700 (1/min)/s ramp to 336 r/min the wheels run 70 r/min. A
+    // clockwise spin of 1 rad/s wants +84 on both motors: the left one changes by 14,
+    // the right one by 154, so the left gets 700 · 14 / 154 = 64.
+    let spin = Wheels {
+        left: 84,
+        right: 84,
+        left_accel: 64,
+        right_accel: 700,
+    };
+    run(
+        defaults(),
+        &[
+            (0, enable(), &[]),
+            (0, velocity(500, 0), &[FORWARD_500]),
+            (100, moving(70), &[]),
+            (100, velocity(0, 1000), &[spin]),
+        ],
+    );
+    // The same from a measurement 50 ms old: 35 r/min then, 70 now.
+    run(
+        defaults(),
+        &[
+            (0, enable(), &[]),
+            (0, velocity(500, 0), &[FORWARD_500]),
+            (50, moving(35), &[]),
+            (100, velocity(0, 1000), &[spin]),
+        ],
+    );
+}
+
+/// The hand-over after a link loss is the same as after a release.
+#[test]
+fn after_a_remote_link_loss_can_drives_only_after_standstill_with_a_fresh_frame() {
+    run(
+        defaults(),
+        &[
+            (0, pad_link(true), &[]),
+            (0, buttons(Buttons::NONE), &[]),
+            (10, dead_man(1.0, 0.0), &[remote_forward(250)]),
+            (100, moving(30), &[]),
+            (
+                110,
+                pad_link(false),
+                &[Stop { accel: STOP_DECEL }, Control(ControlSource::None)],
+            ),
+            (120, enable(), &[]),
+            (120, velocity(500, 0), &[NoWheels, NoExcite]),
+            (150, moving(10), &[NoWheels]),
+            (160, enable(), &[]),
+            (160, velocity(500, 0), &[NoWheels]),
+            (200, moving(1), &[NoWheels]),
+            (210, enable(), &[]),
+            (
+                210,
+                velocity(500, 0),
+                &[FORWARD_500, Control(ControlSource::Can)],
+            ),
+        ],
     );
 }

@@ -529,3 +529,179 @@ fn the_control_cycle_follows_loop_end_delay() {
     });
     assert_eq!(cycles_per_s, (20, 10), "50 ms by default, then 100 ms");
 }
+
+// ---------------------------------------------------------------------------------------
+// Stops a safety engineer signs off (each reproduced on this virtual robot first)
+// ---------------------------------------------------------------------------------------
+
+/// Wheel speed in mm/s of a motor at `rpm` with the default registers.
+fn wheel_mm_s(rpm: f64) -> f64 {
+    rpm / 60.0 / 10.0 * 2.0 * std::f64::consts::PI * 142.0
+}
+
+/// Drives 500 mm/s with the default `CAN_accel`, writes `can_accel` while driving (it
+/// is no motion register), then stops refreshing the enable. Returns how long after
+/// the last enable both drives stand, in ms, and how far the left wheel rolled since,
+/// in mm.
+fn lapse_at_500_mm_s(can_accel: u16) -> (u64, f64) {
+    let robot = VirtualRobot::new();
+    robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        pc.drive(500, 0, 1_500).await;
+        pc.command(Command::RegisterWrite {
+            address: 3,
+            value: can_accel,
+        });
+        pc.drive(500, 0, 200).await;
+        pc.enable();
+        pc.velocity(500, 0);
+        let last_enable = Instant::now();
+        let start = robot.drives.drive(1).forward_revolutions();
+        loop {
+            wait_ms(1).await;
+            let stands = [1, 2]
+                .iter()
+                .all(|&slave| robot.drives.drive(slave).speed_rpm == 0.0);
+            let elapsed = (Instant::now() - last_enable).as_millis();
+            if stands || elapsed > 10_000 {
+                let rolled = robot.drives.drive(1).forward_revolutions() - start;
+                return (elapsed, reported_mm(rolled) / 1.0071);
+            }
+        }
+    })
+}
+
+/// Why 1: an enable lapse at 500 mm/s braked with `CAN_accel`: here 986 ms and 372 mm
+/// after the last enable at 700, and at 1 (1/min)/s 336 s. Now `stop_decel` (2000) is
+/// the floor: the 500 ms enable timeout, then 336 r/min in 168 ms, 250 + 42 mm (674 ms
+/// and 295 mm measured).
+#[test]
+fn an_enable_lapse_stops_within_the_stop_decel_bound_whatever_can_accel_says() {
+    for can_accel in [700, 1] {
+        let (ms, mm) = lapse_at_500_mm_s(can_accel);
+        assert!(
+            (650..=700).contains(&ms),
+            "CAN_accel {can_accel}: stood {ms} ms after the last enable"
+        );
+        assert!(
+            (280.0..=310.0).contains(&mm),
+            "CAN_accel {can_accel}: rolled {mm:.0} mm after the last enable"
+        );
+    }
+}
+
+/// Why 1: entering the safety zone at 1.2 m/s ramped down with `CAN_accel` (here the
+/// wheels rolled 496 mm more than at 200 mm/s would have). Now with `estop_decel`
+/// (4500): 807 → 134 r/min in 150 ms, 75 mm above 200 mm/s, plus the zone input's
+/// debounce and one Modbus transaction (91 mm measured).
+#[test]
+fn entering_the_safety_zone_at_1200_mm_s_brakes_to_its_limit_within_a_tenth_of_a_metre() {
+    let robot = VirtualRobot::new();
+    let (above_mm, settled_rpm) = robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        pc.drive(1_200, 0, 2_000).await;
+        assert!(
+            robot.drives.drive(1).forward_rpm() > 800.0,
+            "at 1.2 m/s first"
+        );
+        robot.set_safety_zone(true);
+        let mut above_mm = 0.0;
+        for ms in 0..1_000u64 {
+            if ms % 50 == 0 {
+                pc.enable();
+                pc.velocity(1_200, 0);
+            }
+            wait_ms(1).await;
+            let speed = wheel_mm_s(robot.drives.drive(1).forward_rpm());
+            above_mm += (speed - 200.0).max(0.0) / 1000.0;
+        }
+        (above_mm, robot.drives.drive(1).forward_rpm())
+    });
+    assert!(above_mm <= 100.0, "{above_mm:.0} mm above sec_lin_vel");
+    // 200 mm/s is 134.5 r/min, rounded to 134.
+    assert_eq!(settled_rpm.round(), 134.0);
+}
+
+/// Why 4: `motor_dir` 2 → 0 while driving straight spun the base in place. The write
+/// is refused (NotAtRest, 0x14), the base drives on straight, and the value is
+/// accepted once the base stands.
+#[test]
+fn motor_dir_written_while_driving_is_refused_and_the_base_drives_on_straight() {
+    let robot = VirtualRobot::new();
+    robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        pc.drive(500, 0, 1_000).await;
+        pc.command(Command::RegisterWrite {
+            address: 28,
+            value: 0,
+        });
+        pc.drive(500, 0, 1_000).await;
+        assert_eq!(pc.heading(), Some(0), "still straight");
+        let refused = pc
+            .wait_for_status(1_100, |status| {
+                (status.last_rejection, status.last_rejection_subject) == (0x14, 28)
+            })
+            .await;
+        assert!(refused.is_some(), "the refusal is in the status frame");
+        assert_eq!(read_register(pc, 28).await, Some(2));
+        stop_and_settle(pc).await;
+        pc.command(Command::RegisterWrite {
+            address: 28,
+            value: 0,
+        });
+        wait_ms(100).await;
+        assert_eq!(read_register(pc, 28).await, Some(0), "accepted at rest");
+    });
+}
+
+/// Why 5: a spin command 100 ms into a ramp made the wheels arrive apart (79 ms here;
+/// the scenario table has the 187 ms case worked out): the ramp started from the
+/// previous target (+336, −336), not from the wheels' speed. Now it starts from the
+/// measured speed moved along the ramp since: both arrive after 192 ms.
+#[test]
+fn a_spin_100_ms_into_a_ramp_brings_both_wheels_to_their_speeds_together() {
+    let robot = VirtualRobot::new();
+    let (left_ms, right_ms) = robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        pc.enable();
+        pc.velocity(500, 0);
+        // The drives start ramping once the brakes are released.
+        while robot.drives.drive(1).last_new_speed_at.is_none() {
+            wait_ms(1).await;
+        }
+        let ramp_start = robot.drives.drive(1).last_new_speed_at.expect("ramping");
+        while Instant::now() < ramp_start + embassy_time::Duration::from_millis(100) {
+            wait_ms(1).await;
+        }
+        let spin_at = Instant::now();
+        pc.enable();
+        pc.velocity(0, 1_000);
+        let mut arrived = [None, None];
+        for ms in 1..=1_000u64 {
+            if ms % 50 == 0 {
+                pc.enable();
+                pc.velocity(0, 1_000);
+            }
+            wait_ms(1).await;
+            for (slave, arrival) in [1u8, 2].into_iter().zip(arrived.iter_mut()) {
+                let drive = robot.drives.drive(slave);
+                let target = drive.command.expect("commanded").speed_rpm;
+                let there = (drive.speed_rpm - f64::from(target)).abs() < 0.5;
+                if arrival.is_none() && there {
+                    *arrival = Some((Instant::now() - spin_at).as_millis());
+                }
+                if !there {
+                    *arrival = None;
+                }
+            }
+        }
+        (
+            arrived[0].expect("left arrived"),
+            arrived[1].expect("right arrived"),
+        )
+    });
+    assert!(
+        left_ms.abs_diff(right_ms) <= 20,
+        "left at {left_ms} ms, right at {right_ms} ms"
+    );
+}

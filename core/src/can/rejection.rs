@@ -21,7 +21,7 @@ pub enum Rejection {
 
 impl Rejection {
     /// Every reason this firmware reports, in code order.
-    pub const ALL: [Rejection; 17] = [
+    pub const ALL: [Rejection; 18] = [
         Rejection::Frame(FrameError::WrongLength),
         Rejection::Frame(FrameError::BadVelocityMarker),
         Rejection::Frame(FrameError::UnknownSubcommand),
@@ -29,6 +29,7 @@ impl Rejection {
         Rejection::Register(RegisterError::ReadOnly),
         Rejection::Register(RegisterError::OutOfRange),
         Rejection::Register(RegisterError::Inconsistent),
+        Rejection::Register(RegisterError::NotAtRest),
         Rejection::OdometryCalibration(OdometryCalibrationError::EndWithoutStart),
         Rejection::OdometryCalibration(OdometryCalibrationError::ZeroRawValue),
         Rejection::OdometryCalibration(OdometryCalibrationError::FactorOutOfRange),
@@ -69,6 +70,7 @@ impl Rejection {
             Rejection::Register(RegisterError::ReadOnly) => "ReadOnly",
             Rejection::Register(RegisterError::OutOfRange) => "OutOfRange",
             Rejection::Register(RegisterError::Inconsistent) => "Inconsistent",
+            Rejection::Register(RegisterError::NotAtRest) => "NotAtRest",
             Rejection::OdometryCalibration(Odometry::EndWithoutStart) => "EndWithoutStart",
             Rejection::OdometryCalibration(Odometry::ZeroRawValue) => "ZeroRawValue",
             Rejection::OdometryCalibration(Odometry::FactorOutOfRange) => "FactorOutOfRange",
@@ -103,6 +105,9 @@ impl Rejection {
             }
             Rejection::Register(RegisterError::Inconsistent) => {
                 "the value would break a cross-register rule (docs/registers.md)"
+            }
+            Rejection::Register(RegisterError::NotAtRest) => {
+                "a motion register or restore-defaults while the base moves: stop first"
             }
             Rejection::OdometryCalibration(Odometry::EndWithoutStart) => {
                 "an end step without its own start step running"

@@ -29,7 +29,7 @@ pub use table::{
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum RegisterError {
-    /// No register at this address (34–37 and 41–255).
+    /// No register at this address (34–37, 41–47 and 50–255).
     UnknownAddress = 0x10,
     /// The register is read-only (`fw_version`, `regmap_version`).
     ReadOnly = 0x11,
@@ -37,6 +37,10 @@ pub enum RegisterError {
     OutOfRange = 0x12,
     /// The value is in range but would break a cross-register rule.
     Inconsistent = 0x13,
+    /// A motion register ([`Reg::changes_motion`]) or the restore-defaults key, written
+    /// while the base is not standing: refused, nothing changed. The controller
+    /// decides this; [`Registers::write`] itself never returns it.
+    NotAtRest = 0x14,
 }
 
 impl RegisterError {

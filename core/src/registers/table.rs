@@ -1,11 +1,12 @@
 //! The register map: every address, its name, unit, default, valid range and access.
-//! Addresses 0–23 are the manual's (§10) and never move; 24–33 and 38–40 are this
-//! firmware's extensions. `docs/registers.md` is this table in prose.
+//! Addresses 0–23 are the manual's (§10) and never move; 24–33, 38–40 and 48–49 are
+//! this firmware's extensions. `docs/registers.md` is this table in prose.
 
 /// Every register by its manual name, in CamelCase; the discriminant is the CAN address.
 ///
-/// 34–37 are deliberately absent: they are kept free for the Bluetooth remote, and
-/// reading or writing them answers [`super::RegisterError::UnknownAddress`].
+/// 34–37 are deliberately absent: they are kept free for the Bluetooth remote; 41–47
+/// are not assigned either. Reading or writing any of them answers
+/// [`super::RegisterError::UnknownAddress`].
 #[repr(u8)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -85,11 +86,15 @@ pub enum Reg {
     /// (ext) `command`, write-only, reads 0: [`RESTORE_DEFAULTS_KEY`] restores defaults,
     /// [`OPEN_PAIRING_WINDOW_KEY`] opens the Bluetooth remote's pairing window.
     Command = 40,
+    /// (ext) `stop_decel`, (1/min)/s: the gentlest any stop but the e-stop may brake.
+    StopDecel = 48,
+    /// (ext) `sec_motor_vel`, 1/min: motor speed limit while someone is in the safety zone.
+    SecMotorVel = 49,
 }
 
 impl Reg {
     /// Every register, in address order.
-    pub const ALL: [Reg; 37] = [
+    pub const ALL: [Reg; 39] = [
         Reg::RadR,
         Reg::RadL,
         Reg::WheelDist,
@@ -127,6 +132,8 @@ impl Reg {
         Reg::FwVersion,
         Reg::RegmapVersion,
         Reg::Command,
+        Reg::StopDecel,
+        Reg::SecMotorVel,
     ];
 
     /// The register at a CAN address, or `None` for an unassigned one.
@@ -149,25 +156,43 @@ impl Reg {
         &TABLE[self.table_index()]
     }
 
-    /// Position in [`TABLE`]: the address, less the four unassigned ones below it.
+    /// Position in [`TABLE`] (and in [`Reg::ALL`]): the number of registers below it.
     pub(super) const fn table_index(self) -> usize {
-        let address = self as usize;
-        if address < FIRST_UNASSIGNED as usize {
-            address
-        } else {
-            address - UNASSIGNED_COUNT
+        let mut i = 0;
+        while i < Reg::ALL.len() {
+            if Reg::ALL[i] as u8 == self as u8 {
+                return i;
+            }
+            i += 1;
         }
+        unreachable!()
+    }
+
+    /// Whether the register changes how the wheels move for a given command: the
+    /// geometry, the gear ratio, the motor directions, the speed limits and the
+    /// safety-zone limits. The controller accepts a new value only while the base
+    /// stands (`RegisterError::NotAtRest` otherwise), and so restores the defaults.
+    pub const fn changes_motion(self) -> bool {
+        matches!(
+            self,
+            Reg::RadR
+                | Reg::RadL
+                | Reg::WheelDist
+                | Reg::MaxMotorVel
+                | Reg::SecLinVel
+                | Reg::SecTurnVel
+                | Reg::GearRatio
+                | Reg::MotorDir
+                | Reg::SecMotorVel
+        )
     }
 }
 
 /// The highest address whose name, default and meaning the manual fixes. Records of
 /// these survive any schema change; everything above is ours and may be redefined.
 pub const LAST_MANUAL_ADDRESS: u8 = 23;
-/// First of the addresses kept free for the Bluetooth remote (34..=37).
-const FIRST_UNASSIGNED: u8 = 34;
-const UNASSIGNED_COUNT: usize = 4;
 /// One past the highest address; the size of an array indexed by address.
-pub const ADDRESS_COUNT: usize = 41;
+pub const ADDRESS_COUNT: usize = 50;
 
 /// Writing this to [`Reg::Command`] restores every writable register to its default.
 /// A key rather than 1 so that a stray or mistyped write cannot wipe a calibration.
@@ -186,8 +211,9 @@ pub const MOTOR_DIR_INVERT_RIGHT: u16 = 0b10;
 
 /// Version of the register map ([`Reg::RegmapVersion`]). Bump it when an extension
 /// register is added, removed or changes meaning, so PC software can tell.
-/// 1: the first map. 2: `command` also takes [`OPEN_PAIRING_WINDOW_KEY`].
-pub const REGMAP_VERSION: u16 = 2;
+/// 1: the first map. 2: `command` also takes [`OPEN_PAIRING_WINDOW_KEY`]. 3:
+/// `stop_decel` (48) and `sec_motor_vel` (49); motion registers only at standstill.
+pub const REGMAP_VERSION: u16 = 3;
 
 /// [`Reg::FwVersion`]: `(major << 8) | minor` of the crate version, fixed at compile time.
 pub const FW_VERSION: u16 = ((parse_version_part(env!("CARGO_PKG_VERSION_MAJOR")) as u16) << 8)
@@ -296,10 +322,10 @@ const fn or_off(mut info: RegisterInfo) -> RegisterInfo {
 
 use Access::{ReadOnly, ReadWrite, WriteOnly};
 
-/// Every register in address order (34–37 are not assigned). Why each range is what it
+/// Every register in address order (34–37 and 41–47 are not assigned). Why each range is what it
 /// is: `docs/registers.md`.
 #[rustfmt::skip]
-pub static TABLE: [RegisterInfo; 37] = [
+pub static TABLE: [RegisterInfo; 39] = [
     row(Reg::RadR, "rad_r", "mm", 142, (10, 1000), ReadWrite, "right wheel radius"),
     row(Reg::RadL, "rad_l", "mm", 142, (10, 1000), ReadWrite, "left wheel radius"),
     row(Reg::WheelDist, "wheel_dist", "mm", 250, (50, 2000), ReadWrite, "distance between the wheels"),
@@ -337,6 +363,8 @@ pub static TABLE: [RegisterInfo; 37] = [
     row(Reg::FwVersion, "fw_version", "major.minor", FW_VERSION, (FW_VERSION, FW_VERSION), ReadOnly, "firmware version"),
     row(Reg::RegmapVersion, "regmap_version", "", REGMAP_VERSION, (REGMAP_VERSION, REGMAP_VERSION), ReadOnly, "register map version"),
     row(Reg::Command, "command", "key", 0, (OPEN_PAIRING_WINDOW_KEY, RESTORE_DEFAULTS_KEY), WriteOnly, "0xDEF0 restores every writable register to its default; 0xB1E0 opens the remote's pairing window"),
+    row(Reg::StopDecel, "stop_decel", "(1/min)/s", 2000, (2000, 30000), ReadWrite, "the gentlest braking of any stop but the e-stop (lapse, cmd_timeout, dead-man release, link loss)"),
+    row(Reg::SecMotorVel, "sec_motor_vel", "1/min", 150, (0, 4000), ReadWrite, "motor speed limit while someone is in the safety zone (0 = stand still)"),
 ];
 
 /// The description of the register at `address`, or `None` if it is not assigned.

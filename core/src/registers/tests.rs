@@ -31,7 +31,7 @@ const MANUAL: [(u8, &str, u16); 24] = [
 ];
 
 /// The extensions as the lead fixed them: address, name, default, min, max, 0 = off.
-const EXTENSIONS: [(u8, &str, u16, u16, u16, bool); 10] = [
+const EXTENSIONS: [(u8, &str, u16, u16, u16, bool); 12] = [
     (24, "gear_ratio", 1000, 100, 10000, false),
     (25, "enable_timeout", 500, 50, 5000, false),
     (26, "estop_decel", 4500, 100, 30000, false),
@@ -42,6 +42,8 @@ const EXTENSIONS: [(u8, &str, u16, u16, u16, bool); 10] = [
     (31, "status_time", 1000, 100, 60000, true),
     (32, "pc_boot_grace", 120, 10, 600, false),
     (33, "pc_switch_pulse", 500, 50, 2000, false),
+    (48, "stop_decel", 2000, 2000, 30000, false),
+    (49, "sec_motor_vel", 150, 0, 4000, false),
 ];
 
 fn persistent() -> impl Iterator<Item = &'static RegisterInfo> {
@@ -98,7 +100,7 @@ fn reg_enum_table_and_addresses_agree() {
         assert_eq!(Reg::from_address(reg as u8), Some(reg));
     }
     assert!(Reg::ALL.windows(2).all(|w| w[0] < w[1]));
-    for address in (34..=37).chain(41..=u8::MAX) {
+    for address in (34..=37).chain(41..=47).chain(50..=u8::MAX) {
         assert_eq!(Reg::from_address(address), None);
         assert_eq!(info(address), None);
     }
@@ -116,8 +118,9 @@ fn version_registers_read_the_build_and_map_versions() {
     let minor: u16 = parts.next().unwrap().parse().unwrap();
     let registers = Registers::defaults();
     assert_eq!(registers.read(38), Ok((major << 8) | minor));
-    // 2 since `command` takes the pairing-window key.
-    assert_eq!(registers.read(39), Ok(2));
+    // 3 since `stop_decel` and `sec_motor_vel` came and motion registers wait for
+    // standstill.
+    assert_eq!(registers.read(39), Ok(3));
 }
 
 #[test]
@@ -126,6 +129,40 @@ fn error_codes_are_stable() {
     assert_eq!(RegisterError::ReadOnly.code(), 0x11);
     assert_eq!(RegisterError::OutOfRange.code(), 0x12);
     assert_eq!(RegisterError::Inconsistent.code(), 0x13);
+    assert_eq!(RegisterError::NotAtRest.code(), 0x14);
+}
+
+#[test]
+fn motion_registers_are_the_geometry_the_limits_and_the_zone_limits() {
+    let motion: Vec<Reg> = Reg::ALL
+        .into_iter()
+        .filter(|r| r.changes_motion())
+        .collect();
+    assert_eq!(
+        motion,
+        [
+            Reg::RadR,
+            Reg::RadL,
+            Reg::WheelDist,
+            Reg::MaxMotorVel,
+            Reg::SecLinVel,
+            Reg::SecTurnVel,
+            Reg::GearRatio,
+            Reg::MotorDir,
+            Reg::SecMotorVel,
+        ]
+    );
+}
+
+#[test]
+fn stop_decel_stops_the_highest_max_motor_vel_within_2_s() {
+    // The documented bound: 4000 1/min, the BLV R maximum and max_motor_vel's top, at
+    // stop_decel's lowest value.
+    let info = Reg::StopDecel.info();
+    assert_eq!(
+        u32::from(Reg::MaxMotorVel.info().max) * 1000 / u32::from(info.min),
+        2000
+    );
 }
 
 #[test]
@@ -295,7 +332,7 @@ fn iter_lists_exactly_the_persistent_registers_with_current_values() {
     registers.write(19, 12345).unwrap();
     let listed: Vec<(u8, u16)> = registers.iter().collect();
     let addresses: Vec<u8> = listed.iter().map(|&(a, _)| a).collect();
-    assert_eq!(addresses, (0..=33).collect::<Vec<u8>>());
+    assert_eq!(addresses, (0..=33).chain(48..=49).collect::<Vec<u8>>());
     assert!(listed.contains(&(19, 12345)));
     assert!(listed.contains(&(0, 142)));
 }
@@ -335,7 +372,7 @@ fn full_store_round_trips_without_fault() {
     written.write(28, 1).unwrap();
     let (loaded, report) = load_from(&store_of(&written));
     assert_eq!(loaded, written);
-    assert_eq!(report.applied, 34);
+    assert_eq!(report.applied, 36);
     assert_eq!(report.rejected, 0);
     assert!(!report.flash_fault());
 }
@@ -351,7 +388,7 @@ fn corrupt_record_is_skipped_and_flagged() {
     assert_eq!(loaded.get(Reg::WheelDist), 250);
     assert_eq!(loaded.get(Reg::CanAccel), 800);
     assert_eq!(report.rejected, 1);
-    assert_eq!(report.applied, 33);
+    assert_eq!(report.applied, 35);
     assert!(report.flash_fault());
 }
 
