@@ -203,7 +203,14 @@ pub struct Supervisor {
     /// The acceleration for the next stop: depends on why the request went away.
     stop_accel: u32,
     control: ControlSource,
+    /// When an e-stop or a drive fault commanded zero with `estop_decel`: the drives
+    /// are de-excited [`STOPPED_AFTER_MS`] later, when every wheel stands.
+    emergency_stop_at: Option<Instant>,
 }
+
+/// After this long at `estop_decel` every wheel stands: the registers only accept an
+/// `estop_decel` that stops `max_motor_vel` within it.
+pub const STOPPED_AFTER_MS: u64 = crate::registers::ESTOP_POWER_CUT_MS as u64;
 
 impl Default for Supervisor {
     fn default() -> Self {
@@ -240,6 +247,7 @@ impl Supervisor {
             },
             stop_accel: 0,
             control: ControlSource::None,
+            emergency_stop_at: None,
         }
     }
 
@@ -275,7 +283,7 @@ impl Supervisor {
             Event::Estop { pressed } => {
                 self.estop_pressed = pressed;
                 if pressed {
-                    self.enter_emergency(params, &mut effects);
+                    self.enter_emergency(now, params, &mut effects);
                 } else if self.state == State::Emergency {
                     self.state = State::AwaitingConfirm;
                 }
@@ -285,6 +293,12 @@ impl Supervisor {
                 if matches!(self.state, State::AwaitingConfirm | State::Fault { .. }) {
                     self.state = State::Recovering;
                     effects.setup_drives = true;
+                    // The setup leaves the drives de-excited: say so, so nothing
+                    // re-excites them from an old request.
+                    if self.excited {
+                        self.excited = false;
+                        effects.excite = Some(false);
+                    }
                 }
             }
             Event::DrivesReady => {
@@ -304,9 +318,9 @@ impl Supervisor {
                     };
                 }
             }
-            Event::DriveSilent(wheel) => self.drive_fault(wheel, None, params, &mut effects),
+            Event::DriveSilent(wheel) => self.drive_fault(now, wheel, None, params, &mut effects),
             Event::DriveAlarm { wheel, code } => {
-                self.drive_fault(wheel, Some(code), params, &mut effects)
+                self.drive_fault(now, wheel, Some(code), params, &mut effects)
             }
             Event::AtRest(at_rest) => self.at_rest = at_rest,
             Event::Tick => {}
@@ -356,14 +370,10 @@ impl Supervisor {
         self.remote.armed && self.remote.dead_man
     }
 
-    /// The drives are de-excited, or unpowered (e-stop until the drives are set up
-    /// again): either way their power-off brakes hold the base.
+    /// The drives were last told to de-excite (S-OFF): their brakes hold the base.
+    /// What was commanded, never an assumption about the drives' power.
     pub fn brakes_applied(&self) -> bool {
         !self.excited
-            || matches!(
-                self.state,
-                State::Emergency | State::AwaitingConfirm | State::Recovering
-            )
     }
 
     pub fn faults(&self) -> DriveFaults {
@@ -417,11 +427,12 @@ impl Supervisor {
         }
     }
 
-    fn enter_emergency(&mut self, params: &SupervisorParams, effects: &mut Effects) {
+    fn enter_emergency(&mut self, now: Instant, params: &SupervisorParams, effects: &mut Effects) {
         self.state = State::Emergency;
         self.can_command = None;
         self.remote.armed = false;
         self.stop_accel = params.estop_decel;
+        self.emergency_stop_at = Some(now);
         // Always sent, even if the last setpoint was already zero: the e-stop edge must put
         // zero on the wire at once, with the e-stop deceleration.
         self.send_zero(params.estop_decel, effects);
@@ -429,6 +440,7 @@ impl Supervisor {
 
     fn drive_fault(
         &mut self,
+        now: Instant,
         wheel: Wheel,
         alarm: Option<u8>,
         params: &SupervisorParams,
@@ -438,6 +450,11 @@ impl Supervisor {
         // alarm is no reason to stop; but the PC must see why the base does not get
         // ready, so the fault bit is set and the drives' readiness clears it.
         if matches!(self.state, State::Starting | State::Recovering) {
+            self.faults.record(wheel, alarm);
+            return;
+        }
+        // Every fault latches, the second one too (both drives off: both reported).
+        if matches!(self.state, State::Fault { .. }) {
             self.faults.record(wheel, alarm);
             return;
         }
@@ -454,6 +471,7 @@ impl Supervisor {
         self.can_command = None;
         self.remote.armed = false;
         self.stop_accel = params.estop_decel;
+        self.emergency_stop_at = Some(now);
         self.send_zero(params.estop_decel, effects);
     }
 
@@ -478,8 +496,18 @@ impl Supervisor {
                 self.send_zero(self.stop_accel, effects);
             }
             self.control = ControlSource::None;
+            // After an e-stop or a drive fault, every wheel stands once `estop_decel`
+            // had its time: the brakes close even if no feedback says so.
+            let stopped = self
+                .emergency_stop_at
+                .is_some_and(|at| now.millis_since(at) >= STOPPED_AFTER_MS);
+            if self.excited && stopped {
+                self.excited = false;
+                effects.excite = Some(false);
+            }
             return;
         }
+        self.emergency_stop_at = None;
 
         let (control, twist, accel) = if self.remote_in_control() {
             (

@@ -43,7 +43,11 @@ pub async fn run<S: OutputPin>(
     mut pc_switch: S,
     boot_inputs: &[Input],
 ) -> ! {
-    let demand = DriveDemand::at_rest(controller.registers().get(Reg::LoopEndDelay));
+    let registers = controller.registers();
+    let demand = DriveDemand::at_rest(
+        registers.get(Reg::LoopEndDelay),
+        u32::from(registers.get(Reg::EstopDecel)),
+    );
     // The drive link starts from the defaults; this gives it the stored cycle time.
     channels.drive_demand.signal(demand);
     let mut state = Dispatched {
@@ -95,8 +99,11 @@ fn dispatch<S: OutputPin>(
     }
     if out.setup_drives {
         next.setup_requests = next.setup_requests.wrapping_add(1);
+        // The setup leaves the drives de-excited; only a new request excites them.
+        next.excite = false;
     }
     next.cycle_ms = controller.registers().get(Reg::LoopEndDelay);
+    next.stop_decel = u32::from(controller.registers().get(Reg::EstopDecel));
     // A new command always goes out, even one equal to the last (the e-stop edge).
     if next != *demand || out.wheels.is_some() {
         *demand = next;

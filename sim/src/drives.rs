@@ -403,6 +403,12 @@ impl DrivesHandle {
         });
     }
 
+    /// A marginal line: from now on every request frame longer than `max_len` bytes
+    /// reaches the drives garbled (long frames fail first); `None` heals the line.
+    pub fn fail_requests_longer_than(&self, max_len: Option<usize>) {
+        self.change(|bus, _| bus.fail_longer_than = max_len);
+    }
+
     /// Corrupts one byte of each of the next `replies` replies (as line noise would).
     pub fn garble_next_replies(&self, replies: usize) {
         self.change(|bus, _| bus.garble_replies = replies);
@@ -488,6 +494,7 @@ struct Bus {
     /// Reply bytes not yet read, by arrival.
     replies: VecDeque<ReplyByte>,
     garble_replies: usize,
+    fail_longer_than: Option<usize>,
     log: VecDeque<FrameRecord>,
     reply_log: VecDeque<FrameRecord>,
     request_count: usize,
@@ -510,6 +517,7 @@ impl Bus {
             master_tx_free: now,
             replies: VecDeque::new(),
             garble_replies: 0,
+            fail_longer_than: None,
             log: VecDeque::new(),
             reply_log: VecDeque::new(),
             request_count: 0,
@@ -628,7 +636,8 @@ impl Bus {
         if collided {
             self.collisions += 1;
         }
-        let Some((address, pdu)) = valid_frame(&bytes).filter(|_| !collided) else {
+        let too_long = self.fail_longer_than.is_some_and(|max| bytes.len() > max);
+        let Some((address, pdu)) = valid_frame(&bytes).filter(|_| !collided && !too_long) else {
             // Nobody can trust the address of a broken frame: every listener counts it.
             for &index in &listeners {
                 self.drives[index].malformed();
