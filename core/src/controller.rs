@@ -180,7 +180,14 @@ pub struct Controller {
     remote: Remote,
     pairing: PairingWindow,
     modbus_errors: u8,
+    /// When the last drive feedback arrived, for the odometry's plausibility check.
+    last_feedback_at: Option<Instant>,
 }
+
+/// Rejection code of a drive counter step that no motor at `max_motor_vel` can make
+/// (the subject says which wheel: 1 left, 2 right, 3 both): the odometry re-baselines
+/// and the pose does not jump.
+pub const ODOMETRY_DISCONTINUITY: u8 = 0x40;
 
 impl Controller {
     /// A controller starting at `now` with the registers the flash task loaded.
@@ -208,6 +215,7 @@ impl Controller {
             remote: Remote::new(),
             pairing: PairingWindow::Closed,
             modbus_errors: 0,
+            last_feedback_at: None,
         }
     }
 
@@ -460,7 +468,22 @@ impl Controller {
         rpm: MotorRpm,
         out: &mut Output,
     ) {
-        if let Some(motion) = self.odometry.update(&self.odometry_params(), counts) {
+        let params = self.odometry_params();
+        let elapsed_ms = self.last_feedback_at.map_or(0, |at| now.millis_since(at));
+        self.last_feedback_at = Some(now);
+        let max_motor_rpm = u32::from(self.registers.get(Reg::MaxMotorVel));
+        let jumped = self
+            .odometry
+            .discontinuity(&params, counts, max_motor_rpm, elapsed_ms);
+        if jumped != 0 {
+            warn!(
+                "drive counter discontinuity (wheel mask {=u8}): odometry re-baselined",
+                jumped
+            );
+            self.rejections.record(ODOMETRY_DISCONTINUITY, jumped);
+            self.odometry.rebaseline();
+        }
+        if let Some(motion) = self.odometry.update(&params, counts) {
             self.odometry_calibration
                 .observe(motion.distance_mm, motion.rotation_mrad);
         }

@@ -147,6 +147,10 @@ pub struct DrivesConfig {
     pub brake_decel_rpm_per_s: f64,
     /// Left (local ID 1 in the spec's examples) and right drive.
     pub slaves: [SlaveConfig; 2],
+    /// The share group and lists were saved to the drives' NV memory (with MEXE02):
+    /// they survive a power cycle, so a drive that reboots answers the group again
+    /// without a new setup. False (the default): they are RAM settings, lost.
+    pub share_setup_saved: bool,
     /// Request and reply frames kept for [`DrivesHandle::requests`] and
     /// [`DrivesHandle::replies`]; older ones are dropped.
     pub log_capacity: usize,
@@ -162,6 +166,7 @@ impl Default for DrivesConfig {
             transmission_wait: Duration::from_micros(3_000),
             boot_time: Duration::from_secs(1),
             share_trailer: true,
+            share_setup_saved: false,
             brake_decel_rpm_per_s: 20_000.0,
             slaves: [
                 SlaveConfig {
@@ -373,6 +378,21 @@ impl DrivesHandle {
     /// the position counters at 0 and answering after the boot time.
     pub fn power(&self, on: bool) {
         self.change(|bus, now| bus.power(on, now));
+    }
+
+    /// A brown-out of one drive: off and on again at once. It loses its RAM (see
+    /// [`Self::power`]), its counter restarts at 0, and it answers after the boot time.
+    ///
+    /// # Panics
+    /// If no drive has the address `slave`.
+    pub fn power_cycle(&self, slave: u8) {
+        self.change(|bus, now| {
+            let index = bus.index_of(slave);
+            let config = bus.config.clone();
+            bus.drives[index].power_off(now, &config);
+            bus.cut_replies(|from| from == index, now);
+            bus.drives[index].power_on(now);
+        });
     }
 
     /// Cuts one drive from the line (or reconnects it): a silent drive neither hears
@@ -1211,7 +1231,9 @@ impl Drive {
         self.advance_to(now, config);
         self.powered_since = None;
         self.ram = Ram::default();
-        self.share = ShareSetup::default();
+        if !config.share_setup_saved {
+            self.share = ShareSetup::default();
+        }
         self.alarm = 0;
         self.communication_error = 0;
         self.running = None;

@@ -389,3 +389,70 @@ fn the_drives_communication_timeout_never_trips_in_normal_operation() {
     robot.run(async |_pc| wait_ms(5_000).await);
     assert_eq!(robot.drives.drive(1).alarm, 0, "held drive");
 }
+
+/// A drive whose share setup is saved in its NV memory and which reboots within a
+/// cycle: the link never sees a reconnect, only its counter restarting at 0. The
+/// odometry takes that step as a discontinuity, not as metres of motion.
+#[test]
+fn a_drive_that_reboots_unseen_does_not_make_the_pose_jump() {
+    let robot = VirtualRobot::with_drives(virtual_robot::drives::DrivesConfig {
+        share_setup_saved: true,
+        boot_time: Duration::from_millis(20),
+        ..Default::default()
+    });
+    robot.run(async |pc| {
+        // The first boot waits the full second anyway (power_up_wait).
+        wait_ms(BOOT_MS).await;
+        pc.drive(500, 0, 2_000).await;
+        let rejected_before = pc.status().expect("status").rejected_count;
+        robot.drives.power_cycle(1);
+        pc.drive(500, 0, 500).await;
+        pc.enable();
+        pc.velocity(0, 0);
+        wait_ms(1_500).await;
+        let positions: Vec<i32> = pc
+            .reports(base_core::can::id::POSITION)
+            .into_iter()
+            .filter_map(|(_, report)| match report {
+                base_core::can::Report::Position { x_mm, .. } => Some(x_mm),
+                _ => None,
+            })
+            .collect();
+        // 500 mm/s is 25 mm per 50 ms frame.
+        let largest = positions
+            .windows(2)
+            .map(|pair| (pair[1] - pair[0]).abs())
+            .max()
+            .expect("positions");
+        assert!(largest <= 30, "the pose jumped {largest} mm in one frame");
+        let headings: Vec<i32> = pc
+            .reports(base_core::can::id::HEADING)
+            .into_iter()
+            .filter_map(|(_, report)| match report {
+                base_core::can::Report::Heading { heading_mrad } => Some(heading_mrad),
+                _ => None,
+            })
+            .collect();
+        // The rebooted left drive stays de-excited: the base pivots on it at most at
+        // 500 mm/s / 250 mm = 2 rad/s, 100 mrad per 50 ms cycle (a frame may carry a
+        // little more than one cycle); the restarted counter alone would be 4 rad.
+        let largest = headings
+            .windows(2)
+            .map(|pair| (pair[1] - pair[0]).abs())
+            .max()
+            .expect("headings");
+        assert!(
+            largest <= 150,
+            "the heading jumped {largest} mrad in one frame"
+        );
+        let status = next_status(pc, 1_500, |_| true).await.expect("status");
+        assert_ne!(
+            status.rejected_count, rejected_before,
+            "the discontinuity is counted"
+        );
+        assert_eq!(
+            (status.last_rejection, status.last_rejection_subject),
+            (0x40, 1)
+        );
+    });
+}
