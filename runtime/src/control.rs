@@ -2,6 +2,7 @@
 //! queue and a 10 ms tick into calls, and hands each output to whoever acts on it.
 
 use embassy_futures::select::{Either, select};
+use embassy_futures::yield_now;
 use embassy_time::{Duration, Instant, Timer};
 
 use embassy_sync::signal::Signal;
@@ -59,17 +60,27 @@ pub async fn run<S: OutputPin>(
         dispatch(&controller, out, &channels, &mut state, &mut pc_switch);
     }
     let mut next_tick = Instant::now() + TICK;
+    // One input or one tick per iteration, and a due tick before any queued input: a
+    // sustained input backlog can neither starve the timeouts (enable, brakes, the
+    // e-stop's S-OFF) nor the other tasks, and every iteration checks in.
     loop {
-        let input = match select(channels.inputs.receive(), Timer::at(next_tick)).await {
-            Either::First(input) => input,
-            Either::Second(()) => {
-                channels.liveness.check_in(CriticalTask::Controller);
-                next_tick = (next_tick + TICK).max(Instant::now());
-                Input::Tick
+        channels.liveness.check_in(CriticalTask::Controller);
+        let input = if Instant::now() >= next_tick {
+            None
+        } else {
+            match select(channels.inputs.receive(), Timer::at(next_tick)).await {
+                Either::First(input) => Some(input),
+                Either::Second(()) => None,
             }
         };
+        let input = input.unwrap_or_else(|| {
+            next_tick = (next_tick + TICK).max(Instant::now());
+            Input::Tick
+        });
         let out = controller.handle(core_now(), input);
         dispatch(&controller, out, &channels, &mut state, &mut pc_switch);
+        // The other tasks run between two inputs even when the queue never empties.
+        yield_now().await;
     }
 }
 
