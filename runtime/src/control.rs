@@ -127,6 +127,10 @@ fn dispatch<S: OutputPin>(
             SwitchLevel::Open => pc_switch.set_low(),
         };
     }
+    // Flash waits for the brakes: an erase must never stall the loop while driving.
+    channels
+        .pending_writes
+        .set_at_rest(controller.supervisor().brakes_applied());
     channels.pending_writes.record(&out.persist);
 
     let mut remote = state.remote;

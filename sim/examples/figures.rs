@@ -14,7 +14,7 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use base_core::can::id;
+use base_core::can::{Command, id};
 use base_core::registers::Reg;
 use embassy_futures::join::join;
 use embassy_time::{Duration, Instant, Timer};
@@ -163,6 +163,46 @@ fn report_fail_safe() {
     println!(
         "group frame failing -> zero on the wire: {:.0} ms",
         ms(zero_after)
+    );
+
+    let control_gap = |writes: bool| {
+        let robot = VirtualRobot::new();
+        robot.flash.set_erase_stall(Duration::from_millis(400));
+        robot.run(async |pc| {
+            wait_ms(BOOT_MS).await;
+            pc.drive(300, 0, 1_000).await;
+            let from = Instant::now();
+            // Register writes while driving, enough records for several page erases.
+            for round in 0..2_000u16 {
+                pc.enable();
+                pc.velocity(300, 0);
+                if writes {
+                    pc.command(Command::RegisterWrite {
+                        address: 11,
+                        value: 300 + round % 2,
+                    });
+                }
+                wait_ms(2).await;
+            }
+            let to = Instant::now();
+            let cycles: Vec<Instant> = robot
+                .drives
+                .requests()
+                .into_iter()
+                .filter(|request| request.bytes[1] == 0x17 && (from..to).contains(&request.at))
+                .map(|request| request.at)
+                .collect();
+            cycles
+                .windows(2)
+                .map(|pair| pair[1] - pair[0])
+                .max()
+                .expect("cycles")
+        })
+    };
+    println!(
+        "control latency while a 400 ms flash erase is pending: max {:.0} ms (without register writes: max {:.0} ms; the time between two control cycles while driving)",
+        ms(control_gap(true)),
+        ms(control_gap(false))
     );
 }
 

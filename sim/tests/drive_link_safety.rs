@@ -456,3 +456,78 @@ fn a_drive_that_reboots_unseen_does_not_make_the_pose_jump() {
         );
     });
 }
+
+/// The largest gap between two control cycles (group frames) on the wire in `window`.
+fn worst_cycle_gap(robot: &VirtualRobot, from: Instant, to: Instant) -> Duration {
+    let cycles: Vec<Instant> = robot
+        .drives
+        .requests()
+        .into_iter()
+        .filter(|request| request.bytes[1] == 0x17 && request.at >= from && request.at <= to)
+        .map(|request| request.at)
+        .collect();
+    cycles
+        .windows(2)
+        .map(|pair| pair[1] - pair[0])
+        .max()
+        .expect("cycles in the window")
+}
+
+/// On the chip a sector erase masks interrupts for up to 400 ms. Register writes while
+/// driving are in force at once and reach the flash only at the next standstill, so
+/// the control cycle never stalls; they are persisted then.
+#[test]
+fn flash_erases_wait_for_standstill_and_never_stall_the_control_cycle() {
+    let robot = VirtualRobot::new();
+    robot.flash.set_erase_stall(Duration::from_millis(400));
+    robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        pc.drive(300, 0, 1_000).await;
+        let erases_before = robot.flash.stats().erases;
+        let from = Instant::now();
+        // disable_time 300/301 ms, 2000 times: several pages of records.
+        for round in 0..2_000u16 {
+            pc.enable();
+            pc.velocity(300, 0);
+            pc.command(base_core::can::Command::RegisterWrite {
+                address: 11,
+                value: 300 + round % 2,
+            });
+            wait_ms(2).await;
+        }
+        let to = Instant::now();
+        assert!(robot.drives.drive(1).forward_rpm() > 150.0, "still driving");
+        let gap = worst_cycle_gap(&robot, from, to);
+        assert!(
+            gap <= Duration::from_millis(60),
+            "control cycle stalled {gap:?}"
+        );
+        assert_eq!(
+            robot.flash.stats().erases,
+            erases_before,
+            "no erase while driving"
+        );
+
+        // At standstill the last value goes to the flash.
+        pc.command(base_core::can::Command::RegisterWrite {
+            address: 11,
+            value: 750,
+        });
+        pc.enable();
+        pc.velocity(0, 0);
+        wait_ms(3_000).await;
+    });
+    let value = robot.run(async |pc| {
+        let before = pc.reports(base_core::can::id::REGISTER_READ).len();
+        pc.command(base_core::can::Command::RegisterRead { address: 11 });
+        wait_ms(50).await;
+        pc.reports(base_core::can::id::REGISTER_READ)
+            .into_iter()
+            .skip(before)
+            .find_map(|(_, report)| match report {
+                base_core::can::Report::RegisterValue { value } => Some(value),
+                _ => None,
+            })
+    });
+    assert_eq!(value, Some(750), "persisted at the standstill");
+}
