@@ -182,6 +182,8 @@ pub struct Controller {
     modbus_errors: u8,
     /// When the last drive feedback arrived, for the odometry's plausibility check.
     last_feedback_at: Option<Instant>,
+    /// Register values wait for the flash (the runtime's store says so).
+    persist_pending: bool,
 }
 
 /// Rejection code of a drive counter step that no motor at `max_motor_vel` can make
@@ -216,7 +218,14 @@ impl Controller {
             pairing: PairingWindow::Closed,
             modbus_errors: 0,
             last_feedback_at: None,
+            persist_pending: false,
         }
+    }
+
+    /// The runtime's word on whether register values still wait for the flash (it
+    /// writes only at standstill), for the status frame.
+    pub fn set_persist_pending(&mut self, pending: bool) {
+        self.persist_pending = pending;
     }
 
     pub fn registers(&self) -> &Registers {
@@ -312,6 +321,7 @@ impl Controller {
         Status {
             mode: supervisor.mode(),
             control: supervisor.control(),
+            persist_pending: self.persist_pending,
             flags: StatusFlags {
                 enable_fresh: supervisor.enable_fresh(now, &self.supervisor_params()),
                 pc_on: self.power.pc_on(now),

@@ -77,6 +77,7 @@ pub async fn run<S: OutputPin>(
             next_tick = (next_tick + TICK).max(Instant::now());
             Input::Tick
         });
+        controller.set_persist_pending(channels.pending_writes.persist_pending());
         let out = controller.handle(core_now(), input);
         dispatch(&controller, out, &channels, &mut state, &mut pc_switch);
         // The other tasks run between two inputs even when the queue never empties.

@@ -507,6 +507,9 @@ fn flash_erases_wait_for_standstill_and_never_stall_the_control_cycle() {
             erases_before,
             "no erase while driving"
         );
+        let status = next_status(pc, 1_500, |_| true).await.expect("status");
+        assert!(status.persist_pending, "the status frame says values wait");
+        assert_eq!(status.mode, Mode::Active);
 
         // At standstill the last value goes to the flash.
         pc.command(base_core::can::Command::RegisterWrite {
@@ -516,6 +519,8 @@ fn flash_erases_wait_for_standstill_and_never_stall_the_control_cycle() {
         pc.enable();
         pc.velocity(0, 0);
         wait_ms(3_000).await;
+        let status = next_status(pc, 1_500, |_| true).await.expect("status");
+        assert!(!status.persist_pending, "written at the standstill");
     });
     let value = robot.run(async |pc| {
         let before = pc.reports(base_core::can::id::REGISTER_READ).len();
