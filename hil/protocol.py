@@ -137,7 +137,8 @@ class Status:
 
 def parse_status(data):
     data = bytes(data)
-    mode, source = data[0] & 0x0F, data[0] >> 4
+    # bit 7 of byte 0 is "persist pending"
+    mode, source = data[0] & 0x0F, (data[0] >> 4) & 0x07
     return Status(
         mode=MODES[mode],
         source=SOURCES[source],

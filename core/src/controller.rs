@@ -8,7 +8,7 @@ use heapless::Vec;
 use crate::battery::{self, BatteryFilter, BatteryParams};
 use crate::calibration::odometry::OdometryCalibration;
 use crate::calibration::scale::{ScaleCalibration, ScaleUpdate};
-use crate::can::{Command, FrameError, RawFrame, Report};
+use crate::can::{Command, FrameError, RawFrame, Rejection, Report};
 use crate::can::{Faults, Mode, Status, StatusFlags};
 use crate::feedback::{FeedbackPeriods, FeedbackSchedule};
 use crate::gamepad::GamepadState;
@@ -185,6 +185,10 @@ pub struct Controller {
     remote: Remote,
     pairing: PairingWindow,
     modbus_errors: u8,
+    /// When the last drive feedback arrived, for the odometry's plausibility check.
+    last_feedback_at: Option<Instant>,
+    /// Register values wait for the flash (the runtime's store says so).
+    persist_pending: bool,
 }
 
 impl Controller {
@@ -213,7 +217,15 @@ impl Controller {
             remote: Remote::new(),
             pairing: PairingWindow::Closed,
             modbus_errors: 0,
+            last_feedback_at: None,
+            persist_pending: false,
         }
+    }
+
+    /// The runtime's word on whether register values still wait for the flash (it
+    /// writes only at standstill), for the status frame.
+    pub fn set_persist_pending(&mut self, pending: bool) {
+        self.persist_pending = pending;
     }
 
     pub fn registers(&self) -> &Registers {
@@ -345,6 +357,7 @@ impl Controller {
         Status {
             mode: supervisor.mode(),
             control: supervisor.control(),
+            persist_pending: self.persist_pending,
             flags: StatusFlags {
                 enable_fresh: supervisor.enable_fresh(now, &self.supervisor_params()),
                 pc_on: self.power.pc_on(now, &power_params(&self.registers)),
@@ -521,7 +534,24 @@ impl Controller {
         rpm: MotorRpm,
         out: &mut Output,
     ) {
-        if let Some(motion) = self.odometry.update(&self.odometry_params(), counts) {
+        let params = self.odometry_params();
+        let elapsed_ms = self.last_feedback_at.map_or(0, |at| now.millis_since(at));
+        self.last_feedback_at = Some(now);
+        let max_motor_rpm = u32::from(self.registers.get(Reg::MaxMotorVel));
+        let jumped = self
+            .odometry
+            .discontinuity(&params, counts, max_motor_rpm, elapsed_ms);
+        if jumped != 0 {
+            warn!(
+                "drive counter discontinuity (wheel mask {=u8}): odometry re-baselined",
+                jumped
+            );
+            // Shown like a rejection (the subject says which wheel: 1 left, 2 right, 3 both).
+            self.rejections
+                .record(Rejection::OdometryDiscontinuity.code(), jumped);
+            self.odometry.rebaseline();
+        }
+        if let Some(motion) = self.odometry.update(&params, counts) {
             self.odometry_calibration
                 .observe(motion.distance_mm, motion.rotation_mrad);
         }

@@ -1,6 +1,7 @@
 //! Dead reckoning: owns the robot's pose, integrated from the drives' encoder counters.
 //! The control loop feeds it one `EncoderCounts` sample per cycle and re-baselines it
-//! after a drive reconnect; CAN reads `pose()` and 0x005 calls `reset()`; the
+//! after a drive reconnect, or when a counter steps further than a motor can turn
+//! ([`Odometry::discontinuity`]); CAN reads `pose()` and 0x005 calls `reset()`; the
 //! odometry calibration accumulates the uncorrected `RawMotion` it returns.
 //!
 //! All arithmetic is f64, and the pose sums are compensated (double-double) so that
@@ -135,6 +136,32 @@ impl Odometry {
         })
     }
 
+    /// Which counters stepped further since the last sample than a motor at
+    /// `max_motor_rpm` can turn in `elapsed_ms` (bit 0 left, bit 1 right; 0 = none, or
+    /// no baseline yet). Such a step is a discontinuity, not motion: a drive that
+    /// restarted (its counter starts again at 0) without the link seeing a reconnect,
+    /// or a garbled value. The caller re-baselines instead of integrating it.
+    ///
+    /// The allowance is generous, so that no real motion is ever dropped: 1.5 times
+    /// `max_motor_rpm`, over the elapsed time plus [`STEP_SLACK_MS`] (the sample is
+    /// timed when it arrives, not when the drive latched it).
+    pub fn discontinuity(
+        &self,
+        params: &OdometryParams,
+        counts: EncoderCounts,
+        max_motor_rpm: u32,
+        elapsed_ms: u64,
+    ) -> u8 {
+        let Some(previous) = self.baseline else {
+            return 0;
+        };
+        let counts_per_ms = params.counts_per_motor_rev * f64::from(max_motor_rpm) / 60_000.0;
+        let allowed = 1.5 * counts_per_ms * (elapsed_ms as f64 + STEP_SLACK_MS);
+        let jumped = |now: i32, before: i32| f64::from(now.wrapping_sub(before)).abs() > allowed;
+        u8::from(jumped(counts.left, previous.left))
+            | u8::from(jumped(counts.right, previous.right)) << 1
+    }
+
     /// After a drive reconnect its counter restarts: the next sample is a new baseline,
     /// so the jump is not integrated and the pose does not move.
     pub fn rebaseline(&mut self) {
@@ -187,6 +214,9 @@ impl Odometry {
         self.heading_rad.add(dtheta);
     }
 }
+
+/// Timing slack of [`Odometry::discontinuity`], ms.
+pub const STEP_SLACK_MS: f64 = 50.0;
 
 /// Wheel arc in mm for a counter difference, positive when that wheel rolls forward.
 fn wheel_arc_mm(delta: i32, radius_mm: f64, inverted: bool, params: &OdometryParams) -> f64 {
@@ -270,6 +300,45 @@ mod tests {
 
     fn counts(left: i32, right: i32) -> EncoderCounts {
         EncoderCounts { left, right }
+    }
+
+    #[test]
+    fn a_counter_step_beyond_max_motor_vel_is_a_discontinuity_and_real_motion_is_not() {
+        let mut odometry = Odometry::new();
+        assert_eq!(
+            odometry.discontinuity(&robot(), counts(5, 5), 900, 50),
+            0,
+            "no baseline"
+        );
+        odometry.update(&robot(), counts(1_000_000, 1_000_000));
+        // 900 r/min for 50 ms is 27 000 counts; the allowance is 1.5 × over 100 ms.
+        let full_speed = counts(1_027_000, 1_000_000 - 27_000);
+        assert_eq!(odometry.discontinuity(&robot(), full_speed, 900, 50), 0);
+        assert_eq!(
+            odometry.discontinuity(&robot(), counts(1_081_000, 1_000_000), 900, 50),
+            0
+        );
+        // The left drive restarted: its counter is back near 0.
+        assert_eq!(
+            odometry.discontinuity(&robot(), counts(12, 1_000_000), 900, 50),
+            0b01
+        );
+        assert_eq!(
+            odometry.discontinuity(&robot(), counts(1_081_001, 0), 900, 50),
+            0b11
+        );
+        // A long gap (the link held the drives) allows more.
+        assert_eq!(
+            odometry.discontinuity(&robot(), counts(12, 1_000_000), 900, 10_000),
+            0
+        );
+        // Across the i32 wrap the step is small.
+        let mut wrapped = Odometry::new();
+        wrapped.update(&robot(), counts(i32::MAX - 10, i32::MIN + 10));
+        assert_eq!(
+            wrapped.discontinuity(&robot(), counts(i32::MIN + 10, i32::MAX - 10), 900, 50),
+            0
+        );
     }
 
     /// Counts each wheel must roll (opposite ways) for a spin of `angle_rad`.

@@ -170,20 +170,29 @@ enum State {
         stop_accel: u32,
         at_rest_since: Option<Instant>,
     },
-    /// The e-stop is pressed.
-    Emergency,
-    /// The e-stop was released; a confirm press is needed.
-    AwaitingConfirm,
+    /// The e-stop is pressed. `excited_since_stop` is when zero was commanded to
+    /// drives that were excited then: they are de-excited [`STOPPED_AFTER_MS`] later,
+    /// when every wheel stands, whether or not feedback says so.
+    Emergency { excited_since_stop: Option<Instant> },
+    /// The e-stop was released; a confirm press is needed. The drives' excitation as in
+    /// `Emergency`.
+    AwaitingConfirm { excited_since_stop: Option<Instant> },
     /// Confirmed; the drive link sets the drives up again.
     Recovering,
     /// A drive fault outside an e-stop; a confirm press starts the recovery. The drive
     /// that still answers stays excited (if it was) until the base stands for
-    /// `disable_time`.
+    /// `disable_time`, or [`STOPPED_AFTER_MS`] after the stop (`stopped_at`), whichever
+    /// comes first.
     Fault {
         excited: bool,
         at_rest_since: Option<Instant>,
+        stopped_at: Instant,
     },
 }
+
+/// After this long at `estop_decel` every wheel stands: the registers only accept an
+/// `estop_decel` that stops `max_motor_vel` within it.
+pub const STOPPED_AFTER_MS: u64 = crate::registers::ESTOP_POWER_CUT_MS as u64;
 
 /// A CAN velocity stored while the enable is fresh.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -311,14 +320,22 @@ impl Supervisor {
             Event::Estop { pressed } => {
                 self.inputs.estop_pressed = pressed;
                 if pressed {
-                    self.enter_emergency(params, &mut effects);
-                } else if self.state == State::Emergency {
-                    self.state = State::AwaitingConfirm;
+                    self.enter_emergency(now, params, &mut effects);
+                } else if let State::Emergency { excited_since_stop } = self.state {
+                    self.state = State::AwaitingConfirm { excited_since_stop };
                 }
             }
             Event::SafetyZone { occupied } => self.inputs.safety_zone = occupied,
             Event::ConfirmPressed => {
-                if matches!(self.state, State::AwaitingConfirm | State::Fault { .. }) {
+                if matches!(
+                    self.state,
+                    State::AwaitingConfirm { .. } | State::Fault { .. }
+                ) {
+                    // The setup leaves the drives de-excited: say so, so nothing
+                    // re-excites them from an old request.
+                    if !self.brakes_applied() {
+                        effects.excite = Some(false);
+                    }
                     self.state = State::Recovering;
                     effects.setup_drives = true;
                 }
@@ -339,9 +356,9 @@ impl Supervisor {
                     };
                 }
             }
-            Event::DriveSilent(wheel) => self.drive_fault(wheel, None, params, &mut effects),
+            Event::DriveSilent(wheel) => self.drive_fault(now, wheel, None, params, &mut effects),
             Event::DriveAlarm { wheel, code } => {
-                self.drive_fault(wheel, Some(code), params, &mut effects)
+                self.drive_fault(now, wheel, Some(code), params, &mut effects)
             }
             Event::AtRest(at_rest) => {
                 self.inputs.at_rest = at_rest;
@@ -361,8 +378,8 @@ impl Supervisor {
             State::Starting => Mode::Starting,
             State::Standby => Mode::Standby,
             State::Active { .. } => Mode::Active,
-            State::Emergency => Mode::Emergency,
-            State::AwaitingConfirm => Mode::AwaitingConfirm,
+            State::Emergency { .. } => Mode::Emergency,
+            State::AwaitingConfirm { .. } => Mode::AwaitingConfirm,
             State::Recovering => Mode::Recovering,
             State::Fault { .. } => Mode::Fault,
         }
@@ -385,7 +402,10 @@ impl Supervisor {
     /// Emergency mode in the manual's sense lasts until the confirm press: no feedback
     /// frames (0x0EA..0x0ED) are sent during it.
     pub fn in_emergency(&self) -> bool {
-        matches!(self.state, State::Emergency | State::AwaitingConfirm)
+        matches!(
+            self.state,
+            State::Emergency { .. } | State::AwaitingConfirm { .. }
+        )
     }
 
     pub fn enable_fresh(&self, now: Instant, params: &Params) -> bool {
@@ -420,17 +440,15 @@ impl Supervisor {
         self.inputs.at_rest
     }
 
-    /// The drives are de-excited, or unpowered (e-stop until the drives are set up
-    /// again): either way their power-off brakes hold the base.
+    /// The drives were last told to de-excite (S-OFF), so their brakes hold the base:
+    /// what was commanded, never an assumption about the drives' power.
     pub fn brakes_applied(&self) -> bool {
         match self.state {
             State::Active { .. } => false,
             State::Fault { excited, .. } => !excited,
-            State::Starting
-            | State::Standby
-            | State::Emergency
-            | State::AwaitingConfirm
-            | State::Recovering => true,
+            State::Emergency { excited_since_stop }
+            | State::AwaitingConfirm { excited_since_stop } => excited_since_stop.is_none(),
+            State::Starting | State::Standby | State::Recovering => true,
         }
     }
 
@@ -497,8 +515,10 @@ impl Supervisor {
         }
     }
 
-    fn enter_emergency(&mut self, params: &Params, effects: &mut Effects) {
-        self.state = State::Emergency;
+    fn enter_emergency(&mut self, now: Instant, params: &Params, effects: &mut Effects) {
+        self.state = State::Emergency {
+            excited_since_stop: (!self.brakes_applied()).then_some(now),
+        };
         self.inputs.can_command = None;
         self.inputs.remote.armed = false;
         // Always sent, even if the last setpoint was already zero: the e-stop edge must put
@@ -508,6 +528,7 @@ impl Supervisor {
 
     fn drive_fault(
         &mut self,
+        now: Instant,
         wheel: Wheel,
         alarm: Option<u8>,
         params: &Params,
@@ -517,6 +538,11 @@ impl Supervisor {
         // alarm is no reason to stop; but the PC must see why the base does not get
         // ready, so the fault bit is set and the drives' readiness clears it.
         if matches!(self.state, State::Starting | State::Recovering) {
+            self.faults.record(wheel, alarm);
+            return;
+        }
+        // Every fault latches, the second one too (both drives off: both reported).
+        if matches!(self.state, State::Fault { .. }) {
             self.faults.record(wheel, alarm);
             return;
         }
@@ -530,6 +556,7 @@ impl Supervisor {
         self.state = State::Fault {
             excited: matches!(self.state, State::Active { .. }),
             at_rest_since: None,
+            stopped_at: now,
         };
         self.inputs.can_command = None;
         self.inputs.remote.armed = false;
@@ -542,19 +569,42 @@ impl Supervisor {
             State::Fault {
                 excited,
                 at_rest_since,
+                stopped_at,
             } => {
                 let since = self.standstill_since(now, excited, false, at_rest_since);
-                self.state = if brake_due(now, since, params) {
+                let stopped = now.millis_since(stopped_at) >= STOPPED_AFTER_MS;
+                self.state = if excited && (stopped || brake_due(now, since, params)) {
                     effects.excite = Some(false);
                     State::Fault {
                         excited: false,
                         at_rest_since: None,
+                        stopped_at,
                     }
                 } else {
                     State::Fault {
                         excited,
                         at_rest_since: since,
+                        stopped_at,
                     }
+                };
+                return;
+            }
+            // After an e-stop every wheel stands once `estop_decel` had its time: the
+            // brakes close even if no feedback says so.
+            State::Emergency {
+                excited_since_stop: Some(at),
+            }
+            | State::AwaitingConfirm {
+                excited_since_stop: Some(at),
+            } if now.millis_since(at) >= STOPPED_AFTER_MS => {
+                effects.excite = Some(false);
+                self.state = match self.state {
+                    State::Emergency { .. } => State::Emergency {
+                        excited_since_stop: None,
+                    },
+                    _ => State::AwaitingConfirm {
+                        excited_since_stop: None,
+                    },
                 };
                 return;
             }
@@ -565,7 +615,10 @@ impl Supervisor {
                 stop_accel,
                 at_rest_since,
             } => (setpoint, stop_accel, at_rest_since),
-            State::Starting | State::Emergency | State::AwaitingConfirm | State::Recovering => {
+            State::Starting
+            | State::Emergency { .. }
+            | State::AwaitingConfirm { .. }
+            | State::Recovering => {
                 return;
             }
         };

@@ -293,6 +293,7 @@ fn status_frame_places_every_field_in_its_byte_and_bit() {
     let status = Status {
         mode: Mode::AwaitingConfirm,
         control: ControlSource::Remote,
+        persist_pending: true,
         flags: StatusFlags {
             enable_fresh: true,
             pc_on: false,
@@ -321,7 +322,8 @@ fn status_frame_places_every_field_in_its_byte_and_bit() {
     };
     assert_report_golden(
         0x0EE,
-        &[0x24, 0x8D, 0xA6, 200, 0x02, 0xC8, 0x84, 0x07],
+        // 0xA4: persist pending (bit 7), remote (2 in bits 4-6), awaiting confirm (4).
+        &[0xA4, 0x8D, 0xA6, 200, 0x02, 0xC8, 0x84, 0x07],
         Report::Status(status),
     );
 }
@@ -616,28 +618,31 @@ fn control_source() -> impl Strategy<Value = ControlSource> {
 }
 
 fn status() -> impl Strategy<Value = Status> {
-    (mode(), control_source(), any::<[u8; 7]>()).prop_map(|(mode, control, bytes)| {
-        let [
-            flags,
-            faults,
-            rejected_count,
-            last_rejection,
-            subject,
-            drive_alarm,
-            modbus,
-        ] = bytes;
-        Status {
-            mode,
-            control,
-            flags: StatusFlags::from_byte(flags),
-            faults: Faults::from_byte(faults),
-            rejected_count,
-            last_rejection,
-            last_rejection_subject: subject,
-            drive_alarm,
-            modbus_errors: modbus,
-        }
-    })
+    (mode(), control_source(), any::<bool>(), any::<[u8; 7]>()).prop_map(
+        |(mode, control, persist_pending, bytes)| {
+            let [
+                flags,
+                faults,
+                rejected_count,
+                last_rejection,
+                subject,
+                drive_alarm,
+                modbus,
+            ] = bytes;
+            Status {
+                mode,
+                control,
+                persist_pending,
+                flags: StatusFlags::from_byte(flags),
+                faults: Faults::from_byte(faults),
+                rejected_count,
+                last_rejection,
+                last_rejection_subject: subject,
+                drive_alarm,
+                modbus_errors: modbus,
+            }
+        },
+    )
 }
 
 fn report() -> impl Strategy<Value = Report> {

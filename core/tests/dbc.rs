@@ -317,6 +317,7 @@ fn status_signals(status: &Status) -> Vec<(&'static str, Expect)> {
     let Status {
         mode,
         control,
+        persist_pending,
         flags,
         faults,
         rejected_count,
@@ -348,6 +349,7 @@ fn status_signals(status: &Status) -> Vec<(&'static str, Expect)> {
     vec![
         ("Mode", variant_name(&mode)),
         ("ControlSource", variant_name(&control)),
+        ("PersistPending", flag(persist_pending)),
         ("EnableFresh", flag(enable_fresh)),
         ("PcOn", flag(pc_on)),
         ("SafetyZone", flag(safety_zone)),
@@ -480,6 +482,7 @@ fn statuses() -> Vec<Status> {
     statuses.push(Status {
         mode: Mode::AwaitingConfirm,
         control: ControlSource::Remote,
+        persist_pending: false,
         flags: StatusFlags::from_byte(0x8D),
         faults: Faults::from_byte(0xA6),
         rejected_count: 200,
@@ -491,6 +494,7 @@ fn statuses() -> Vec<Status> {
     statuses.push(Status {
         mode: Mode::Fault,
         control: ControlSource::Remote,
+        persist_pending: true,
         flags: StatusFlags::from_byte(0xFF),
         faults: Faults::from_byte(0xFF),
         rejected_count: u8::MAX,

@@ -797,20 +797,20 @@ fn l2_with_menu_resets_the_odometry_menu_alone_does_not_also_in_an_emergency() {
         uncorrected(),
         &[
             (0, counts(0, 0), &[]),
-            (10, counts(403_491, -403_491), &[at_1000]),
-            (20, pad_link(true), &[]),
-            (30, buttons(Buttons::MENU), &[at_1000]),
-            (40, buttons(Buttons::NONE), &[]),
-            (50, l2_and(Buttons::NONE), &[at_1000]),
-            (60, l2_and(Buttons::MENU), &[at_0, NoWheels]),
+            (1000, counts(403_491, -403_491), &[at_1000]),
+            (2000, pad_link(true), &[]),
+            (3000, buttons(Buttons::MENU), &[at_1000]),
+            (4000, buttons(Buttons::NONE), &[]),
+            (5000, l2_and(Buttons::NONE), &[at_1000]),
+            (6000, l2_and(Buttons::MENU), &[at_0, NoWheels]),
             // Menu held first, then L2: no press while L2 was held.
-            (70, counts(806_982, -806_982), &[at_1000]),
-            (80, buttons(Buttons::MENU), &[]),
-            (90, l2_and(Buttons::MENU), &[at_1000]),
+            (7000, counts(806_982, -806_982), &[at_1000]),
+            (8000, buttons(Buttons::MENU), &[]),
+            (9000, l2_and(Buttons::MENU), &[at_1000]),
             // In an emergency too (docs/behaviour.md, Emergency stop).
-            (100, Input::Estop(true), &[Mode(Mode::Emergency)]),
-            (110, l2_and(Buttons::NONE), &[]),
-            (120, l2_and(Buttons::MENU), &[at_0]),
+            (10_000, Input::Estop(true), &[Mode(Mode::Emergency)]),
+            (11_000, l2_and(Buttons::NONE), &[]),
+            (12_000, l2_and(Buttons::MENU), &[at_0]),
         ],
     );
 }
@@ -1121,31 +1121,31 @@ fn odometry_calibration_flow_stores_the_factors_on_04() {
         &[
             (0, counts(0, 0), &[]),
             (
-                10,
+                1000,
                 odometry_calibration(OdometryCalibrationCommand::StartLinear),
                 &[],
             ),
-            (20, counts(201_746, -201_746), &[]),
-            (30, counts(403_491, -403_491), &[]),
+            (2000, counts(201_746, -201_746), &[]),
+            (3000, counts(403_491, -403_491), &[]),
             (
-                40,
+                4000,
                 odometry_calibration(OdometryCalibrationCommand::EndLinear { real_mm: 1007 }),
                 &[NothingPersisted],
             ),
             // A clockwise spin: left forward, right backward (right motor mirrored).
             (
-                50,
+                5000,
                 odometry_calibration(OdometryCalibrationCommand::StartClockwise),
                 &[],
             ),
-            (60, counts(403_491 + 100_000, -403_491 + 100_000), &[]),
+            (6000, counts(403_491 + 100_000, -403_491 + 100_000), &[]),
             (
-                70,
+                7000,
                 odometry_calibration(OdometryCalibrationCommand::EndClockwise { real_mrad: 1570 }),
                 &[NothingPersisted],
             ),
             (
-                80,
+                8000,
                 odometry_calibration(OdometryCalibrationCommand::Store),
                 &[
                     Persists(Reg::FLin, 10_070),
@@ -1166,7 +1166,7 @@ fn odometry_calibration_rejects_out_of_order_and_out_of_range_steps() {
         &[
             (0, counts(0, 0), &[]),
             (
-                10,
+                1000,
                 odometry_calibration(OdometryCalibrationCommand::EndLinear { real_mm: 1000 }),
                 &[
                     Rejected {
@@ -1177,12 +1177,12 @@ fn odometry_calibration_rejects_out_of_order_and_out_of_range_steps() {
                 ],
             ),
             (
-                20,
+                2000,
                 odometry_calibration(OdometryCalibrationCommand::StartLinear),
                 &[],
             ),
             (
-                30,
+                3000,
                 odometry_calibration(OdometryCalibrationCommand::EndLinear { real_mm: 1000 }),
                 &[Rejected {
                     code: 0x21,
@@ -1190,14 +1190,14 @@ fn odometry_calibration_rejects_out_of_order_and_out_of_range_steps() {
                 }],
             ),
             (
-                40,
+                4000,
                 odometry_calibration(OdometryCalibrationCommand::StartLinear),
                 &[],
             ),
-            (50, counts(403_491, -403_491), &[]),
+            (5000, counts(403_491, -403_491), &[]),
             // 1600 mm real for 1000 mm measured: a factor of 1.6 is refused.
             (
-                60,
+                6000,
                 odometry_calibration(OdometryCalibrationCommand::EndLinear { real_mm: 1600 }),
                 &[Rejected {
                     code: 0x22,
@@ -1205,7 +1205,7 @@ fn odometry_calibration_rejects_out_of_order_and_out_of_range_steps() {
                 }],
             ),
             (
-                70,
+                7000,
                 odometry_calibration(OdometryCalibrationCommand::Store),
                 &[
                     Rejected {
@@ -1464,7 +1464,7 @@ fn odometry_reports_clockwise_heading_and_resets_over_can_and_from_the_remote() 
         &[
             (0, counts(1_000, 1_000), &[]),
             (
-                50,
+                5000,
                 counts(80_225, 80_225),
                 &[Pose {
                     x_mm: 0,
@@ -1474,7 +1474,7 @@ fn odometry_reports_clockwise_heading_and_resets_over_can_and_from_the_remote() 
             ),
             // Then 1 m forward: along +y, to the right.
             (
-                100,
+                10_000,
                 counts(483_716, -323_266),
                 &[Pose {
                     x_mm: 0,
@@ -1483,7 +1483,7 @@ fn odometry_reports_clockwise_heading_and_resets_over_can_and_from_the_remote() 
                 }],
             ),
             (
-                110,
+                11_000,
                 can(Command::ResetOdometry),
                 &[Pose {
                     x_mm: 0,
@@ -1492,7 +1492,7 @@ fn odometry_reports_clockwise_heading_and_resets_over_can_and_from_the_remote() 
                 }],
             ),
             (
-                120,
+                12_000,
                 counts(887_207, -726_757),
                 &[Pose {
                     x_mm: 1000,
@@ -1500,10 +1500,10 @@ fn odometry_reports_clockwise_heading_and_resets_over_can_and_from_the_remote() 
                     heading_mrad: 0,
                 }],
             ),
-            (125, pad_link(true), &[]),
-            (126, l2_and(Buttons::NONE), &[]),
+            (12_500, pad_link(true), &[]),
+            (12_600, l2_and(Buttons::NONE), &[]),
             (
-                130,
+                13_000,
                 l2_and(Buttons::MENU),
                 &[Pose {
                     x_mm: 0,
@@ -1522,7 +1522,7 @@ fn odometry_does_not_jump_when_the_drives_come_back_with_new_counters() {
         &[
             (0, counts(5_000_000, -5_000_000), &[]),
             (
-                50,
+                5000,
                 counts(5_403_491, -5_403_491),
                 &[Pose {
                     x_mm: 1000,
@@ -1530,10 +1530,10 @@ fn odometry_does_not_jump_when_the_drives_come_back_with_new_counters() {
                     heading_mrad: 0,
                 }],
             ),
-            (60, Input::DrivesReady, &[]),
+            (6000, Input::DrivesReady, &[]),
             // The drives restarted at zero: a baseline, not 5 km backwards.
             (
-                70,
+                7000,
                 counts(0, 0),
                 &[Pose {
                     x_mm: 1000,
@@ -1542,7 +1542,7 @@ fn odometry_does_not_jump_when_the_drives_come_back_with_new_counters() {
                 }],
             ),
             (
-                80,
+                8000,
                 counts(403_491, -403_491),
                 &[Pose {
                     x_mm: 2000,

@@ -109,11 +109,14 @@ async fn main(_spawner: embassy_executor::Spawner) {
             Gain::ChannelA128,
         ),
         watchdog: LivenessWatchdog::start(board.rtc, board.status_led),
-        reset_by_watchdog: board::reset_by_watchdog(reset_reason),
+        // A software reset is a panic (see `custom_halt`): the firmware never resets
+        // itself otherwise. The status frame reports both as an abnormal reset.
+        reset_by_watchdog: board::reset_by_watchdog(reset_reason)
+            || board::reset_by_software(reset_reason),
     };
     if hardware.reset_by_watchdog {
         warn!(
-            "last reset by a watchdog (timeout {} ms)",
+            "last reset by a watchdog (timeout {} ms) or a panic",
             watchdog::TIMEOUT.as_millis()
         );
     }
@@ -144,4 +147,13 @@ async fn main(_spawner: embassy_executor::Spawner) {
     };
     let (never, ()) = join(base_runtime::run(hardware, settings, &CHANNELS), remote).await;
     never
+}
+
+/// Called by esp-backtrace's panic handler after it printed the panic: resets the chip
+/// at once. The drives are then held at zero by the next boot's first frames (and by
+/// their own communication timeout meanwhile), instead of running on while a halted
+/// chip waits for the watchdog.
+#[unsafe(no_mangle)]
+fn custom_halt() -> ! {
+    esp_hal::system::software_reset()
 }

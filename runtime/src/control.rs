@@ -2,6 +2,7 @@
 //! queue and a 10 ms tick into calls, and hands each output to whoever acts on it.
 
 use embassy_futures::select::{Either, select};
+use embassy_futures::yield_now;
 use embassy_time::{Duration, Instant, Timer};
 
 use embassy_sync::signal::Signal;
@@ -43,7 +44,11 @@ pub async fn run<S: OutputPin>(
     mut pc_switch: S,
     boot_inputs: &[Input],
 ) -> ! {
-    let demand = DriveDemand::at_rest(controller.registers().get(Reg::LoopEndDelay));
+    let registers = controller.registers();
+    let demand = DriveDemand::at_rest(
+        registers.get(Reg::LoopEndDelay),
+        u32::from(registers.get(Reg::EstopDecel)),
+    );
     // The drive link starts from the defaults; this gives it the stored cycle time.
     channels.drive_demand.signal(demand);
     let mut state = Dispatched {
@@ -55,17 +60,28 @@ pub async fn run<S: OutputPin>(
         dispatch(&controller, out, &channels, &mut state, &mut pc_switch);
     }
     let mut next_tick = Instant::now() + TICK;
+    // One input or one tick per iteration, and a due tick before any queued input: a
+    // sustained input backlog can neither starve the timeouts (enable, brakes, the
+    // e-stop's S-OFF) nor the other tasks, and every iteration checks in.
     loop {
-        let input = match select(channels.inputs.receive(), Timer::at(next_tick)).await {
-            Either::First(input) => input,
-            Either::Second(()) => {
-                channels.liveness.check_in(CriticalTask::Controller);
-                next_tick = (next_tick + TICK).max(Instant::now());
-                Input::Tick
+        channels.liveness.check_in(CriticalTask::Controller);
+        let input = if Instant::now() >= next_tick {
+            None
+        } else {
+            match select(channels.inputs.receive(), Timer::at(next_tick)).await {
+                Either::First(input) => Some(input),
+                Either::Second(()) => None,
             }
         };
+        let input = input.unwrap_or_else(|| {
+            next_tick = (next_tick + TICK).max(Instant::now());
+            Input::Tick
+        });
+        controller.set_persist_pending(channels.pending_writes.persist_pending());
         let out = controller.handle(core_now(), input);
         dispatch(&controller, out, &channels, &mut state, &mut pc_switch);
+        // The other tasks run between two inputs even when the queue never empties.
+        yield_now().await;
     }
 }
 
@@ -95,8 +111,11 @@ fn dispatch<S: OutputPin>(
     }
     if out.setup_drives {
         next.setup_requests = next.setup_requests.wrapping_add(1);
+        // The setup leaves the drives de-excited; only a new request excites them.
+        next.excite = false;
     }
     next.cycle_ms = controller.registers().get(Reg::LoopEndDelay);
+    next.stop_decel = u32::from(controller.registers().get(Reg::EstopDecel));
     // A new command always goes out, even one equal to the last (the e-stop edge).
     if next != *demand || out.wheels.is_some() {
         *demand = next;
@@ -109,6 +128,10 @@ fn dispatch<S: OutputPin>(
             SwitchLevel::Open => pc_switch.set_low(),
         };
     }
+    // Flash waits for the brakes: an erase must never stall the loop while driving.
+    channels
+        .pending_writes
+        .set_at_rest(controller.supervisor().brakes_applied());
     channels.pending_writes.record(&out.persist);
 
     let mut remote = state.remote;

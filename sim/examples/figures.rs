@@ -14,7 +14,7 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use base_core::can::id;
+use base_core::can::{Command, id};
 use base_core::registers::Reg;
 use embassy_futures::join::join;
 use embassy_time::{Duration, Instant, Timer};
@@ -48,6 +48,9 @@ fn main() {
         &velocity,
     );
     report_latency("e-stop edge → zero speed on the wire", &estop);
+
+    println!();
+    report_fail_safe();
 
     let recording = record_buses(&VirtualRobot::new());
     println!();
@@ -106,6 +109,101 @@ fn measure_latencies(robot: &VirtualRobot) -> (Vec<Duration>, Vec<Duration>) {
         }
         (velocity, estop)
     })
+}
+
+/// The fail-safe figures of the drive link: how far the wheels run on after a
+/// controller reset at 500 mm/s (with both drives answering, and with the right drive
+/// silent from the reset on), and how long a group frame may fail before both drives
+/// get zero by unicast.
+fn report_fail_safe() {
+    let wheel_mm = |revolutions: f64| revolutions / 10.0 * 2.0 * std::f64::consts::PI * 142.0;
+    let reset_run_on = |silent: Option<u8>| {
+        let robot = VirtualRobot::new();
+        robot.run(async |pc| {
+            wait_ms(BOOT_MS).await;
+            pc.drive(500, 0, 2_000).await;
+        });
+        if let Some(slave) = silent {
+            robot.drives.set_silent(slave, true);
+        }
+        let before = [1, 2].map(|slave| robot.drives.drive(slave).forward_revolutions());
+        robot.run(async |_pc| wait_ms(3_000).await);
+        // [answering drives (the most of them), the silent drive]
+        let mut run_on = [0.0_f64; 2];
+        for (slave, before) in [1, 2].into_iter().zip(before) {
+            let mm = wheel_mm(robot.drives.drive(slave).forward_revolutions() - before).abs();
+            let index = usize::from(Some(slave) == silent);
+            run_on[index] = run_on[index].max(mm);
+        }
+        run_on
+    };
+    println!(
+        "reset run-on, both drives answering: {:.0} mm",
+        reset_run_on(None)[0]
+    );
+    let [answering, silent] = reset_run_on(Some(2));
+    println!("reset run-on, one drive silent: {answering:.0} mm");
+    println!("  (the silent drive itself, stopped by its communication timeout: {silent:.0} mm)");
+
+    let robot = VirtualRobot::new();
+    let zero_after = robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        pc.drive(300, 0, 1_000).await;
+        let failing = Instant::now();
+        // Long frames fail (the 53-byte group frame), the short unicast ones pass.
+        robot.drives.fail_requests_longer_than(Some(40));
+        pc.drive(300, 0, 1_000).await;
+        let zero = [1, 2].map(|slave| {
+            let drive = robot.drives.drive(slave);
+            assert_eq!(drive.command.expect("commanded").speed_rpm, 0);
+            drive.last_new_speed_at.expect("speed")
+        });
+        zero.into_iter().max().expect("two drives") - failing
+    });
+    println!(
+        "group frame failing -> zero on the wire: {:.0} ms",
+        ms(zero_after)
+    );
+
+    let control_gap = |writes: bool| {
+        let robot = VirtualRobot::new();
+        robot.flash.set_erase_stall(Duration::from_millis(400));
+        robot.run(async |pc| {
+            wait_ms(BOOT_MS).await;
+            pc.drive(300, 0, 1_000).await;
+            let from = Instant::now();
+            // Register writes while driving, enough records for several page erases.
+            for round in 0..2_000u16 {
+                pc.enable();
+                pc.velocity(300, 0);
+                if writes {
+                    pc.command(Command::RegisterWrite {
+                        address: 11,
+                        value: 300 + round % 2,
+                    });
+                }
+                wait_ms(2).await;
+            }
+            let to = Instant::now();
+            let cycles: Vec<Instant> = robot
+                .drives
+                .requests()
+                .into_iter()
+                .filter(|request| request.bytes[1] == 0x17 && (from..to).contains(&request.at))
+                .map(|request| request.at)
+                .collect();
+            cycles
+                .windows(2)
+                .map(|pair| pair[1] - pair[0])
+                .max()
+                .expect("cycles")
+        })
+    };
+    println!(
+        "control latency while a 400 ms flash erase is pending: max {:.0} ms (without register writes: max {:.0} ms; the time between two control cycles while driving)",
+        ms(control_gap(true)),
+        ms(control_gap(false))
+    );
 }
 
 fn report_latency(what: &str, samples: &[Duration]) {

@@ -147,6 +147,10 @@ pub struct DrivesConfig {
     pub brake_decel_rpm_per_s: f64,
     /// Left (local ID 1 in the spec's examples) and right drive.
     pub slaves: [SlaveConfig; 2],
+    /// The share group and lists were saved to the drives' NV memory (with MEXE02):
+    /// they survive a power cycle, so a drive that reboots answers the group again
+    /// without a new setup. False (the default): they are RAM settings, lost.
+    pub share_setup_saved: bool,
     /// Request and reply frames kept for [`DrivesHandle::requests`] and
     /// [`DrivesHandle::replies`]; older ones are dropped.
     pub log_capacity: usize,
@@ -162,6 +166,7 @@ impl Default for DrivesConfig {
             transmission_wait: Duration::from_micros(3_000),
             boot_time: Duration::from_secs(1),
             share_trailer: true,
+            share_setup_saved: false,
             brake_decel_rpm_per_s: 20_000.0,
             slaves: [
                 SlaveConfig {
@@ -375,6 +380,21 @@ impl DrivesHandle {
         self.change(|bus, now| bus.power(on, now));
     }
 
+    /// A brown-out of one drive: off and on again at once. It loses its RAM (see
+    /// [`Self::power`]), its counter restarts at 0, and it answers after the boot time.
+    ///
+    /// # Panics
+    /// If no drive has the address `slave`.
+    pub fn power_cycle(&self, slave: u8) {
+        self.change(|bus, now| {
+            let index = bus.index_of(slave);
+            let config = bus.config.clone();
+            bus.drives[index].power_off(now, &config);
+            bus.cut_replies(|from| from == index, now);
+            bus.drives[index].power_on(now);
+        });
+    }
+
     /// Cuts one drive from the line (or reconnects it): a silent drive neither hears
     /// nor answers, and keeps running its last command.
     ///
@@ -401,6 +421,12 @@ impl DrivesHandle {
             assert!(drive.powered_since.is_some(), "drive {slave} has no power");
             drive.raise_alarm(u32::from(code));
         });
+    }
+
+    /// A marginal line: from now on every request frame longer than `max_len` bytes
+    /// reaches the drives garbled (long frames fail first); `None` heals the line.
+    pub fn fail_requests_longer_than(&self, max_len: Option<usize>) {
+        self.change(|bus, _| bus.fail_longer_than = max_len);
     }
 
     /// Corrupts one byte of each of the next `replies` replies (as line noise would).
@@ -488,6 +514,7 @@ struct Bus {
     /// Reply bytes not yet read, by arrival.
     replies: VecDeque<ReplyByte>,
     garble_replies: usize,
+    fail_longer_than: Option<usize>,
     log: VecDeque<FrameRecord>,
     reply_log: VecDeque<FrameRecord>,
     request_count: usize,
@@ -510,6 +537,7 @@ impl Bus {
             master_tx_free: now,
             replies: VecDeque::new(),
             garble_replies: 0,
+            fail_longer_than: None,
             log: VecDeque::new(),
             reply_log: VecDeque::new(),
             request_count: 0,
@@ -628,7 +656,8 @@ impl Bus {
         if collided {
             self.collisions += 1;
         }
-        let Some((address, pdu)) = valid_frame(&bytes).filter(|_| !collided) else {
+        let too_long = self.fail_longer_than.is_some_and(|max| bytes.len() > max);
+        let Some((address, pdu)) = valid_frame(&bytes).filter(|_| !collided && !too_long) else {
             // Nobody can trust the address of a broken frame: every listener counts it.
             for &index in &listeners {
                 self.drives[index].malformed();
@@ -1202,7 +1231,9 @@ impl Drive {
         self.advance_to(now, config);
         self.powered_since = None;
         self.ram = Ram::default();
-        self.share = ShareSetup::default();
+        if !config.share_setup_saved {
+            self.share = ShareSetup::default();
+        }
         self.alarm = 0;
         self.communication_error = 0;
         self.running = None;

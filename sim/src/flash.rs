@@ -10,6 +10,8 @@ use std::cell::RefCell;
 use std::ops::Range;
 use std::rc::Rc;
 
+use embassy_time::Duration;
+
 use embedded_storage_async::nor_flash::{
     ErrorType, MultiwriteNorFlash, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
 };
@@ -69,6 +71,8 @@ struct Chip {
     /// Steps left before the power dies; `None`: no cut planned.
     budget: Option<u64>,
     stats: FlashStats,
+    /// How long each page erase stalls the whole chip.
+    erase_stall: Duration,
 }
 
 impl Chip {
@@ -142,8 +146,16 @@ impl RamFlash {
                 powered: true,
                 budget: None,
                 stats: FlashStats::default(),
+                erase_stall: Duration::from_ticks(0),
             })),
         }
+    }
+
+    /// Makes every page erase stall the whole chip for `stall` (the virtual clock jumps,
+    /// nothing else runs), as esp-storage does by masking interrupts during a sector
+    /// erase: typically 45 ms, up to 400 ms by the flash datasheets.
+    pub fn set_erase_stall(&self, stall: Duration) {
+        self.chip.borrow_mut().erase_stall = stall;
     }
 
     /// A separate chip with the same bytes (powered, counters at zero), for trying
@@ -246,6 +258,7 @@ impl NorFlash for RamFlash {
             chip.stats.bytes_erased += 1;
             if (index + 1).is_multiple_of(ERASE_SIZE) {
                 chip.stats.erases += 1;
+                crate::runtime::stall(chip.erase_stall);
             }
         }
         Ok(())

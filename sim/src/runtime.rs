@@ -224,6 +224,18 @@ pub fn block_on_realtime<F: Future>(future: F) -> F::Output {
     }
 }
 
+/// The whole chip stalls for `duration`: the virtual clock jumps ahead while nothing
+/// runs (as when esp-storage masks interrupts during a flash erase). Timers that came
+/// due meanwhile fire late. In real-time mode the thread sleeps instead.
+pub fn stall(duration: Duration) {
+    let realtime = CLOCK.with(|clock| clock.borrow().wall_origin.is_some());
+    if realtime {
+        thread::sleep(std::time::Duration::from_micros(duration.as_micros()));
+    } else {
+        CLOCK.with(|clock| clock.borrow_mut().now += duration.as_ticks());
+    }
+}
+
 /// Time since this thread's clock started: virtual, or wall-clock time in
 /// [`block_on_realtime`].
 pub fn now() -> Instant {

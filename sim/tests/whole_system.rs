@@ -147,11 +147,14 @@ fn an_estop_stops_at_once_then_the_drives_are_set_up_again_and_driving_resumes()
             "pose {after} mm, wheels travelled {travelled:.1} mm"
         );
 
+        // 1 s at 300 mm/s, times f_lin (302 mm), less the brake release: the recovery
+        // left the drives de-excited, so the first command excites them (two S-ON
+        // writes) and waits 50 ms before any speed, about 20 mm at 300 mm/s.
         pc.drive(300, 0, 1_000).await;
         stop_and_settle(pc).await;
         let driven = pc.position().expect("position").0 - after;
         assert!(
-            (290..=315).contains(&driven),
+            (275..=310).contains(&driven),
             "drove {driven} mm after the recovery"
         );
     });

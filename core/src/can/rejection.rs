@@ -17,11 +17,15 @@ pub enum Rejection {
     Register(RegisterError),
     OdometryCalibration(OdometryCalibrationError),
     ScaleCalibration(ScaleCalibrationError),
+    /// Not a refused command: a drive's position counter stepped further than the
+    /// motor can turn in the time since the previous sample, and the odometry took
+    /// that sample as a new baseline. Counted and shown the same way.
+    OdometryDiscontinuity,
 }
 
 impl Rejection {
     /// Every reason this firmware reports, in code order.
-    pub const ALL: [Rejection; 18] = [
+    pub const ALL: [Rejection; 19] = [
         Rejection::Frame(FrameError::WrongLength),
         Rejection::Frame(FrameError::BadVelocityMarker),
         Rejection::Frame(FrameError::UnknownSubcommand),
@@ -40,6 +44,7 @@ impl Rejection {
         Rejection::ScaleCalibration(ScaleCalibrationError::OffsetOutOfRange),
         Rejection::ScaleCalibration(ScaleCalibrationError::ZeroWeight),
         Rejection::ScaleCalibration(ScaleCalibrationError::ScaleValueOutOfRange),
+        Rejection::OdometryDiscontinuity,
     ];
 
     /// `None` for 0 (nothing rejected) and for codes this firmware does not define (a
@@ -55,6 +60,7 @@ impl Rejection {
             Rejection::Register(error) => error.code(),
             Rejection::OdometryCalibration(error) => error.code(),
             Rejection::ScaleCalibration(error) => error.code(),
+            Rejection::OdometryDiscontinuity => 0x40,
         }
     }
 
@@ -81,6 +87,7 @@ impl Rejection {
             Rejection::ScaleCalibration(Scale::OffsetOutOfRange) => "OffsetOutOfRange",
             Rejection::ScaleCalibration(Scale::ZeroWeight) => "ZeroWeight",
             Rejection::ScaleCalibration(Scale::ScaleValueOutOfRange) => "ScaleValueOutOfRange",
+            Rejection::OdometryDiscontinuity => "OdometryDiscontinuity",
         }
     }
 
@@ -132,6 +139,9 @@ impl Rejection {
             Rejection::ScaleCalibration(Scale::ZeroWeight) => "known weight of 0 g",
             Rejection::ScaleCalibration(Scale::ScaleValueOutOfRange) => {
                 "the computed scale_value does not fit 1..65535 (too steep, or the load cell reads backwards)"
+            }
+            Rejection::OdometryDiscontinuity => {
+                "a drive's position counter jumped further than the motor can turn; the odometry took it as a new baseline"
             }
         }
     }

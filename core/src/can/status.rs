@@ -203,8 +203,11 @@ impl Faults {
 pub struct Status {
     /// byte 0, low nibble.
     pub mode: Mode,
-    /// byte 0, high nibble.
+    /// byte 0, bits 4–6.
     pub control: ControlSource,
+    /// byte 0, bit 7: register values wait for the flash. They are in force, and are
+    /// written at the next standstill (flash is never written while the base moves).
+    pub persist_pending: bool,
     /// byte 1.
     pub flags: StatusFlags,
     /// byte 2.
@@ -228,7 +231,7 @@ pub struct Status {
 impl Status {
     pub fn to_bytes(&self) -> [u8; 8] {
         [
-            (self.control.code() << 4) | self.mode.code(),
+            (u8::from(self.persist_pending) << 7) | (self.control.code() << 4) | self.mode.code(),
             self.flags.to_byte(),
             self.faults.to_byte(),
             self.rejected_count,
@@ -239,8 +242,8 @@ impl Status {
         ]
     }
 
-    /// [`FrameError::UnknownSubcommand`] if a nibble of byte 0 holds a mode or control
-    /// source this firmware does not define (a newer firmware, or a garbled frame).
+    /// [`FrameError::UnknownSubcommand`] if byte 0 holds a mode or control source this
+    /// firmware does not define (a newer firmware, or a garbled frame).
     pub fn from_bytes(bytes: [u8; 8]) -> Result<Status, FrameError> {
         let [
             mode_and_control,
@@ -253,11 +256,12 @@ impl Status {
             modbus_errors,
         ] = bytes;
         let mode = Mode::from_code(mode_and_control & 0x0F).ok_or(FrameError::UnknownSubcommand)?;
-        let control =
-            ControlSource::from_code(mode_and_control >> 4).ok_or(FrameError::UnknownSubcommand)?;
+        let control = ControlSource::from_code((mode_and_control >> 4) & 0x07)
+            .ok_or(FrameError::UnknownSubcommand)?;
         Ok(Status {
             mode,
             control,
+            persist_pending: mode_and_control & 0x80 != 0,
             flags: StatusFlags::from_byte(flags),
             faults: Faults::from_byte(faults),
             rejected_count,

@@ -8,6 +8,8 @@ pub use settings::{AccelUnit, DriveSettings, LineSettings, Parity};
 
 /// Drive registers (address = 2 × NET-ID) and the NET-IDs of the share lists.
 pub mod reg {
+    /// DDO operation type (NET-ID 45); DDO position (46), speed, rates follow.
+    pub const DDO_OPERATION_TYPE: u16 = 0x005A;
     /// DDO operating speed, r/min of the motor shaft (NET-ID 47).
     pub const DDO_SPEED: u16 = 0x005E;
     /// DDO trigger: 1 applies the fields (NET-ID 51).

@@ -102,9 +102,17 @@ pub struct DriveSettings {
     pub failures_before_loss: u8,
     /// Time between S-ON and the first non-zero speed (Panasonic waits 50 ms).
     pub excite_settle_ms: u32,
-    /// Drive-side communication watchdog (register 0x138A, alarm 85h), ms; `None`
-    /// leaves it untouched. The note could not confirm its effect, so it is off until
-    /// someone tried it on the robot.
+    /// Drive-side communication watchdog (register 0x138A, alarm 85h), ms, written in
+    /// every setup; `None` leaves the drives' own value (0 = off from the factory).
+    /// When no valid frame (to any slave) crossed the line for this long, a drive
+    /// raises alarm 85h and stops: the wheels stop when the controller hangs or the
+    /// line breaks, without the controller. The recovery resets it like any alarm.
+    ///
+    /// 300 ms by default: the link puts a frame on the line at least every 200 ms
+    /// (`poll_interval_ms`, the slowest state: holding a drive while the other is
+    /// polled) plus one failed transaction (25 + 5 ms); the control cycle sends one
+    /// 17h per `loop_end_delay` (50 ms: six cycles inside the timeout) and never waits
+    /// longer than a third of the timeout, whatever `loop_end_delay` says.
     pub drive_comm_timeout_ms: Option<u16>,
 }
 
@@ -127,7 +135,7 @@ impl DriveSettings {
         reply_timeout_ms: 25,
         failures_before_loss: 3,
         excite_settle_ms: 50,
-        drive_comm_timeout_ms: None,
+        drive_comm_timeout_ms: Some(300),
     };
 }
 

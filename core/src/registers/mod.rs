@@ -90,7 +90,7 @@ impl LoadReport {
 }
 
 /// Motor power is cut this long after the e-stop button; see the module doc.
-const ESTOP_POWER_CUT_MS: u32 = 300;
+pub const ESTOP_POWER_CUT_MS: u32 = 300;
 
 /// A relation between registers that every accepted state satisfies.
 struct CrossRule {

@@ -72,3 +72,9 @@ pub fn reset_by_watchdog(reason: Option<SocResetReason>) -> bool {
         Some(CoreMwdt0 | CoreMwdt1 | CoreRtcWdt | CpuMwdt0 | Cpu0RtcWdt | SysRtcWdt)
     )
 }
+
+/// A software reset: the panic handler's (the firmware does not reset itself otherwise).
+pub fn reset_by_software(reason: Option<SocResetReason>) -> bool {
+    use SocResetReason::*;
+    matches!(reason, Some(CoreSw | Cpu0Sw))
+}

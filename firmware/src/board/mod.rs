@@ -15,7 +15,7 @@ compile_error!(
 #[cfg_attr(feature = "esp32c6", path = "esp32c6.rs")]
 mod chip;
 
-pub use chip::{Battery, CHIP, reset_by_watchdog, take};
+pub use chip::{Battery, CHIP, reset_by_software, reset_by_watchdog, take};
 
 use base_core::battery::VoltageDivider;
 use base_runtime::{ActiveLevel, InputSettings};

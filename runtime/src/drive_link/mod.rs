@@ -2,13 +2,24 @@
 //! control cycle, and sets them up again after every loss.
 //!
 //! ```text
-//!  boot ─▶ wait power_up_wait ─▶ poll until both answer ─▶ set up ─▶ DrivesReady
-//!                                      ▲                               │
-//!            setup requested ─────────┤                               ▼
-//!                                      │                 cycle: one 17h per loop_end_delay,
-//!  hold: zero to drives that answer,   │                 and at once on a new demand
-//!  poll the others  ◀──── lost ────────┴──── N failed cycles, a member silent or reset
+//!  boot ─▶ hold both until power_up_wait passed ─▶ set up ─▶ DrivesReady
+//!          and both answer                ▲                     │
+//!                                         │                     ▼
+//!            setup requested ─────────────┤       cycle: one 17h per loop_end_delay,
+//!                                         │       and at once on a new demand
+//!  hold: zero + estop_decel to every      │                     │
+//!  drive that answers, S-OFF unless  ◀────┴── N failed group cycles (a member
+//!  still braking excited, poll the others     silent or reset, or the group alone
+//!                                             failing): zero by unicast, reported
 //! ```
+//!
+//! Outside the cycle the link *holds*: every drive that answers gets zero speed with
+//! `estop_decel` (and the DDO operation type, so the trigger cannot start anything
+//! else) and S-OFF, by unicast, once per poll interval and at once on a new demand.
+//! This is also the first thing on the wire after boot, before and during the drives'
+//! power-up wait: a controller that restarts while the base drives stops the wheels
+//! at once, whichever drive answers. N = `failures_before_loss` (3: 150 ms at the
+//! default 50 ms cycle).
 //!
 //! The link reports `DrivesReady` only after boot or a setup request (the controller's
 //! contract): drives that come back unasked stay held until the supervisor asks.
@@ -52,10 +63,12 @@ pub struct DriveDemand {
     pub setup_requests: u32,
     /// The control cycle (`loop_end_delay`), ms.
     pub cycle_ms: u16,
+    /// `estop_decel`, (r/min)/s: how a held drive brakes to zero.
+    pub stop_decel: u32,
 }
 
 impl DriveDemand {
-    pub const fn at_rest(cycle_ms: u16) -> Self {
+    pub const fn at_rest(cycle_ms: u16, stop_decel: u32) -> Self {
         Self {
             wheels: WheelCommand {
                 rpm: MotorRpm { left: 0, right: 0 },
@@ -65,6 +78,7 @@ impl DriveDemand {
             excite: false,
             setup_requests: 0,
             cycle_ms,
+            stop_decel,
         }
     }
 }
@@ -120,6 +134,8 @@ struct DriveLink<'a, P> {
     excited: bool,
     /// No speed but zero before this moment: the drives settle after S-ON.
     settled_at: Instant,
+    /// The last cycle sent zero instead of the demanded speed, waiting for the settle.
+    held_for_settle: bool,
     /// Last alarm code seen per wheel, so each alarm is reported once.
     alarms: [u32; 2],
     reply: Frame,
@@ -132,21 +148,26 @@ impl<'a, P: Rs485> DriveLink<'a, P> {
             settings,
             channels,
             // Until the controller's first signal, which comes at once.
-            demand: DriveDemand::at_rest(Registers::defaults().get(Reg::LoopEndDelay)),
+            demand: DriveDemand::at_rest(
+                Registers::defaults().get(Reg::LoopEndDelay),
+                u32::from(Registers::defaults().get(Reg::EstopDecel)),
+            ),
             served_setups: 0,
             excited: false,
             settled_at: Instant::from_ticks(0),
+            held_for_settle: false,
             alarms: [0; 2],
             reply: Frame::new(),
         }
     }
 
     async fn run(&mut self) -> ! {
-        self.wait_for_power_up().await;
+        let powered_up =
+            Instant::now() + Duration::from_millis(u64::from(self.settings.power_up_wait_ms));
         // Each round serves boot or one setup request.
         loop {
             self.served_setups = self.demand.setup_requests;
-            self.poll_until_both_answer().await;
+            self.hold_until_both_answer(powered_up).await;
             if let Err(error) = self.set_up().await {
                 warn!("drive setup failed: {}", error);
                 self.pause().await;
@@ -182,49 +203,82 @@ impl<'a, P: Rs485> DriveLink<'a, P> {
         self.channels.inputs.send(input).await;
     }
 
-    /// Gives the drives their power-up time, checking in every poll interval: the wait
-    /// is a commissioning setting and may be longer than the watchdog's timeout.
-    async fn wait_for_power_up(&mut self) {
-        let powered_up =
-            Instant::now() + Duration::from_millis(u64::from(self.settings.power_up_wait_ms));
-        let poll = Duration::from_millis(u64::from(self.settings.poll_interval_ms));
-        while Instant::now() < powered_up {
-            self.channels.liveness.check_in(CriticalTask::DriveLink);
-            Timer::at(powered_up.min(Instant::now() + poll)).await;
-        }
-    }
-
-    /// Waits one poll interval, checking in and taking a new demand.
+    /// Waits one poll interval, or less if a new demand comes, checking in.
     async fn pause(&mut self) {
         self.channels.liveness.check_in(CriticalTask::DriveLink);
-        Timer::after_millis(u64::from(self.settings.poll_interval_ms)).await;
+        let poll = Duration::from_millis(u64::from(self.settings.poll_interval_ms));
+        if let Either::Second(demand) =
+            select(Timer::after(poll), self.channels.drive_demand.wait()).await
+        {
+            self.demand = demand;
+        }
         self.refresh_demand();
     }
 
-    /// Polls until both drives answer. A drive silent for `failures_before_loss` polls
-    /// in a row is reported once, so the status frame says why the base does not get
-    /// ready (unpowered, unplugged, wrong address or baud rate).
-    async fn poll_until_both_answer(&mut self) {
-        let mut silent_polls = [0u8; WHEELS.len()];
+    /// Holds every drive that answers (see the module documentation) until the
+    /// power-up wait has passed and both answer. The wait is a commissioning setting
+    /// and may be longer than the watchdog's timeout: the link checks in every round.
+    /// After the wait, a drive silent for `failures_before_loss` rounds in a row is
+    /// reported once, so the status frame says why the base does not get ready
+    /// (unpowered, unplugged, wrong address or baud rate).
+    async fn hold_until_both_answer(&mut self, powered_up: Instant) {
+        let mut silent_rounds = [0u8; WHEELS.len()];
         loop {
-            let mut answering = 0;
-            for (index, wheel) in WHEELS.into_iter().enumerate() {
-                if self.probe(wheel).await != Probe::Silent {
-                    answering += 1;
-                    silent_polls[index] = 0;
-                    continue;
+            let answering = self.hold_round().await;
+            if Instant::now() >= powered_up {
+                if answering.iter().all(|&answers| answers) {
+                    return;
                 }
-                silent_polls[index] = silent_polls[index].saturating_add(1);
-                if silent_polls[index] == self.settings.failures_before_loss {
-                    warn!("{} drive does not answer", wheel);
-                    self.report(Input::DriveSilent(wheel)).await;
+                for (index, wheel) in WHEELS.into_iter().enumerate() {
+                    if answering[index] {
+                        silent_rounds[index] = 0;
+                        continue;
+                    }
+                    silent_rounds[index] = silent_rounds[index].saturating_add(1);
+                    if silent_rounds[index] == self.settings.failures_before_loss {
+                        warn!("{} drive does not answer", wheel);
+                        self.report(Input::DriveSilent(wheel)).await;
+                    }
                 }
-            }
-            if answering == WHEELS.len() {
-                return;
             }
             self.pause().await;
         }
+    }
+
+    /// One hold round over both drives; returns which answered.
+    async fn hold_round(&mut self) -> [bool; 2] {
+        let mut answering = [false; 2];
+        for (index, wheel) in WHEELS.into_iter().enumerate() {
+            answering[index] = match self.hold_one(wheel).await {
+                Ok(()) => true,
+                Err(LinkError::Transfer(_)) => false,
+                Err(_) => {
+                    // It answered, but not as asked: counted, and held again next round.
+                    self.report(Input::ModbusError).await;
+                    true
+                }
+            };
+        }
+        if !self.demand.excite {
+            self.excited = false;
+        }
+        answering
+    }
+
+    /// Zero speed with the stop deceleration to one drive by unicast, and S-OFF unless
+    /// the controller still wants it excited (braking to a stop after a fault, its
+    /// brakes close once the base stands). Stops at the first write that gets no reply.
+    async fn hold_one(&mut self, wheel: Wheel) -> Result<(), LinkError> {
+        let slave = self.slave(wheel);
+        let decel = self.settings.accel_unit.field(self.demand.stop_decel);
+        // Operation type, position (unused in continuous operation), speed, rates.
+        let fields = [self.settings.operation_type, 0, 0, decel, decel];
+        self.write(slave, reg::DDO_OPERATION_TYPE, &fields).await?;
+        self.write(slave, reg::DDO_TRIGGER, &[1]).await?;
+        if !(self.excited && self.demand.excite) {
+            self.write(slave, reg::DRIVER_INPUT_COMMAND, &[0]).await?;
+        }
+        Ok(())
     }
 
     /// Reads the share control block of one drive.
@@ -361,18 +415,28 @@ impl<'a, P: Rs485> DriveLink<'a, P> {
                     self.report(Input::ModbusError).await;
                     failures += 1;
                     if failures >= self.settings.failures_before_loss {
-                        if self.find_lost_drives().await {
-                            return;
+                        // No command reached the drives for N cycles: zero by unicast
+                        // first, then find out why, and hold until the recovery.
+                        self.hold_round().await;
+                        if !self.find_lost_drives().await {
+                            // Each drive answers alone, but the group frame keeps
+                            // failing (a marginal line fails long frames first): the
+                            // PC's commands cannot reach the wheels. Both are reported.
+                            warn!("the share group fails while both drives answer alone");
+                            for wheel in WHEELS {
+                                self.report(Input::DriveSilent(wheel)).await;
+                            }
                         }
-                        failures = 0;
+                        return;
                     }
                 }
             }
-            let period = Duration::from_millis(u64::from(self.demand.cycle_ms.max(1)));
+            let period = Duration::from_millis(u64::from(self.cycle_period_ms()));
             next = (next + period).max(Instant::now());
             let mut wake = next;
-            if self.excited && self.settled_at > Instant::now() {
-                wake = wake.min(self.settled_at);
+            // A speed held back for the brake release goes out as soon as it may.
+            if self.excited && self.held_for_settle {
+                wake = wake.min(self.settled_at.max(Instant::now()));
             }
             // A new demand goes out at once, not at the next cycle.
             if let Either::Second(demand) =
@@ -405,6 +469,7 @@ impl<'a, P: Rs485> DriveLink<'a, P> {
         } else {
             MotorRpm::ZERO
         };
+        self.held_for_settle = self.excited && rpm != command.rpm;
         let unit = self.settings.accel_unit;
         let member = |speed: i32, accel: u32| {
             let accel = unit.field(accel);
@@ -467,33 +532,22 @@ impl<'a, P: Rs485> DriveLink<'a, P> {
         lost
     }
 
-    /// After a loss: commands what the supervisor demands (zero by then) to the drives
-    /// that still answer with their setup, and polls, until a setup is requested.
+    /// After a loss: holds every drive that answers until a setup is requested.
     async fn hold_until_setup_requested(&mut self) {
         while !self.setup_requested() {
-            for wheel in WHEELS {
-                if self.probe(wheel).await == Probe::Ready {
-                    // Best effort: a failure shows in the next probe.
-                    let _ = self.command_one(wheel).await;
-                }
-            }
+            self.hold_round().await;
             self.pause().await;
         }
     }
 
-    /// Unicast speed command to one drive, outside the share group.
-    async fn command_one(&mut self, wheel: Wheel) -> Result<(), LinkError> {
-        let command = self.demand.wheels;
-        let (rpm, accel) = match wheel {
-            Wheel::Left => (command.rpm.left, command.left_accel),
-            Wheel::Right => (command.rpm.right, command.right_accel),
-        };
-        let rpm = if self.excited { rpm } else { 0 };
-        let accel = self.settings.accel_unit.field(accel);
-        let slave = self.slave(wheel);
-        self.write(slave, reg::DDO_SPEED, &[rpm as u32, accel, accel])
-            .await?;
-        self.write(slave, reg::DDO_TRIGGER, &[1]).await
+    /// The time between two cycle frames: `loop_end_delay`, but at most a third of the
+    /// drives' communication timeout, so that a long cycle can never trip it.
+    fn cycle_period_ms(&self) -> u32 {
+        let cycle = u32::from(self.demand.cycle_ms.max(1));
+        match self.settings.drive_comm_timeout_ms {
+            Some(timeout) if timeout > 0 => cycle.min((u32::from(timeout) / 3).max(1)),
+            _ => cycle,
+        }
     }
 }
 

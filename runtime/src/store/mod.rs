@@ -420,13 +420,19 @@ impl<F: NorFlash> RegisterStore<F> {
 /// any failure as [`Input::FlashFault`]. A failed write is not retried: the flash that
 /// refused it would most likely refuse again, the controller keeps running on the value
 /// in RAM, and the address is written again with its next change.
+///
+/// Flash is written only while the base is at rest (drives de-excited): on the chip a
+/// sector erase masks interrupts for up to 400 ms, which must never freeze the control
+/// loop, the e-stop sampling or CAN while the wheels turn. A value written while
+/// driving is in force at once (the controller holds it in RAM) and is persisted at
+/// the next standstill; [`PendingWrites::persist_pending`] says one waits.
 pub async fn run<F: NorFlash>(
     store: &mut RegisterStore<F>,
     pending: &PendingWrites,
     faults: InputSender<'_>,
 ) -> ! {
     loop {
-        let batch = pending.take().await;
+        let batch = pending.take_at_rest().await;
         if store.apply(&batch).await.is_err() {
             faults.send(Input::FlashFault).await;
         }
@@ -439,8 +445,17 @@ pub struct PendingWrites {
     wake: Signal<RawMutex, ()>,
 }
 
+/// Whether flash may be written now.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Gate {
+    at_rest: bool,
+    /// A batch is taken and being written.
+    writing: bool,
+}
+
 /// Registers live at addresses below 64, so one bit each marks a pending value.
 struct Dirty {
+    gate: Gate,
     restore_defaults: bool,
     marks: u64,
     values: [u16; 64],
@@ -459,6 +474,11 @@ impl PendingWrites {
     pub const fn new() -> Self {
         Self {
             state: Mutex::new(RefCell::new(Dirty {
+                // Until the controller says otherwise: it does on its first iteration.
+                gate: Gate {
+                    at_rest: true,
+                    writing: false,
+                },
                 restore_defaults: false,
                 marks: 0,
                 values: [0; 64],
@@ -491,11 +511,38 @@ impl PendingWrites {
         self.wake.signal(());
     }
 
-    /// Waits until something is pending and takes all of it.
-    pub async fn take(&self) -> PendingBatch {
+    /// The controller's word on every iteration: whether the base is at rest (the
+    /// drives de-excited, brakes holding). Flash is written only then.
+    pub fn set_at_rest(&self, at_rest: bool) {
+        let changed = self.state.lock(|state| {
+            let mut state = state.borrow_mut();
+            let changed = state.gate.at_rest != at_rest;
+            state.gate.at_rest = at_rest;
+            changed
+        });
+        if changed && at_rest {
+            self.wake.signal(());
+        }
+    }
+
+    /// Values wait for the flash: recorded (in force in RAM) but not yet written.
+    pub fn persist_pending(&self) -> bool {
+        self.state.lock(|state| {
+            let state = state.borrow();
+            state.gate.writing || state.restore_defaults || state.marks != 0
+        })
+    }
+
+    /// Waits until something is pending and the base is at rest, then takes all of it.
+    pub async fn take_at_rest(&self) -> PendingBatch {
+        self.state
+            .lock(|state| state.borrow_mut().gate.writing = false);
         loop {
             let batch = self.state.lock(|state| {
                 let mut state = state.borrow_mut();
+                if !state.gate.at_rest {
+                    return PendingBatch::default();
+                }
                 let mut batch = PendingBatch {
                     restore_defaults: core::mem::take(&mut state.restore_defaults),
                     writes: Vec::new(),
@@ -507,6 +554,7 @@ impl PendingWrites {
                     // 64 slots fit a 64-entry batch.
                     let _ = batch.writes.push((slot as u8, state.values[slot]));
                 }
+                state.gate.writing = batch.restore_defaults || !batch.writes.is_empty();
                 batch
             });
             if batch.restore_defaults || !batch.writes.is_empty() {
@@ -647,7 +695,7 @@ mod pending_tests {
         let pending = PendingWrites::new();
         pending.record(&persist(&[(11, 500), (3, 7)], false));
         pending.record(&persist(&[(11, 900)], false));
-        let batch = block_on(pending.take());
+        let batch = block_on(pending.take_at_rest());
         assert!(!batch.restore_defaults);
         assert_eq!(batch.writes[..], [(3, 7), (11, 900)]);
     }
@@ -658,16 +706,40 @@ mod pending_tests {
         pending.record(&persist(&[(11, 500)], false));
         pending.record(&persist(&[], true));
         pending.record(&persist(&[(12, 2_000)], false));
-        let batch = block_on(pending.take());
+        let batch = block_on(pending.take_at_rest());
         assert!(batch.restore_defaults);
         assert_eq!(batch.writes[..], [(12, 2_000)]);
+    }
+
+    #[test]
+    fn nothing_is_taken_while_the_base_moves_and_everything_at_the_next_standstill() {
+        let pending = PendingWrites::new();
+        pending.set_at_rest(false);
+        pending.record(&persist(&[(11, 500)], false));
+        assert!(pending.persist_pending());
+        let mut take = core::pin::pin!(pending.take_at_rest());
+        let waker = core::task::Waker::noop();
+        let mut cx = core::task::Context::from_waker(waker);
+        assert!(take.as_mut().poll(&mut cx).is_pending(), "moving: no flash");
+        pending.set_at_rest(true);
+        match take.as_mut().poll(&mut cx) {
+            core::task::Poll::Ready(batch) => assert_eq!(batch.writes[..], [(11, 500)]),
+            core::task::Poll::Pending => panic!("at rest: the batch is taken"),
+        }
+        assert!(
+            pending.persist_pending(),
+            "still pending while it is written"
+        );
+        let mut next = core::pin::pin!(pending.take_at_rest());
+        assert!(next.as_mut().poll(&mut cx).is_pending());
+        assert!(!pending.persist_pending(), "written");
     }
 
     #[test]
     fn nothing_recorded_means_nothing_to_take() {
         let pending = PendingWrites::new();
         pending.record(&persist(&[], false));
-        let mut take = core::pin::pin!(pending.take());
+        let mut take = core::pin::pin!(pending.take_at_rest());
         let waker = core::task::Waker::noop();
         let poll = take
             .as_mut()

@@ -1,0 +1,538 @@
+//! The drive link's fail-safe behaviour on the virtual robot: the wheels stop whenever
+//! the controller cannot vouch for them (a controller reset while driving, a drive
+//! that stays silent, a group frame that keeps failing), and the drives end every
+//! recovery de-excited. Each test is a fault a reviewer reproduced on the old firmware.
+
+use base_core::can::Mode;
+use base_core::drives::reg;
+use embassy_time::{Duration, Instant};
+use virtual_robot::robot::{VirtualRobot, wait_ms};
+
+/// The drives answer 1 s after power-on; their setup takes a few transactions more.
+const BOOT_MS: u64 = 1_500;
+
+/// Wheel travel in mm for `revolutions` of a motor (radius 142 mm, gear 10:1).
+fn wheel_mm(revolutions: f64) -> f64 {
+    revolutions / 10.0 * 2.0 * std::f64::consts::PI * 142.0
+}
+
+/// The most either wheel travelled since `before` (forward revolutions per slave).
+fn run_on_mm(robot: &VirtualRobot, before: [f64; 2]) -> f64 {
+    let left = robot.drives.drive(1).forward_revolutions() - before[0];
+    let right = robot.drives.drive(2).forward_revolutions() - before[1];
+    wheel_mm(left.abs().max(right.abs()))
+}
+
+/// The register words of every FC 10h write to `register` of `slave` that ended after
+/// `after`, with the moment it ended.
+fn writes(
+    robot: &VirtualRobot,
+    slave: u8,
+    register: u16,
+    after: Instant,
+) -> Vec<(Instant, Vec<u16>)> {
+    robot
+        .drives
+        .requests()
+        .into_iter()
+        .filter(|request| {
+            let bytes = &request.bytes;
+            request.at > after
+                && bytes.len() > 9
+                && bytes[0] == slave
+                && bytes[1] == 0x10
+                && bytes[2..4] == register.to_be_bytes()
+        })
+        .map(|request| {
+            let data = &request.bytes[7..request.bytes.len() - 2];
+            let words = data
+                .chunks(2)
+                .map(|pair| u16::from_be_bytes([pair[0], pair[1]]))
+                .collect();
+            (request.at, words)
+        })
+        .collect()
+}
+
+/// DDO operation type (NET-ID 45), the first of the DDO fields a hold writes.
+const DDO_OPERATION_TYPE: u16 = 0x005A;
+
+/// The DDO fields a hold writes: operation type 16, position 0, speed 0, and
+/// `estop_decel` (4500) as acceleration and deceleration, 32 bits each.
+const HOLD_FIELDS: [u16; 10] = [0, 16, 0, 0, 0, 0, 0, 4_500, 0, 4_500];
+
+fn revolutions(robot: &VirtualRobot) -> [f64; 2] {
+    [1, 2].map(|slave| robot.drives.drive(slave).forward_revolutions())
+}
+
+/// Boots, drives at 500 mm/s until both wheels run at speed, and returns (the
+/// controller then loses power: the next `run` is an immediate reboot).
+fn drive_at_500(robot: &VirtualRobot) {
+    robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        pc.drive(500, 0, 2_000).await;
+        assert!(robot.drives.drive(1).forward_rpm() > 330.0);
+        assert!(robot.drives.drive(2).forward_rpm() > 330.0);
+    });
+}
+
+#[test]
+fn a_controller_reset_while_driving_stops_both_wheels_within_100_mm() {
+    let robot = VirtualRobot::new();
+    drive_at_500(&robot);
+    let before = revolutions(&robot);
+    let rebooted_at = Instant::now();
+    robot.run(async |_pc| wait_ms(3_000).await);
+    // The first frames to each drive: zero with estop_decel, trigger, S-OFF.
+    for slave in [1, 2] {
+        let holds = writes(&robot, slave, DDO_OPERATION_TYPE, rebooted_at);
+        let (at, fields) = holds.first().expect("held after the reboot");
+        assert_eq!(fields[..], HOLD_FIELDS);
+        assert!(
+            *at - rebooted_at < Duration::from_millis(50),
+            "{:?}",
+            *at - rebooted_at
+        );
+        let s_off = writes(&robot, slave, reg::DRIVER_INPUT_COMMAND, rebooted_at);
+        assert_eq!(s_off.first().expect("S-OFF").1, [0, 0]);
+    }
+    let run_on = run_on_mm(&robot, before);
+    assert!(run_on <= 100.0, "run-on after the reset: {run_on:.0} mm");
+    for slave in [1, 2] {
+        let drive = robot.drives.drive(slave);
+        assert_eq!(drive.speed_rpm, 0.0, "drive {slave} stands");
+        assert!(!drive.servo_on, "drive {slave} de-excited (brake holds)");
+        let command = drive.command.expect("commanded after the reboot");
+        assert_eq!(command.speed_rpm, 0);
+    }
+}
+
+#[test]
+fn a_controller_reset_with_one_drive_silent_stops_the_other_and_the_estop_reaches_it() {
+    let robot = VirtualRobot::new();
+    drive_at_500(&robot);
+    // The right drive's line breaks at the moment of the reset: it keeps running its
+    // last command (only its own communication timeout could stop it).
+    robot.drives.set_silent(2, true);
+    let before = revolutions(&robot);
+    robot.run(async |pc| {
+        wait_ms(3_000).await;
+        let left = robot.drives.drive(1);
+        let moved = wheel_mm(left.forward_revolutions() - before[0]);
+        assert!(moved <= 100.0, "left run-on after the reset: {moved:.0} mm");
+        assert_eq!(left.speed_rpm, 0.0);
+        assert!(!left.servo_on, "the answering drive is held de-excited");
+        // The base does not get ready, and says which drive is missing.
+        let status = pc
+            .wait_for_status(1_000, |status| status.faults.right_drive_silent)
+            .await
+            .expect("the silent drive is reported");
+        assert_eq!(status.mode, Mode::Starting);
+
+        // The e-stop reaches the answering drive while the link still polls for both.
+        let pressed_at = Instant::now();
+        robot.press_estop();
+        wait_ms(300).await;
+        let left = robot.drives.drive(1);
+        let command = left.command.expect("commanded");
+        assert_eq!((command.speed_rpm, command.decel_rpm_per_s), (0, 4_500));
+        let holds = writes(&robot, 1, DDO_OPERATION_TYPE, pressed_at);
+        let (at, fields) = holds.first().expect("held after the e-stop");
+        assert_eq!(fields[..], HOLD_FIELDS);
+        assert!(
+            *at - pressed_at < Duration::from_millis(100),
+            "{:?}",
+            *at - pressed_at
+        );
+    });
+}
+
+#[test]
+fn the_first_frames_after_a_reset_are_zero_speed_and_s_off_to_each_drive() {
+    let robot = VirtualRobot::new();
+    drive_at_500(&robot);
+    let rebooted_at = Instant::now();
+    let requests_before = robot.drives.request_count();
+    robot.run(async |_pc| wait_ms(900).await);
+    let requests = robot.drives.requests();
+    let after = &requests[requests.len() - (robot.drives.request_count() - requests_before)..];
+    // The very first frame is the zero speed to slave 1, not a query or the group.
+    assert_eq!(after[0].bytes[..4], [1, 0x10, 0x00, 0x5A]);
+    // Within the 1 s power-up wait, repeated every poll interval (200 ms): zero with
+    // estop_decel, the trigger and S-OFF to each slave, and nothing else.
+    for slave in [1, 2] {
+        let holds = writes(&robot, slave, DDO_OPERATION_TYPE, rebooted_at);
+        assert!(holds.len() >= 4, "{} holds of drive {slave}", holds.len());
+        assert!(holds.iter().all(|(_, fields)| fields[..] == HOLD_FIELDS));
+        // The reboot's power-off may cut the last round short.
+        let triggers = writes(&robot, slave, reg::DDO_TRIGGER, rebooted_at);
+        assert!(holds.len() - triggers.len() <= 1);
+        let s_off = writes(&robot, slave, reg::DRIVER_INPUT_COMMAND, rebooted_at);
+        assert!(s_off.iter().all(|(_, words)| words[..] == [0, 0]));
+        assert!(holds.len() - s_off.len() <= 1);
+    }
+    let holds = writes(&robot, 1, DDO_OPERATION_TYPE, rebooted_at).len();
+    assert!(
+        (6 * holds - 5..=6 * holds).contains(&after.len()),
+        "only holds: {} frames",
+        after.len()
+    );
+}
+
+/// Waits for a status frame sent after now that satisfies `check`.
+async fn next_status(
+    pc: &virtual_robot::robot::Pc,
+    timeout_ms: u64,
+    check: impl Fn(&base_core::can::Status) -> bool,
+) -> Option<base_core::can::Status> {
+    let since = Instant::now();
+    let end = since + Duration::from_millis(timeout_ms);
+    while Instant::now() < end {
+        wait_ms(10).await;
+        let fresh = pc
+            .reports(base_core::can::id::STATUS)
+            .into_iter()
+            .rev()
+            .take_while(|(at, _)| *at > since)
+            .find_map(|(_, report)| match report {
+                base_core::can::Report::Status(status) if check(&status) => Some(status),
+                _ => None,
+            });
+        if fresh.is_some() {
+            return fresh;
+        }
+    }
+    None
+}
+
+#[test]
+fn every_recovery_ends_with_the_drives_de_excited_and_the_status_reports_it() {
+    let robot = VirtualRobot::new();
+    robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        pc.drive(500, 0, 1_000).await;
+        let driving = next_status(pc, 1_500, |_| true).await.expect("status");
+        assert!(!driving.flags.brakes_applied);
+
+        // An e-stop whose circuit leaves the drives powered: once estop_decel had its
+        // time, the drives are told S-OFF, and only then the status says so.
+        robot.press_estop();
+        wait_ms(100).await;
+        assert!(robot.drives.drive(1).servo_on, "no S-OFF at speed");
+        wait_ms(900).await;
+        for slave in [1, 2] {
+            assert!(!robot.drives.drive(slave).servo_on, "drive {slave} S-OFF");
+        }
+        let status = next_status(pc, 1_500, |_| true).await.expect("status");
+        assert!(status.flags.brakes_applied);
+        robot.release_estop();
+        robot.press_button(200).await;
+        pc.wait_for_status(3_000, |status| status.mode == Mode::Standby)
+            .await
+            .expect("standby after the confirm press");
+        wait_ms(2_000).await;
+        for slave in [1, 2] {
+            assert!(
+                !robot.drives.drive(slave).servo_on,
+                "drive {slave} de-excited after the e-stop recovery"
+            );
+        }
+        let status = next_status(pc, 1_500, |_| true).await.expect("status");
+        assert!(status.flags.brakes_applied);
+
+        // A drive alarm: the other drive is de-excited once the base stands, and the
+        // recovery leaves both de-excited.
+        pc.drive(300, 0, 1_000).await;
+        robot.drives.raise_alarm(1, 0x30);
+        pc.drive(300, 0, 300).await;
+        pc.wait_for_status(1_500, |status| status.mode == Mode::Fault)
+            .await
+            .expect("fault");
+        wait_ms(1_000).await;
+        assert!(
+            !robot.drives.drive(2).servo_on,
+            "the answering drive S-OFF in Fault"
+        );
+        robot.press_button(200).await;
+        pc.wait_for_status(3_000, |status| status.mode == Mode::Standby)
+            .await
+            .expect("standby after the confirm press");
+        wait_ms(2_000).await;
+        for slave in [1, 2] {
+            assert!(
+                !robot.drives.drive(slave).servo_on,
+                "drive {slave} de-excited after the fault recovery"
+            );
+        }
+        let status = next_status(pc, 1_500, |_| true).await.expect("status");
+        assert!(status.flags.brakes_applied);
+    });
+}
+
+#[test]
+fn a_group_frame_that_keeps_failing_stops_the_wheels_by_unicast_and_raises_a_fault() {
+    let robot = VirtualRobot::new();
+    robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        pc.drive(300, 0, 1_000).await;
+        // A marginal line: the 53-byte group frame fails, the short unicast frames
+        // (8..29 bytes) still pass.
+        let failing_from = Instant::now();
+        robot.drives.fail_requests_longer_than(Some(40));
+        pc.drive(300, 0, 500).await;
+        // The PC stops too; nothing must depend on it reaching the drives.
+        pc.enable();
+        pc.velocity(0, 0);
+        for slave in [1, 2] {
+            let holds = writes(&robot, slave, DDO_OPERATION_TYPE, failing_from);
+            let (at, fields) = holds.first().expect("zero by unicast");
+            assert_eq!(fields[..], HOLD_FIELDS);
+            assert!(
+                *at - failing_from < Duration::from_millis(250),
+                "{:?}",
+                *at - failing_from
+            );
+        }
+        let status = pc
+            .wait_for_status(1_000, |status| status.mode == Mode::Fault)
+            .await
+            .expect("a drive-link fault");
+        assert!(status.faults.left_drive_silent && status.faults.right_drive_silent);
+        wait_ms(500).await;
+        for slave in [1, 2] {
+            assert_eq!(
+                robot.drives.drive(slave).speed_rpm,
+                0.0,
+                "drive {slave} stands"
+            );
+        }
+    });
+}
+
+#[test]
+fn both_drives_lost_while_driving_are_both_latched() {
+    let robot = VirtualRobot::new();
+    robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        pc.drive(300, 0, 1_000).await;
+        robot.drives.set_silent(1, true);
+        robot.drives.set_silent(2, true);
+        let status = pc
+            .wait_for_status(2_000, |status| {
+                status.faults.left_drive_silent && status.faults.right_drive_silent
+            })
+            .await
+            .expect("both drives reported");
+        assert_eq!(status.mode, Mode::Fault);
+    });
+}
+
+/// The commissioning check of the drives' own communication timeout: with the RS-485
+/// line cut while the wheels turn slowly, the drives stop within the timeout (alarm
+/// 85h), without the controller.
+#[test]
+fn a_cut_rs485_line_stops_the_wheels_by_the_drives_communication_timeout() {
+    let robot = VirtualRobot::new();
+    let timeout = robot
+        .settings
+        .drives
+        .drive_comm_timeout_ms
+        .expect("on by default");
+    robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        pc.drive(100, 0, 1_000).await;
+        assert!(robot.drives.drive(1).forward_rpm() > 60.0);
+        robot.drives.set_silent(1, true);
+        robot.drives.set_silent(2, true);
+        pc.drive(100, 0, u64::from(timeout) + 100).await;
+        for slave in [1, 2] {
+            let drive = robot.drives.drive(slave);
+            assert_eq!(drive.alarm, 0x85, "drive {slave} timed out");
+            assert_eq!(drive.speed_rpm, 0.0, "drive {slave} stands");
+        }
+        // Back on the line: the alarm is reset by the recovery like any other.
+        robot.drives.set_silent(1, false);
+        robot.drives.set_silent(2, false);
+        wait_ms(500).await;
+        robot.press_button(200).await;
+        pc.wait_for_status(3_000, |status| status.mode == Mode::Standby)
+            .await
+            .expect("standby after the confirm press");
+        for slave in [1, 2] {
+            assert_eq!(robot.drives.drive(slave).alarm, 0);
+        }
+        pc.drive(100, 0, 1_000).await;
+        assert!(robot.drives.drive(1).forward_rpm() > 60.0, "drives again");
+    });
+}
+
+/// In normal operation the timeout never trips: a long drive at the default cycle,
+/// a slow cycle (loop_end_delay 1000 ms), and a drive silent at boot with the other
+/// held meanwhile.
+#[test]
+fn the_drives_communication_timeout_never_trips_in_normal_operation() {
+    let robot = VirtualRobot::new();
+    robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        pc.drive(300, 0, 5_000).await;
+        pc.command(base_core::can::Command::RegisterWrite {
+            address: 15,
+            value: 1_000,
+        });
+        pc.drive(300, 0, 5_000).await;
+        wait_ms(3_000).await;
+        for slave in [1, 2] {
+            assert_eq!(robot.drives.drive(slave).alarm, 0, "drive {slave}");
+        }
+    });
+    robot.drives.set_silent(2, true);
+    robot.run(async |_pc| wait_ms(5_000).await);
+    assert_eq!(robot.drives.drive(1).alarm, 0, "held drive");
+}
+
+/// A drive whose share setup is saved in its NV memory and which reboots within a
+/// cycle: the link never sees a reconnect, only its counter restarting at 0. The
+/// odometry takes that step as a discontinuity, not as metres of motion.
+#[test]
+fn a_drive_that_reboots_unseen_does_not_make_the_pose_jump() {
+    let robot = VirtualRobot::with_drives(virtual_robot::drives::DrivesConfig {
+        share_setup_saved: true,
+        boot_time: Duration::from_millis(20),
+        ..Default::default()
+    });
+    robot.run(async |pc| {
+        // The first boot waits the full second anyway (power_up_wait).
+        wait_ms(BOOT_MS).await;
+        pc.drive(500, 0, 2_000).await;
+        let rejected_before = pc.status().expect("status").rejected_count;
+        robot.drives.power_cycle(1);
+        pc.drive(500, 0, 500).await;
+        pc.enable();
+        pc.velocity(0, 0);
+        wait_ms(1_500).await;
+        let positions: Vec<i32> = pc
+            .reports(base_core::can::id::POSITION)
+            .into_iter()
+            .filter_map(|(_, report)| match report {
+                base_core::can::Report::Position { x_mm, .. } => Some(x_mm),
+                _ => None,
+            })
+            .collect();
+        // 500 mm/s is 25 mm per 50 ms frame.
+        let largest = positions
+            .windows(2)
+            .map(|pair| (pair[1] - pair[0]).abs())
+            .max()
+            .expect("positions");
+        assert!(largest <= 30, "the pose jumped {largest} mm in one frame");
+        let headings: Vec<i32> = pc
+            .reports(base_core::can::id::HEADING)
+            .into_iter()
+            .filter_map(|(_, report)| match report {
+                base_core::can::Report::Heading { heading_mrad } => Some(heading_mrad),
+                _ => None,
+            })
+            .collect();
+        // The rebooted left drive stays de-excited: the base pivots on it at most at
+        // 500 mm/s / 250 mm = 2 rad/s, 100 mrad per 50 ms cycle (a frame may carry a
+        // little more than one cycle); the restarted counter alone would be 4 rad.
+        let largest = headings
+            .windows(2)
+            .map(|pair| (pair[1] - pair[0]).abs())
+            .max()
+            .expect("headings");
+        assert!(
+            largest <= 150,
+            "the heading jumped {largest} mrad in one frame"
+        );
+        let status = next_status(pc, 1_500, |_| true).await.expect("status");
+        assert_ne!(
+            status.rejected_count, rejected_before,
+            "the discontinuity is counted"
+        );
+        assert_eq!(
+            (status.last_rejection, status.last_rejection_subject),
+            (0x40, 1)
+        );
+    });
+}
+
+/// The largest gap between two control cycles (group frames) on the wire in `window`.
+fn worst_cycle_gap(robot: &VirtualRobot, from: Instant, to: Instant) -> Duration {
+    let cycles: Vec<Instant> = robot
+        .drives
+        .requests()
+        .into_iter()
+        .filter(|request| request.bytes[1] == 0x17 && request.at >= from && request.at <= to)
+        .map(|request| request.at)
+        .collect();
+    cycles
+        .windows(2)
+        .map(|pair| pair[1] - pair[0])
+        .max()
+        .expect("cycles in the window")
+}
+
+/// On the chip a sector erase masks interrupts for up to 400 ms. Register writes while
+/// driving are in force at once and reach the flash only at the next standstill, so
+/// the control cycle never stalls; they are persisted then.
+#[test]
+fn flash_erases_wait_for_standstill_and_never_stall_the_control_cycle() {
+    let robot = VirtualRobot::new();
+    robot.flash.set_erase_stall(Duration::from_millis(400));
+    robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        pc.drive(300, 0, 1_000).await;
+        let erases_before = robot.flash.stats().erases;
+        let from = Instant::now();
+        // disable_time 300/301 ms, 2000 times: several pages of records.
+        for round in 0..2_000u16 {
+            pc.enable();
+            pc.velocity(300, 0);
+            pc.command(base_core::can::Command::RegisterWrite {
+                address: 11,
+                value: 300 + round % 2,
+            });
+            wait_ms(2).await;
+        }
+        let to = Instant::now();
+        assert!(robot.drives.drive(1).forward_rpm() > 150.0, "still driving");
+        let gap = worst_cycle_gap(&robot, from, to);
+        assert!(
+            gap <= Duration::from_millis(60),
+            "control cycle stalled {gap:?}"
+        );
+        assert_eq!(
+            robot.flash.stats().erases,
+            erases_before,
+            "no erase while driving"
+        );
+        let status = next_status(pc, 1_500, |_| true).await.expect("status");
+        assert!(status.persist_pending, "the status frame says values wait");
+        assert_eq!(status.mode, Mode::Active);
+
+        // At standstill the last value goes to the flash.
+        pc.command(base_core::can::Command::RegisterWrite {
+            address: 11,
+            value: 750,
+        });
+        pc.enable();
+        pc.velocity(0, 0);
+        wait_ms(3_000).await;
+        let status = next_status(pc, 1_500, |_| true).await.expect("status");
+        assert!(!status.persist_pending, "written at the standstill");
+    });
+    let value = robot.run(async |pc| {
+        let before = pc.reports(base_core::can::id::REGISTER_READ).len();
+        pc.command(base_core::can::Command::RegisterRead { address: 11 });
+        wait_ms(50).await;
+        pc.reports(base_core::can::id::REGISTER_READ)
+            .into_iter()
+            .skip(before)
+            .find_map(|(_, report)| match report {
+                base_core::can::Report::RegisterValue { value } => Some(value),
+                _ => None,
+            })
+    });
+    assert_eq!(value, Some(750), "persisted at the standstill");
+}
