@@ -16,7 +16,10 @@
 mod record;
 mod table;
 
-pub use record::{RECORD_LEN, RecordError, SCHEMA_VERSION, decode_record, encode_record, migrate};
+pub use record::{
+    RECORD_LEN, RecordError, SCHEMA_VERSION, STORE_SCHEMA, decode_record, encode_record,
+    encode_store_record, migrate,
+};
 pub use table::{
     ADDRESS_COUNT, Access, FW_VERSION, LAST_MANUAL_ADDRESS, MOTOR_DIR_INVERT_LEFT,
     MOTOR_DIR_INVERT_RIGHT, OPEN_PAIRING_WINDOW_KEY, REGMAP_VERSION, RESTORE_DEFAULTS_KEY, Reg,
@@ -115,6 +118,16 @@ const RULES: [CrossRule; 4] = [
                 >= u32::from(r.get(Reg::MaxMotorVel)) * 1000
         },
     },
+];
+
+/// Registers that depend on each other: the cross-register rules' pairs. The store
+/// writes the members of one group that change in one batch all at once, so a power cut
+/// leaves the group entirely old or entirely new (never a mix that breaks its rule).
+pub const DEPENDENT_GROUPS: [&[Reg]; RULES.len()] = [
+    &RULES[0].registers,
+    &RULES[1].registers,
+    &RULES[2].registers,
+    &RULES[3].registers,
 ];
 
 /// The current value of every register, always inside its range and consistent.
