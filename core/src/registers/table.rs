@@ -1,11 +1,12 @@
 //! The register map: every address, its name, unit, default, valid range and access.
-//! Addresses 0–23 are the manual's (§10) and never move; 24–33 and 38–40 are this
-//! firmware's extensions. `docs/registers.md` is this table in prose.
+//! Addresses 0–23 are the manual's (§10) and never move; 24–33, 38–40 and 44–48 are
+//! this firmware's extensions. `docs/registers.md` is this table in prose.
 
 /// Every register by its manual name, in CamelCase; the discriminant is the CAN address.
 ///
 /// 34–37 are deliberately absent: they are kept free for the Bluetooth remote, and
-/// reading or writing them answers [`super::RegisterError::UnknownAddress`].
+/// reading or writing them answers [`super::RegisterError::UnknownAddress`]; so are
+/// 41–43, kept for the next extensions.
 #[repr(u8)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -85,11 +86,22 @@ pub enum Reg {
     /// (ext) `command`, write-only, reads 0: [`RESTORE_DEFAULTS_KEY`] restores defaults,
     /// [`OPEN_PAIRING_WINDOW_KEY`] opens the Bluetooth remote's pairing window.
     Command = 40,
+    /// (ext) `weight_offset_hi`, raw: bits 16–23 of the full 24-bit scale offset.
+    WeightOffsetHi = 44,
+    /// (ext) `weight_offset_lo`, raw: bits 0–15 of the full 24-bit scale offset.
+    WeightOffsetLo = 45,
+    /// (ext) `flash_erases_hi`, read-only counter: register-store page erases, high word.
+    FlashErasesHi = 46,
+    /// (ext) `flash_erases_lo`, read-only counter: register-store page erases, low word.
+    FlashErasesLo = 47,
+    /// (ext) `can_tx_dropped`, read-only counter: CAN frames dropped with a full
+    /// transmit queue since boot, saturating at 65535.
+    CanTxDropped = 48,
 }
 
 impl Reg {
     /// Every register, in address order.
-    pub const ALL: [Reg; 37] = [
+    pub const ALL: [Reg; 42] = [
         Reg::RadR,
         Reg::RadL,
         Reg::WheelDist,
@@ -127,7 +139,16 @@ impl Reg {
         Reg::FwVersion,
         Reg::RegmapVersion,
         Reg::Command,
+        Reg::WeightOffsetHi,
+        Reg::WeightOffsetLo,
+        Reg::FlashErasesHi,
+        Reg::FlashErasesLo,
+        Reg::CanTxDropped,
     ];
+
+    /// The read-only counters: the firmware sets them ([`super::Registers::set_counter`]),
+    /// nothing persists them.
+    pub const COUNTERS: [Reg; 3] = [Reg::FlashErasesHi, Reg::FlashErasesLo, Reg::CanTxDropped];
 
     /// The register at a CAN address, or `None` for an unassigned one.
     pub const fn from_address(address: u8) -> Option<Reg> {
@@ -149,25 +170,25 @@ impl Reg {
         &TABLE[self.table_index()]
     }
 
-    /// Position in [`TABLE`]: the address, less the four unassigned ones below it.
+    /// Position in [`TABLE`] (and in [`Reg::ALL`]), which skip the unassigned addresses.
     pub(super) const fn table_index(self) -> usize {
-        let address = self as usize;
-        if address < FIRST_UNASSIGNED as usize {
-            address
-        } else {
-            address - UNASSIGNED_COUNT
+        let mut i = 0;
+        while i < Reg::ALL.len() {
+            if Reg::ALL[i] as u8 == self as u8 {
+                return i;
+            }
+            i += 1;
         }
+        // Every Reg is in ALL (a test holds them together).
+        0
     }
 }
 
 /// The highest address whose name, default and meaning the manual fixes. Records of
 /// these survive any schema change; everything above is ours and may be redefined.
 pub const LAST_MANUAL_ADDRESS: u8 = 23;
-/// First of the addresses kept free for the Bluetooth remote (34..=37).
-const FIRST_UNASSIGNED: u8 = 34;
-const UNASSIGNED_COUNT: usize = 4;
 /// One past the highest address; the size of an array indexed by address.
-pub const ADDRESS_COUNT: usize = 41;
+pub const ADDRESS_COUNT: usize = 49;
 
 /// Writing this to [`Reg::Command`] restores every writable register to its default.
 /// A key rather than 1 so that a stray or mistyped write cannot wipe a calibration.
@@ -186,8 +207,10 @@ pub const MOTOR_DIR_INVERT_RIGHT: u16 = 0b10;
 
 /// Version of the register map ([`Reg::RegmapVersion`]). Bump it when an extension
 /// register is added, removed or changes meaning, so PC software can tell.
-/// 1: the first map. 2: `command` also takes [`OPEN_PAIRING_WINDOW_KEY`].
-pub const REGMAP_VERSION: u16 = 2;
+/// 1: the first map. 2: `command` also takes [`OPEN_PAIRING_WINDOW_KEY`]. 3: the full
+/// 24-bit scale offset (44, 45), the store's erase count (46, 47) and the CAN transmit
+/// drops (48).
+pub const REGMAP_VERSION: u16 = 3;
 
 /// [`Reg::FwVersion`]: `(major << 8) | minor` of the crate version, fixed at compile time.
 pub const FW_VERSION: u16 = ((parse_version_part(env!("CARGO_PKG_VERSION_MAJOR")) as u16) << 8)
@@ -296,10 +319,10 @@ const fn or_off(mut info: RegisterInfo) -> RegisterInfo {
 
 use Access::{ReadOnly, ReadWrite, WriteOnly};
 
-/// Every register in address order (34–37 are not assigned). Why each range is what it
+/// Every register in address order (34–37 and 41–43 are not assigned). Why each range is what it
 /// is: `docs/registers.md`.
 #[rustfmt::skip]
-pub static TABLE: [RegisterInfo; 37] = [
+pub static TABLE: [RegisterInfo; 42] = [
     row(Reg::RadR, "rad_r", "mm", 142, (10, 1000), ReadWrite, "right wheel radius"),
     row(Reg::RadL, "rad_l", "mm", 142, (10, 1000), ReadWrite, "left wheel radius"),
     row(Reg::WheelDist, "wheel_dist", "mm", 250, (50, 2000), ReadWrite, "distance between the wheels"),
@@ -337,6 +360,11 @@ pub static TABLE: [RegisterInfo; 37] = [
     row(Reg::FwVersion, "fw_version", "major.minor", FW_VERSION, (FW_VERSION, FW_VERSION), ReadOnly, "firmware version"),
     row(Reg::RegmapVersion, "regmap_version", "", REGMAP_VERSION, (REGMAP_VERSION, REGMAP_VERSION), ReadOnly, "register map version"),
     row(Reg::Command, "command", "key", 0, (OPEN_PAIRING_WINDOW_KEY, RESTORE_DEFAULTS_KEY), WriteOnly, "0xDEF0 restores every writable register to its default; 0xB1E0 opens the remote's pairing window"),
+    row(Reg::WeightOffsetHi, "weight_offset_hi", "raw", 0, (0, 255), ReadWrite, "bits 16-23 of the full scale offset (24-bit two's complement)"),
+    row(Reg::WeightOffsetLo, "weight_offset_lo", "raw", 20490, (0, 65535), ReadWrite, "bits 0-15 of the full scale offset"),
+    row(Reg::FlashErasesHi, "flash_erases_hi", "erases", 0, (0, 65535), ReadOnly, "register-store page erases so far, high word"),
+    row(Reg::FlashErasesLo, "flash_erases_lo", "erases", 0, (0, 65535), ReadOnly, "register-store page erases so far, low word"),
+    row(Reg::CanTxDropped, "can_tx_dropped", "frames", 0, (0, 65535), ReadOnly, "CAN frames dropped with a full transmit queue since boot (saturates)"),
 ];
 
 /// The description of the register at `address`, or `None` if it is not assigned.

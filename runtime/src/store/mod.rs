@@ -851,7 +851,8 @@ impl<F: NorFlash> RegisterStore<F> {
 }
 
 /// The store task: waits for pending register changes, applies each batch and reports
-/// any failure as [`Input::FlashFault`]. The store itself retries a write that reads
+/// any failure as [`Input::FlashFault`], and a changed erase count as
+/// [`Input::FlashErases`]. The store itself retries a write that reads
 /// back wrong ([`RegisterStore::write`]); a write that still fails keeps the controller
 /// running on the value in RAM, and the address is written again with its next change.
 pub async fn run<F: NorFlash>(
@@ -859,10 +860,15 @@ pub async fn run<F: NorFlash>(
     pending: &PendingWrites,
     faults: InputSender<'_>,
 ) -> ! {
+    let mut erases = store.erases();
     loop {
         let batch = pending.take().await;
         if store.apply(&batch).await.is_err() {
             faults.send(Input::FlashFault).await;
+        }
+        if store.erases() != erases {
+            erases = store.erases();
+            faults.send(Input::FlashErases(erases)).await;
         }
     }
 }
