@@ -619,6 +619,16 @@ impl<F: NorFlash> RegisterStore<F> {
         self.close_journal().await?;
         let journal = encode_journal(members);
         let mut result = self.store_verified(JOURNAL_KEY, &journal).await;
+        if result == Err(StoreError::Corrupted) {
+            // As for a single write: rebuild from the RAM copy, the group included (the
+            // rebuild writes every record of an empty store; a cut there loses the
+            // store anyway, which the next boot reports).
+            for &(address, value) in members {
+                self.stored[usize::from(address)] = Slot::Record(encode_record(address, value));
+            }
+            self.rebuild().await?;
+            return Err(StoreError::Rebuilt);
+        }
         if result.is_err() && result != Err(StoreError::Retried) {
             return result;
         }
