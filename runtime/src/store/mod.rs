@@ -19,7 +19,7 @@
 //! a RAM copy of the newest record of every address, so an unchanged value costs no
 //! flash access at all. A write appends one item; nothing is rewritten in place.
 //! Restoring the defaults appends the default record of every register not already at
-//! its default (all 34 on a blank store), so the next boot loads the defaults from a
+//! its default (all 36 on a blank store), so the next boot loads the defaults from a
 //! store that is not blank. The store erases the range itself only when it cannot be
 //! read (see below).
 //!
@@ -29,10 +29,10 @@
 //! header (length, CRCs) and key + record padded to 8. A page holds 255 items after its
 //! two state words. When the open page is full, sequential-storage erases the oldest
 //! page and first copies into the new page the items that are still current there, at
-//! most one per persistent register (34) and per store record (journal, two words of
-//! the erase count). So every page erase buys at least 255 − 37 = 218 register writes,
-//! and with 4 pages used in turn each page is erased once per at least 4 × 218 = 872
-//! writes. At the 100 000 erase cycles NOR flash is specified for, that is about 87
+//! most one per persistent register (36) and per store record (journal, two words of
+//! the erase count). So every page erase buys at least 255 − 39 = 216 register writes,
+//! and with 4 pages used in turn each page is erased once per at least 4 × 216 = 864
+//! writes. At the 100 000 erase cycles NOR flash is specified for, that is about 86
 //! million register writes, far beyond the calibration
 //! and configuration writes this store sees.
 //!
