@@ -874,3 +874,31 @@ fn a_power_cut_in_a_tare_leaves_the_scale_offset_all_old_or_all_new() {
         );
     }
 }
+
+#[test]
+fn a_write_that_reads_back_wrong_on_every_attempt_is_reported_as_lost() {
+    let flash = blank_flash();
+    let (mut store, _, _) = boot(&flash);
+    write_baseline(&mut store);
+    write(&mut store, Reg::DisableTime, 600).unwrap();
+    // The value LSB of the next three item slots is defective.
+    let item = next_item_offset(&flash, Reg::DisableTime, 700);
+    for slot in 0..3 {
+        flash.stick_byte(item + 16 * slot + 8 + 1 + 3, 0x5A);
+    }
+
+    assert_eq!(
+        write(&mut store, Reg::DisableTime, 700),
+        Err(StoreError::Unverified)
+    );
+    let (mut store, registers, _) = boot(&flash);
+    assert_eq!(
+        registers.get(Reg::DisableTime),
+        600,
+        "the old value, not a wrong one"
+    );
+    assert_baseline(&registers);
+    // Past the defect the store works again.
+    write(&mut store, Reg::DisableTime, 701).unwrap();
+    assert_eq!(boot(&flash).1.get(Reg::DisableTime), 701);
+}
