@@ -268,6 +268,20 @@ fn pause(base: &mut Base, duration: Duration) -> Result<(), Error> {
     Ok(())
 }
 
+/// The full 24-bit scale offset (registers 44 and 45), or `None` from a firmware whose
+/// register map has no such registers (it refuses the read).
+fn full_offset(base: &mut Base) -> Result<Option<i32>, Error> {
+    match base.read_registers([Reg::WeightOffsetHi, Reg::WeightOffsetLo]) {
+        Ok([high, low]) => {
+            let bits = (u32::from(high) << 16) | u32::from(low);
+            // 24-bit two's complement: sign-extend bit 23.
+            Ok(Some(((bits << 8) as i32) >> 8))
+        }
+        Err(Error::ReadRefused { .. }) => Ok(None),
+        Err(error) => Err(error),
+    }
+}
+
 /// What `calibrate scale` knows before it starts.
 #[derive(Debug, Clone, Copy)]
 pub struct ScalePlan {
@@ -286,6 +300,7 @@ pub fn scale(
         "Scale calibration: an empty reading, then a known weight."
     )?;
     let old = base.read_registers(RESULTS)?;
+    let old_full = full_offset(base)?;
     base.send_checked(
         Command::ScaleCalibration(Scale::Start),
         "the calibration's start",
@@ -314,6 +329,10 @@ pub fn scale(
     writeln!(out, "stored:")?;
     for ((register, old), new) in RESULTS.iter().zip(old).zip(new) {
         writeln!(out, "  {} {old} -> {new}", register.info().name)?;
+    }
+    // weight_offset (19) reads the offset clamped to 16 bits; the full one is 44/45.
+    if let (Some(old), Some(new)) = (old_full, full_offset(base)?) {
+        writeln!(out, "  full offset (44/45) {old} -> {new}")?;
     }
     // The frame already on its way may predate the new calibration: take the second.
     base.next_weight()?;

@@ -168,7 +168,8 @@ pub enum CalibrateCommand {
         #[arg(long, value_parser = clap::value_parser!(u16).range(1..))]
         real_ccw_mrad: Option<u16>,
     },
-    /// Empty reading, then a known weight; stores weight_offset and scale_value.
+    /// Empty reading, then a known weight; stores the scale offset (19, and in full 44/45)
+    /// and scale_value.
     Scale {
         /// The known weight, g (asked if not given).
         #[arg(long, value_parser = clap::value_parser!(u16).range(1..))]

@@ -86,6 +86,9 @@ pub enum Input {
     CanBusFault,
     /// The register store was blank or corrupt at boot, or a write failed.
     FlashFault,
+    /// The register store's page erases so far (its wear), for `flash_erases_hi`/`_lo`:
+    /// sent at boot and whenever the count changed.
+    FlashErases(u32),
     /// The last reset was caused by the watchdog.
     WatchdogReset,
     /// Time passed: timeouts and periodic frames are checked.
@@ -311,6 +314,12 @@ impl Controller {
             }
             Input::CanBusFault => self.faults.can_bus = true,
             Input::FlashFault => self.faults.flash = true,
+            Input::FlashErases(erases) => {
+                self.registers
+                    .set_counter(Reg::FlashErasesHi, (erases >> 16) as u16);
+                self.registers
+                    .set_counter(Reg::FlashErasesLo, erases as u16);
+            }
             Input::WatchdogReset => self.faults.watchdog_reset = true,
             Input::Tick => {
                 if self.pairing.expire(now) {
@@ -348,6 +357,13 @@ impl Controller {
     /// at rest. Only then are motion registers and restore-defaults accepted.
     pub fn at_standstill(&self) -> bool {
         self.in_force.rpm == MotorRpm::ZERO && self.supervisor.at_rest()
+    }
+
+    /// The CAN frames the transmit queue dropped since boot, for `can_tx_dropped`
+    /// (saturating at 65535). The shell sets it before each input.
+    pub fn set_can_tx_dropped(&mut self, dropped: u32) {
+        let value = u16::try_from(dropped).unwrap_or(u16::MAX);
+        self.registers.set_counter(Reg::CanTxDropped, value);
     }
 
     /// The status frame as it would be sent now.
@@ -428,13 +444,14 @@ impl Controller {
             Command::ResetOdometry => self.odometry.reset(),
             Command::Heartbeat => self.power_event(now, power::Event::Heartbeat, out),
             Command::ScaleCalibration(step) => {
-                let offset = self.registers.get(Reg::WeightOffset);
+                let offset = self.registers.weight_offset();
                 match self
                     .scale_calibration
                     .handle(step, self.scale.average(), offset)
                 {
                     Ok(Some(ScaleUpdate::Offset(value))) => {
-                        self.write_register(now, Reg::WeightOffset as u8, value, out)
+                        let outcome = self.registers.set_weight_offset(value);
+                        self.register_written(now, Reg::WeightOffset as u8, outcome, out);
                     }
                     Ok(Some(ScaleUpdate::ScaleValue(value))) => {
                         self.write_register(now, Reg::ScaleValue as u8, value, out)
@@ -490,6 +507,17 @@ impl Controller {
             return;
         }
         let outcome = self.registers.write(address, value);
+        self.register_written(now, address, outcome, out);
+    }
+
+    /// Acts on the outcome of a register write to `address`.
+    fn register_written(
+        &mut self,
+        now: Instant,
+        address: u8,
+        outcome: Result<WriteOutcome, RegisterError>,
+        out: &mut Output,
+    ) {
         if matches!(
             outcome,
             Ok(WriteOutcome::Changed { .. } | WriteOutcome::DefaultsRestored)
@@ -511,6 +539,14 @@ impl Controller {
                 // Four slots cover the largest batch (the three odometry factors).
                 let pushed = out.persist.changed.push((address, value));
                 debug_assert!(pushed.is_ok(), "more register changes than Persist holds");
+            }
+            Ok(WriteOutcome::OffsetChanged) => {
+                // Three slots of four: the offset comes alone (a write of 19, 44 or 45,
+                // or a tare).
+                for change in self.registers.weight_offset_records() {
+                    let pushed = out.persist.changed.push(change);
+                    debug_assert!(pushed.is_ok(), "more register changes than Persist holds");
+                }
             }
             Ok(WriteOutcome::Unchanged) => {}
             Ok(WriteOutcome::DefaultsRestored) => out.persist.defaults_restored = true,
@@ -690,7 +726,7 @@ impl Controller {
         {
             let grams = scale::weight_grams(
                 raw,
-                self.registers.get(Reg::WeightOffset),
+                self.registers.weight_offset(),
                 self.registers.get(Reg::ScaleValue),
             );
             push_frame(out, Report::Weight { grams }.encode());

@@ -3,14 +3,14 @@
 //! pushes samples; the feedback sender (0x0EA) and the scale calibration read the average.
 
 /// Weight in grams for frame 0x0EA: (raw − offset) / (scale_value / 100), rounded to
-/// the nearest gram.
+/// the nearest gram. `weight_offset` is the full offset (registers 44/45).
 ///
 /// Below zero (an empty scale drifting under its offset) reads 0, above 65535 g
 /// saturates at 65535, as the contract's frame table says. `scale_value` 0 is refused by
 /// the register table; should it ever reach this function it is treated as the limit of
 /// an ever smaller divisor: any load saturates, no load reads 0. That reports "off
 /// scale" rather than a plausible-looking weight, and never divides by zero.
-pub fn weight_grams(raw: i32, weight_offset: u16, scale_value: u16) -> u16 {
+pub fn weight_grams(raw: i32, weight_offset: i32, scale_value: u16) -> u16 {
     // i64: a 32-bit difference times 100 cannot overflow.
     let counts = i64::from(raw) - i64::from(weight_offset);
     if counts <= 0 {
@@ -114,6 +114,14 @@ mod tests {
     }
 
     #[test]
+    fn offsets_beyond_16_bits_convert_too() {
+        // An empty scale reading 80 000 or -15 000, 19 counts per gram.
+        assert_eq!(weight_grams(80_000, 80_000, 1900), 0);
+        assert_eq!(weight_grams(80_000 + 19_000, 80_000, 1900), 1000);
+        assert_eq!(weight_grams(-15_000 + 1_900, -15_000, 1900), 100);
+    }
+
+    #[test]
     fn weight_is_rounded_to_the_nearest_gram() {
         // 28 counts / 19 = 1.47 g → 1; 29 / 19 = 1.53 g → 2
         assert_eq!(weight_grams(20_490 + 28, 20_490, 1900), 1);
@@ -124,6 +132,7 @@ mod tests {
     fn weight_below_zero_reads_zero() {
         assert_eq!(weight_grams(20_000, 20_490, 1900), 0);
         assert_eq!(weight_grams(i32::MIN, 65_535, 1), 0);
+        assert_eq!(weight_grams(-8_388_608, 8_388_607, 1), 0);
     }
 
     #[test]
@@ -226,7 +235,7 @@ mod tests {
         fn weight_never_decreases_as_the_load_grows(
             raw in -9_000_000i32..9_000_000,
             extra in 0i32..100_000,
-            offset: u16,
+            offset in -8_388_608i32..8_388_608,
             scale_value: u16,
         ) {
             prop_assert!(

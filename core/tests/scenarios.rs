@@ -1251,6 +1251,59 @@ fn scale_calibration_flow_tares_and_scales() {
 }
 
 #[test]
+fn a_tare_beyond_16_bits_persists_the_full_offset_and_weighs_from_it() {
+    for (empty, reads_19, high, low) in [(80_000, 65_535, 0x01, 0x3880), (-15_000, 0, 0xFF, 0xC568)]
+    {
+        let mut rows: Vec<Row> = vec![(0, scale_calibration(ScaleCalibrationCommand::Start), &[])];
+        for ms in 1..=10 {
+            rows.push((ms, Input::ScaleSample(empty), &[]));
+        }
+        let persisted = [
+            Persists(Reg::WeightOffset, reads_19),
+            Persists(Reg::WeightOffsetHi, high),
+            Persists(Reg::WeightOffsetLo, low),
+            Register(Reg::WeightOffset, reads_19),
+            RejectedCount(0),
+        ];
+        rows.push((
+            20,
+            scale_calibration(ScaleCalibrationCommand::Tare),
+            &persisted,
+        ));
+        for ms in 21..=30 {
+            rows.push((ms, Input::ScaleSample(empty + 38_000), &[]));
+        }
+        rows.push((
+            40,
+            scale_calibration(ScaleCalibrationCommand::KnownWeight { grams: 1000 }),
+            &[Persists(Reg::ScaleValue, 3800), RejectedCount(0)],
+        ));
+        let controller = run(defaults(), &rows);
+        assert_eq!(controller.registers().weight_offset(), empty);
+    }
+}
+
+#[test]
+fn the_counters_read_what_the_shell_reports() {
+    let read = |address| can(Command::RegisterRead { address });
+    let mut controller = run(
+        defaults(),
+        &[
+            (
+                0,
+                Input::FlashErases(0x0001_0002),
+                &[Register(Reg::FlashErasesHi, 1)],
+            ),
+            (1, read(47), &[Sends(Report::RegisterValue { value: 2 })]),
+        ],
+    );
+    controller.set_can_tx_dropped(70_000);
+    assert_eq!(controller.registers().get(Reg::CanTxDropped), u16::MAX);
+    controller.set_can_tx_dropped(3);
+    assert_eq!(controller.registers().read(43), Ok(3));
+}
+
+#[test]
 fn scale_calibration_rejects_out_of_order_steps_and_missing_readings() {
     run(
         defaults(),

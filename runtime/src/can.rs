@@ -14,8 +14,12 @@ use base_core::controller::Input;
 use crate::channels::{InputSender, RawMutex};
 use crate::hw::{BusState, CanError, CanRx, CanTx};
 
-/// Two status periods' worth of reports at the default periods.
-pub const CAN_TX_QUEUE: usize = 16;
+/// Frames the transmit queue holds. A PC may send a burst of register reads at once,
+/// and every reply is queued at once, while the bus sends one frame per ~0.2 ms: the
+/// queue holds a burst of 24 replies plus one of each periodic frame (position,
+/// heading, battery, weight, status), with three to spare. A longer burst loses
+/// replies, counted in `can_tx_dropped` (register 43). 32 frames of 16 bytes.
+pub const CAN_TX_QUEUE: usize = 32;
 
 /// The frames waiting for the CAN TX task, in order. Senders never wait: a full queue
 /// drops the frame and counts it.

@@ -56,6 +56,7 @@ pub async fn run<S: OutputPin>(
         remote: RemoteRequest::default(),
     };
     for input in boot_inputs {
+        controller.set_can_tx_dropped(channels.can_tx.dropped());
         let out = controller.handle(core_now(), *input);
         dispatch(&controller, out, &channels, &mut state, &mut pc_switch);
     }
@@ -78,6 +79,9 @@ pub async fn run<S: OutputPin>(
             Input::Tick
         });
         controller.set_persist_pending(channels.pending_writes.persist_pending());
+        // The drops so far, for `can_tx_dropped`: a read of it answers the count
+        // up to the input before it.
+        controller.set_can_tx_dropped(channels.can_tx.dropped());
         let out = controller.handle(core_now(), input);
         dispatch(&controller, out, &channels, &mut state, &mut pc_switch);
         // The other tasks run between two inputs even when the queue never empties.

@@ -116,7 +116,7 @@ where
     );
     let now = control::core_now();
     let controller = Controller::new(now, registers);
-    let mut boot_inputs = heapless::Vec::<Input, 2>::new();
+    let mut boot_inputs = heapless::Vec::<Input, 3>::new();
     if report.flash_fault() {
         let _ = boot_inputs.push(Input::FlashFault);
     }
@@ -124,6 +124,8 @@ where
         warn!("the watchdog reset the chip");
         let _ = boot_inputs.push(Input::WatchdogReset);
     }
+    // After the faults: the first status frame goes out with the first input.
+    let _ = boot_inputs.push(Input::FlashErases(store.erases()));
     let ((never, ..), ..) = join(
         join5(
             control::run(

@@ -73,6 +73,9 @@ struct Chip {
     stats: FlashStats,
     /// How long each page erase stalls the whole chip.
     erase_stall: Duration,
+    /// Bytes that read as a fixed value whatever is written or erased: see
+    /// [`RamFlash::stick_byte`].
+    stuck: Vec<(usize, u8)>,
 }
 
 impl Chip {
@@ -105,6 +108,13 @@ impl Chip {
             return Err(FlashError::OutOfBounds);
         }
         Ok(start..end)
+    }
+
+    /// A stuck byte keeps its value through every write and erase.
+    fn apply_stuck(&mut self) {
+        for &(index, value) in &self.stuck {
+            self.bytes[index] = value;
+        }
     }
 }
 
@@ -147,6 +157,7 @@ impl RamFlash {
                 budget: None,
                 stats: FlashStats::default(),
                 erase_stall: Duration::from_ticks(0),
+                stuck: Vec::new(),
             })),
         }
     }
@@ -161,7 +172,10 @@ impl RamFlash {
     /// A separate chip with the same bytes (powered, counters at zero), for trying
     /// something without touching this one.
     pub fn independent_copy(&self) -> Self {
-        Self::from_bytes(self.chip.borrow().bytes.clone())
+        let chip = self.chip.borrow();
+        let copy = Self::from_bytes(chip.bytes.clone());
+        copy.chip.borrow_mut().stuck = chip.stuck.clone();
+        copy
     }
 
     /// Lets the next `steps` bytes be programmed or erased; the power dies before the
@@ -197,6 +211,20 @@ impl RamFlash {
     pub fn corrupt(&self, offset: u32, bytes: &[u8]) {
         let start = offset as usize;
         self.chip.borrow_mut().bytes[start..start + bytes.len()].copy_from_slice(bytes);
+    }
+
+    /// A defective cell: the byte at `offset` reads `value` from now on, whatever is
+    /// written or erased (a stuck byte). Copies made later carry the defect too.
+    ///
+    /// # Panics
+    /// If `offset` is outside the flash.
+    pub fn stick_byte(&self, offset: u32, value: u8) {
+        let mut chip = self.chip.borrow_mut();
+        let index = offset as usize;
+        assert!(index < chip.bytes.len(), "stuck byte outside the flash");
+        chip.stuck.retain(|&(stuck, _)| stuck != index);
+        chip.stuck.push((index, value));
+        chip.apply_stuck();
     }
 
     /// Sets every byte to 0xFF, ignoring power; not counted.
@@ -252,6 +280,7 @@ impl NorFlash for RamFlash {
         // page's start erased and its end (with sequential-storage's end marker) not.
         for index in range {
             if !chip.step() {
+                chip.apply_stuck();
                 return Err(FlashError::PowerCut);
             }
             chip.bytes[index] = 0xFF;
@@ -261,6 +290,7 @@ impl NorFlash for RamFlash {
                 crate::runtime::stall(chip.erase_stall);
             }
         }
+        chip.apply_stuck();
         Ok(())
     }
 
@@ -270,12 +300,14 @@ impl NorFlash for RamFlash {
         chip.stats.writes += 1;
         for (index, &byte) in range.zip(bytes) {
             if !chip.step() {
+                chip.apply_stuck();
                 return Err(FlashError::PowerCut);
             }
             // NOR programming only clears bits.
             chip.bytes[index] &= byte;
             chip.stats.bytes_programmed += 1;
         }
+        chip.apply_stuck();
         Ok(())
     }
 }
@@ -349,6 +381,19 @@ mod tests {
             vec![0; ERASE_SIZE - 100]
         );
         assert_eq!(flash.stats().erases, 0);
+    }
+
+    #[test]
+    fn a_stuck_byte_keeps_its_value_through_writes_and_erases() {
+        let mut flash = RamFlash::new(ERASE_SIZE);
+        flash.stick_byte(5, 0xA5);
+        block_on(async {
+            flash.write(4, &[0; 4]).await.unwrap();
+            assert_eq!(flash.contents(4..8), [0, 0xA5, 0, 0]);
+            flash.erase(0, ERASE_SIZE as u32).await.unwrap();
+        });
+        assert_eq!(flash.contents(4..8), [0xFF, 0xA5, 0xFF, 0xFF]);
+        assert_eq!(flash.independent_copy().contents(5..6), [0xA5]);
     }
 
     #[test]

@@ -189,6 +189,8 @@ fn the_scale_wizard_runs_end_to_end_and_the_scale_then_reads_the_known_weight() 
     .unwrap();
     let text = String::from_utf8(out).unwrap();
     assert!(text.contains("weight_offset"), "{text}");
+    // The full offset is shown too, from registers 44/45.
+    assert!(text.contains("full offset (44/45) 20490 -> "), "{text}");
     let reading: u16 = text
         .lines()
         .last()

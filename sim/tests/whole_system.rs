@@ -5,6 +5,7 @@ use base_core::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand
 use base_core::can::{Command, Mode, Report, id};
 use base_core::drives::reg;
 use embassy_time::Instant;
+use virtual_robot::io::SimLoadCell;
 use virtual_robot::robot::{Pc, VirtualRobot, wait_ms};
 
 /// The drives answer 1 s after power-on; their setup takes a few transactions more.
@@ -707,4 +708,99 @@ fn a_spin_100_ms_into_a_ramp_brings_both_wheels_to_their_speeds_together() {
         left_ms.abs_diff(right_ms) <= 20,
         "left at {left_ms} ms, right at {right_ms} ms"
     );
+}
+/// Sends `count` register reads at once (addresses 0, 1, …) and returns the values that
+/// came back, in order.
+async fn burst_of_reads(pc: &Pc, count: u8) -> Vec<u16> {
+    let before = pc.reports(id::REGISTER_READ).len();
+    for address in 0..count {
+        pc.command(Command::RegisterRead {
+            address: address % 34,
+        });
+    }
+    wait_ms(200).await;
+    pc.reports(id::REGISTER_READ)
+        .into_iter()
+        .skip(before)
+        .filter_map(|(_, report)| match report {
+            Report::RegisterValue { value } => Some(value),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn a_burst_of_20_register_reads_is_answered_in_full() {
+    let robot = VirtualRobot::new();
+    robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        for _ in 0..5 {
+            let values = burst_of_reads(pc, 20).await;
+            let expected: Vec<u16> = (0..20u8)
+                .map(|address| base_core::registers::info(address).unwrap().default)
+                .collect();
+            assert_eq!(values, expected);
+        }
+        // Nothing was dropped on the way.
+        assert_eq!(read_register(pc, 43).await, Some(0));
+    });
+}
+
+#[test]
+fn transmit_drops_are_counted_in_can_tx_dropped() {
+    let robot = VirtualRobot::new();
+    robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        // Far more replies at once than the transmit queue holds.
+        let answered = burst_of_reads(pc, 200).await.len();
+        assert!(answered < 200, "{answered} of 200 answered");
+        let dropped = read_register(pc, 43).await.expect("can_tx_dropped reads");
+        // Every reply not answered was dropped (periodic frames may be dropped too).
+        assert!(
+            usize::from(dropped) >= 200 - answered,
+            "{dropped} dropped, {answered} of 200 answered"
+        );
+    });
+}
+
+#[test]
+fn a_tare_beyond_16_bits_works_and_register_19_reads_it_clamped() {
+    for (empty, reads_19, high, low) in [(80_000, 65_535, 0x01, 0x3880), (-15_000, 0, 0xFF, 0xC568)]
+    {
+        let mut robot = VirtualRobot::new();
+        robot.load_cell = SimLoadCell::new(empty, 19.0);
+        let weigh = async |pc: &Pc| {
+            wait_ms(2_500).await;
+            pc.reports(id::WEIGHT).last().map(|(_, report)| *report)
+        };
+        robot.run(async |pc| {
+            wait_ms(1_000).await;
+            pc.command(Command::ScaleCalibration(ScaleCalibrationCommand::Start));
+            pc.command(Command::ScaleCalibration(ScaleCalibrationCommand::Tare));
+            // The empty scale weighs nothing: the tare was taken, not refused.
+            assert_eq!(
+                weigh(pc).await,
+                Some(Report::Weight { grams: 0 }),
+                "{empty}"
+            );
+            robot.load_cell.set_load_grams(5_000.0);
+            wait_ms(1_500).await;
+            pc.command(Command::ScaleCalibration(
+                ScaleCalibrationCommand::KnownWeight { grams: 5_000 },
+            ));
+            robot.load_cell.set_load_grams(2_000.0);
+            assert_eq!(weigh(pc).await, Some(Report::Weight { grams: 2_000 }));
+            assert_eq!(pc.status().unwrap().rejected_count, 0);
+        });
+        robot.run(async |pc| {
+            assert_eq!(
+                weigh(pc).await,
+                Some(Report::Weight { grams: 2_000 }),
+                "{empty}"
+            );
+            assert_eq!(read_register(pc, 19).await, Some(reads_19));
+            assert_eq!(read_register(pc, 44).await, Some(high));
+            assert_eq!(read_register(pc, 45).await, Some(low));
+        });
+    }
 }

@@ -21,8 +21,9 @@ pub enum ScaleCalibrationPhase {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum ScaleUpdate {
-    /// New `weight_offset` (register 19): the raw reading of the empty scale.
-    Offset(u16),
+    /// New full scale offset (registers 44/45, and 19 clamped): the raw reading of the
+    /// empty scale, any 24-bit value.
+    Offset(i32),
     /// New `scale_value` (register 20): raw counts per gram ×100.
     ScaleValue(u16),
 }
@@ -39,7 +40,10 @@ pub enum ScaleCalibrationError {
     NotTared = 0x31,
     /// The load cell delivers no reading (HX711 not ready or not fitted).
     NoReading = 0x32,
-    /// The empty-scale reading does not fit register 19 (u16).
+    /// The empty-scale reading lies outside the HX711's 24-bit range, so it is no
+    /// reading of a working load cell. Since the offset holds any 24-bit value
+    /// (registers 44/45) no HX711 reading is refused: the code stays for a broken
+    /// sensor path and keeps its number.
     OffsetOutOfRange = 0x33,
     /// `03` with 0 g: the slope would divide by zero.
     ZeroWeight = 0x34,
@@ -94,12 +98,12 @@ impl ScaleCalibration {
     }
 
     /// Apply one step. `averaged_raw` is the averaged HX711 reading now (`None` if the
-    /// load cell gives none); `current_offset` is register 19.
+    /// load cell gives none); `current_offset` is the full offset (registers 44/45).
     pub fn handle(
         &mut self,
         cmd: ScaleCalibrationCommand,
         averaged_raw: Option<i32>,
-        current_offset: u16,
+        current_offset: i32,
     ) -> Result<Option<ScaleUpdate>, ScaleCalibrationError> {
         use ScaleCalibrationCommand as Cmd;
         use ScaleCalibrationPhase as Phase;
@@ -114,10 +118,11 @@ impl ScaleCalibration {
             (Phase::Started, Cmd::KnownWeight { .. }) => Err(ScaleCalibrationError::NotTared),
             (Phase::Started | Phase::Tared, Cmd::Tare) => {
                 let raw = averaged_raw.ok_or(ScaleCalibrationError::NoReading)?;
-                let offset =
-                    u16::try_from(raw).map_err(|_| ScaleCalibrationError::OffsetOutOfRange)?;
+                if !(-(1 << 23)..1 << 23).contains(&raw) {
+                    return Err(ScaleCalibrationError::OffsetOutOfRange);
+                }
                 self.phase = Phase::Tared;
-                Ok(Some(ScaleUpdate::Offset(offset)))
+                Ok(Some(ScaleUpdate::Offset(raw)))
             }
             (Phase::Tared, Cmd::KnownWeight { grams }) => {
                 if grams == 0 {
@@ -133,8 +138,8 @@ impl ScaleCalibration {
 }
 
 /// round((raw − offset) / grams · 100), if it fits register 20.
-fn scale_value(raw: i32, offset: u16, grams: u16) -> Result<u16, ScaleCalibrationError> {
-    // i64: a 32-bit raw minus a u16, times 100, cannot overflow.
+fn scale_value(raw: i32, offset: i32, grams: u16) -> Result<u16, ScaleCalibrationError> {
+    // i64: a 32-bit raw minus a 32-bit offset, times 100, cannot overflow.
     let counts_x100 = (i64::from(raw) - i64::from(offset)) * 100;
     if counts_x100 <= 0 {
         return Err(ScaleCalibrationError::ScaleValueOutOfRange);
@@ -290,8 +295,32 @@ mod tests {
     }
 
     #[test]
-    fn offset_not_fitting_u16_is_rejected_never_wrapped() {
-        for raw in [65_536, -1, 8_388_607, -8_388_608] {
+    fn every_24_bit_empty_reading_tares() {
+        for raw in [
+            80_000, -15_000, 65_536, -1, 0, 65_535, 8_388_607, -8_388_608,
+        ] {
+            let mut cal = ScaleCalibration::new();
+            cal.handle(Cmd::Start, None, 0).unwrap();
+            assert_eq!(
+                cal.handle(Cmd::Tare, Some(raw), 0),
+                Ok(Some(ScaleUpdate::Offset(raw))),
+                "raw {raw}"
+            );
+            assert_eq!(cal.phase(), ScaleCalibrationPhase::Tared);
+        }
+        // 500 g of 19 counts/g on an offset of -15 000.
+        let mut cal = ScaleCalibration::new();
+        cal.handle(Cmd::Start, None, 0).unwrap();
+        cal.handle(Cmd::Tare, Some(-15_000), 0).unwrap();
+        assert_eq!(
+            cal.handle(Cmd::KnownWeight { grams: 500 }, Some(-5_500), -15_000),
+            Ok(Some(ScaleUpdate::ScaleValue(1900)))
+        );
+    }
+
+    #[test]
+    fn a_reading_beyond_24_bits_is_no_hx711_reading_and_is_refused() {
+        for raw in [8_388_608, -8_388_609, i32::MAX, i32::MIN] {
             let mut cal = ScaleCalibration::new();
             cal.handle(Cmd::Start, None, 0).unwrap();
             assert_eq!(
@@ -301,17 +330,6 @@ mod tests {
             );
             assert_eq!(cal.phase(), ScaleCalibrationPhase::Started);
         }
-        let mut cal = ScaleCalibration::new();
-        cal.handle(Cmd::Start, None, 0).unwrap();
-        assert_eq!(
-            cal.handle(Cmd::Tare, Some(65_535), 0),
-            Ok(Some(ScaleUpdate::Offset(65_535)))
-        );
-        cal.handle(Cmd::Start, None, 0).unwrap();
-        assert_eq!(
-            cal.handle(Cmd::Tare, Some(0), 0),
-            Ok(Some(ScaleUpdate::Offset(0)))
-        );
     }
 
     #[test]

@@ -134,7 +134,7 @@ impl Rejection {
             }
             Rejection::ScaleCalibration(Scale::NoReading) => "the load cell gave no reading",
             Rejection::ScaleCalibration(Scale::OffsetOutOfRange) => {
-                "the empty reading does not fit weight_offset (0..65535)"
+                "the empty reading lies outside the HX711's 24-bit range (no working load cell gives it)"
             }
             Rejection::ScaleCalibration(Scale::ZeroWeight) => "known weight of 0 g",
             Rejection::ScaleCalibration(Scale::ScaleValueOutOfRange) => {

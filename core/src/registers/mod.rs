@@ -16,7 +16,10 @@
 mod record;
 mod table;
 
-pub use record::{RECORD_LEN, RecordError, SCHEMA_VERSION, decode_record, encode_record, migrate};
+pub use record::{
+    RECORD_LEN, RecordError, SCHEMA_VERSION, STORE_SCHEMA, decode_record, encode_record,
+    encode_store_record, migrate,
+};
 pub use table::{
     ADDRESS_COUNT, Access, FW_VERSION, LAST_MANUAL_ADDRESS, MOTOR_DIR_INVERT_LEFT,
     MOTOR_DIR_INVERT_RIGHT, OPEN_PAIRING_WINDOW_KEY, REGMAP_VERSION, RESTORE_DEFAULTS_KEY, Reg,
@@ -65,7 +68,13 @@ pub enum WriteOutcome {
     /// `command` got [`OPEN_PAIRING_WINDOW_KEY`]: no register changed, nothing to
     /// persist; the controller opens the pairing window.
     PairingWindowRequested,
+    /// The full scale offset changed (a write of 19, 44 or 45, or a tare): persist
+    /// [`Registers::weight_offset_records`], all three at once.
+    OffsetChanged,
 }
+
+/// The full scale offset's range: any 24-bit two's complement HX711 reading.
+pub const WEIGHT_OFFSET_RANGE: core::ops::RangeInclusive<i32> = -(1 << 23)..=(1 << 23) - 1;
 
 /// What [`Registers::load`] made of the stored records.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -121,6 +130,19 @@ const RULES: [CrossRule; 4] = [
     },
 ];
 
+/// Registers that depend on each other: the cross-register rules' pairs. The store
+/// writes the members of one group that change in one batch all at once, so a power cut
+/// leaves the group entirely old or entirely new (never a mix that breaks its rule).
+/// The scale offset's three registers form one group too: `weight_offset` (19) is the
+/// offset clamped to 16 bits, 44 and 45 hold it in full.
+pub const DEPENDENT_GROUPS: [&[Reg]; RULES.len() + 1] = [
+    &RULES[0].registers,
+    &RULES[1].registers,
+    &RULES[2].registers,
+    &RULES[3].registers,
+    &[Reg::WeightOffset, Reg::WeightOffsetHi, Reg::WeightOffsetLo],
+];
+
 /// The current value of every register, always inside its range and consistent.
 #[derive(Debug, Clone, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -147,6 +169,45 @@ impl Registers {
 
     pub fn get(&self, reg: Reg) -> u16 {
         self.values[usize::from(reg.address())]
+    }
+
+    /// The full scale offset: registers 44 (bits 16–23) and 45 (bits 0–15) as a 24-bit
+    /// two's complement number.
+    pub fn weight_offset(&self) -> i32 {
+        let raw = (u32::from(self.get(Reg::WeightOffsetHi)) << 16)
+            | u32::from(self.get(Reg::WeightOffsetLo));
+        // Sign-extend bit 23.
+        ((raw << 8) as i32) >> 8
+    }
+
+    /// Sets the full scale offset (a tare): 44 and 45 take it, `weight_offset` (19) the
+    /// offset clamped to 0..=65535. [`RegisterError::OutOfRange`] outside
+    /// [`WEIGHT_OFFSET_RANGE`].
+    pub fn set_weight_offset(&mut self, offset: i32) -> Result<WriteOutcome, RegisterError> {
+        if !WEIGHT_OFFSET_RANGE.contains(&offset) {
+            return Err(RegisterError::OutOfRange);
+        }
+        if offset == self.weight_offset() {
+            return Ok(WriteOutcome::Unchanged);
+        }
+        let bits = offset as u32 & 0x00FF_FFFF;
+        self.values[usize::from(Reg::WeightOffsetHi.address())] = (bits >> 16) as u16;
+        self.values[usize::from(Reg::WeightOffsetLo.address())] = bits as u16;
+        self.values[usize::from(Reg::WeightOffset.address())] = offset.clamp(0, 0xFFFF) as u16;
+        Ok(WriteOutcome::OffsetChanged)
+    }
+
+    /// The three records of the scale offset, `(address, value)`.
+    pub fn weight_offset_records(&self) -> [(u8, u16); 3] {
+        [Reg::WeightOffset, Reg::WeightOffsetHi, Reg::WeightOffsetLo]
+            .map(|reg| (reg.address(), self.get(reg)))
+    }
+
+    /// Sets a read-only counter ([`Reg::COUNTERS`]); any other register is left alone.
+    pub fn set_counter(&mut self, reg: Reg, value: u16) {
+        if Reg::COUNTERS.contains(&reg) {
+            self.values[usize::from(reg.address())] = value;
+        }
     }
 
     /// A CAN register read. `command` reads 0.
@@ -179,6 +240,17 @@ impl Registers {
         let index = usize::from(address);
         if self.values[index] == value {
             return Ok(WriteOutcome::Unchanged);
+        }
+        match Reg::from_address(address) {
+            // A value other than what 19 reads sets the whole offset to it.
+            Some(Reg::WeightOffset) => return self.set_weight_offset(i32::from(value)),
+            Some(reg @ (Reg::WeightOffsetHi | Reg::WeightOffsetLo)) => {
+                let mut words = [self.get(Reg::WeightOffsetHi), self.get(Reg::WeightOffsetLo)];
+                words[usize::from(reg == Reg::WeightOffsetLo)] = value;
+                let bits = (u32::from(words[0]) << 16) | u32::from(words[1]);
+                return self.set_weight_offset(((bits << 8) as i32) >> 8);
+            }
+            _ => {}
         }
         let mut candidate = self.clone();
         candidate.values[index] = value;
@@ -229,6 +301,27 @@ impl Registers {
                 }
                 Err(_) => report.rejected = report.rejected.saturating_add(1),
             }
+        }
+
+        // The scale offset: 44 and 45 stored together hold it in full, and 19 follows
+        // from them. A store from before they existed has only 19: the offset is 19's
+        // value (the migration of old stores). One of 44/45 without the other is no
+        // offset at all (rejected).
+        let bit = |reg: Reg| 1u64 << reg.address();
+        let words = bit(Reg::WeightOffsetHi) | bit(Reg::WeightOffsetLo);
+        let stored_words = from_store & words;
+        if stored_words == words {
+            let offset = registers.weight_offset();
+            registers.values[usize::from(Reg::WeightOffset.address())] =
+                offset.clamp(0, 0xFFFF) as u16;
+        } else {
+            if stored_words != 0 {
+                report.rejected = report.rejected.saturating_add(1);
+                from_store &= !words;
+            }
+            let legacy = registers.get(Reg::WeightOffset);
+            registers.values[usize::from(Reg::WeightOffsetHi.address())] = 0;
+            registers.values[usize::from(Reg::WeightOffsetLo.address())] = legacy;
         }
 
         // Restoring a rule's registers can only break a rule sharing one of them, so

@@ -19,6 +19,17 @@ use super::table::LAST_MANUAL_ADDRESS;
 /// [`migrate`]. Version 0 has never been written.
 pub const SCHEMA_VERSION: u8 = 1;
 
+/// The schema byte of the records the register store keeps for itself (its wear count,
+/// its batch journal) under keys beyond the register map. Above every schema a register
+/// record will ever have, so [`decode_record`] (and every older firmware) takes such a
+/// record for a newer firmware's extension and drops it without a fault.
+pub const STORE_SCHEMA: u8 = 0x80;
+
+/// A record of the store's own under `key` (see [`STORE_SCHEMA`]).
+pub const fn encode_store_record(key: u8, value: u16) -> [u8; RECORD_LEN] {
+    encode_with_schema(STORE_SCHEMA, key, value)
+}
+
 /// Bytes in one record.
 pub const RECORD_LEN: usize = 6;
 

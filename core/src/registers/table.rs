@@ -1,12 +1,12 @@
 //! The register map: every address, its name, unit, default, valid range and access.
-//! Addresses 0–23 are the manual's (§10) and never move; 24–33, 38–40 and 48–49 are
+//! Addresses 0–23 are the manual's (§10) and never move; 24–33, 38–40 and 43–49 are
 //! this firmware's extensions. `docs/registers.md` is this table in prose.
 
 /// Every register by its manual name, in CamelCase; the discriminant is the CAN address.
 ///
-/// 34–37 are deliberately absent: they are kept free for the Bluetooth remote; 41–47
-/// are not assigned either. Reading or writing any of them answers
-/// [`super::RegisterError::UnknownAddress`].
+/// 34–37 are deliberately absent: they are kept free for the Bluetooth remote, and
+/// reading or writing them answers [`super::RegisterError::UnknownAddress`]; so are
+/// 41–42, kept for the next extensions.
 #[repr(u8)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -86,6 +86,17 @@ pub enum Reg {
     /// (ext) `command`, write-only, reads 0: [`RESTORE_DEFAULTS_KEY`] restores defaults,
     /// [`OPEN_PAIRING_WINDOW_KEY`] opens the Bluetooth remote's pairing window.
     Command = 40,
+    /// (ext) `weight_offset_hi`, raw: bits 16–23 of the full 24-bit scale offset.
+    WeightOffsetHi = 44,
+    /// (ext) `weight_offset_lo`, raw: bits 0–15 of the full 24-bit scale offset.
+    WeightOffsetLo = 45,
+    /// (ext) `flash_erases_hi`, read-only counter: register-store page erases, high word.
+    FlashErasesHi = 46,
+    /// (ext) `flash_erases_lo`, read-only counter: register-store page erases, low word.
+    FlashErasesLo = 47,
+    /// (ext) `can_tx_dropped`, read-only counter: CAN frames dropped with a full
+    /// transmit queue since boot, saturating at 65535.
+    CanTxDropped = 43,
     /// (ext) `stop_decel`, (1/min)/s: the gentlest any stop but the e-stop may brake.
     StopDecel = 48,
     /// (ext) `sec_motor_vel`, 1/min: motor speed limit while someone is in the safety zone.
@@ -94,7 +105,7 @@ pub enum Reg {
 
 impl Reg {
     /// Every register, in address order.
-    pub const ALL: [Reg; 39] = [
+    pub const ALL: [Reg; 44] = [
         Reg::RadR,
         Reg::RadL,
         Reg::WheelDist,
@@ -132,9 +143,18 @@ impl Reg {
         Reg::FwVersion,
         Reg::RegmapVersion,
         Reg::Command,
+        Reg::CanTxDropped,
+        Reg::WeightOffsetHi,
+        Reg::WeightOffsetLo,
+        Reg::FlashErasesHi,
+        Reg::FlashErasesLo,
         Reg::StopDecel,
         Reg::SecMotorVel,
     ];
+
+    /// The read-only counters: the firmware sets them ([`super::Registers::set_counter`]),
+    /// nothing persists them.
+    pub const COUNTERS: [Reg; 3] = [Reg::FlashErasesHi, Reg::FlashErasesLo, Reg::CanTxDropped];
 
     /// The register at a CAN address, or `None` for an unassigned one.
     pub const fn from_address(address: u8) -> Option<Reg> {
@@ -156,7 +176,7 @@ impl Reg {
         &TABLE[self.table_index()]
     }
 
-    /// Position in [`TABLE`] (and in [`Reg::ALL`]): the number of registers below it.
+    /// Position in [`TABLE`] (and in [`Reg::ALL`]), which skip the unassigned addresses.
     pub(super) const fn table_index(self) -> usize {
         let mut i = 0;
         while i < Reg::ALL.len() {
@@ -211,8 +231,10 @@ pub const MOTOR_DIR_INVERT_RIGHT: u16 = 0b10;
 
 /// Version of the register map ([`Reg::RegmapVersion`]). Bump it when an extension
 /// register is added, removed or changes meaning, so PC software can tell.
-/// 1: the first map. 2: `command` also takes [`OPEN_PAIRING_WINDOW_KEY`]. 3:
-/// `stop_decel` (48) and `sec_motor_vel` (49); motion registers only at standstill.
+/// 1: the first map. 2: `command` also takes [`OPEN_PAIRING_WINDOW_KEY`]. 3: the CAN
+/// transmit drops (43), the full 24-bit scale offset (44, 45), the store's erase count
+/// (46, 47), `stop_decel` (48) and `sec_motor_vel` (49); motion registers only at
+/// standstill.
 pub const REGMAP_VERSION: u16 = 3;
 
 /// [`Reg::FwVersion`]: `(major << 8) | minor` of the crate version, fixed at compile time.
@@ -322,10 +344,10 @@ const fn or_off(mut info: RegisterInfo) -> RegisterInfo {
 
 use Access::{ReadOnly, ReadWrite, WriteOnly};
 
-/// Every register in address order (34–37 and 41–47 are not assigned). Why each range is what it
+/// Every register in address order (34–37 and 41–42 are not assigned). Why each range is what it
 /// is: `docs/registers.md`.
 #[rustfmt::skip]
-pub static TABLE: [RegisterInfo; 39] = [
+pub static TABLE: [RegisterInfo; 44] = [
     row(Reg::RadR, "rad_r", "mm", 142, (10, 1000), ReadWrite, "right wheel radius"),
     row(Reg::RadL, "rad_l", "mm", 142, (10, 1000), ReadWrite, "left wheel radius"),
     row(Reg::WheelDist, "wheel_dist", "mm", 250, (50, 2000), ReadWrite, "distance between the wheels"),
@@ -363,6 +385,11 @@ pub static TABLE: [RegisterInfo; 39] = [
     row(Reg::FwVersion, "fw_version", "major.minor", FW_VERSION, (FW_VERSION, FW_VERSION), ReadOnly, "firmware version"),
     row(Reg::RegmapVersion, "regmap_version", "", REGMAP_VERSION, (REGMAP_VERSION, REGMAP_VERSION), ReadOnly, "register map version"),
     row(Reg::Command, "command", "key", 0, (OPEN_PAIRING_WINDOW_KEY, RESTORE_DEFAULTS_KEY), WriteOnly, "0xDEF0 restores every writable register to its default; 0xB1E0 opens the remote's pairing window"),
+    row(Reg::CanTxDropped, "can_tx_dropped", "frames", 0, (0, 65535), ReadOnly, "CAN frames dropped with a full transmit queue since boot (saturates)"),
+    row(Reg::WeightOffsetHi, "weight_offset_hi", "raw", 0, (0, 255), ReadWrite, "bits 16-23 of the full scale offset (24-bit two's complement)"),
+    row(Reg::WeightOffsetLo, "weight_offset_lo", "raw", 20490, (0, 65535), ReadWrite, "bits 0-15 of the full scale offset"),
+    row(Reg::FlashErasesHi, "flash_erases_hi", "erases", 0, (0, 65535), ReadOnly, "register-store page erases so far, high word"),
+    row(Reg::FlashErasesLo, "flash_erases_lo", "erases", 0, (0, 65535), ReadOnly, "register-store page erases so far, low word"),
     row(Reg::StopDecel, "stop_decel", "(1/min)/s", 2000, (2000, 30000), ReadWrite, "the gentlest braking of any stop but the e-stop (lapse, cmd_timeout, dead-man release, link loss)"),
     row(Reg::SecMotorVel, "sec_motor_vel", "1/min", 150, (0, 4000), ReadWrite, "motor speed limit while someone is in the safety zone (0 = stand still)"),
 ];

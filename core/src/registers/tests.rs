@@ -31,7 +31,7 @@ const MANUAL: [(u8, &str, u16); 24] = [
 ];
 
 /// The extensions as the lead fixed them: address, name, default, min, max, 0 = off.
-const EXTENSIONS: [(u8, &str, u16, u16, u16, bool); 12] = [
+const EXTENSIONS: [(u8, &str, u16, u16, u16, bool); 17] = [
     (24, "gear_ratio", 1000, 100, 10000, false),
     (25, "enable_timeout", 500, 50, 5000, false),
     (26, "estop_decel", 4500, 100, 30000, false),
@@ -42,6 +42,11 @@ const EXTENSIONS: [(u8, &str, u16, u16, u16, bool); 12] = [
     (31, "status_time", 1000, 100, 60000, true),
     (32, "pc_boot_grace", 120, 10, 600, false),
     (33, "pc_switch_pulse", 500, 50, 2000, false),
+    (43, "can_tx_dropped", 0, 0, 65535, false),
+    (44, "weight_offset_hi", 0, 0, 255, false),
+    (45, "weight_offset_lo", 20490, 0, 65535, false),
+    (46, "flash_erases_hi", 0, 0, 65535, false),
+    (47, "flash_erases_lo", 0, 0, 65535, false),
     (48, "stop_decel", 2000, 2000, 30000, false),
     (49, "sec_motor_vel", 150, 0, 4000, false),
 ];
@@ -56,6 +61,13 @@ fn assert_valid(registers: &Registers) {
         assert!(info.accepts(value), "{} = {value}", info.name);
     }
     assert!(registers.is_consistent(), "{registers:?}");
+    let offset = registers.weight_offset();
+    assert!(WEIGHT_OFFSET_RANGE.contains(&offset));
+    assert_eq!(
+        i32::from(registers.get(Reg::WeightOffset)),
+        offset.clamp(0, 65_535),
+        "weight_offset reads the full offset clamped to 16 bits"
+    );
 }
 
 #[test]
@@ -100,7 +112,7 @@ fn reg_enum_table_and_addresses_agree() {
         assert_eq!(Reg::from_address(reg as u8), Some(reg));
     }
     assert!(Reg::ALL.windows(2).all(|w| w[0] < w[1]));
-    for address in (34..=37).chain(41..=47).chain(50..=u8::MAX) {
+    for address in (34..=37).chain(41..=42).chain(50..=u8::MAX) {
         assert_eq!(Reg::from_address(address), None);
         assert_eq!(info(address), None);
     }
@@ -118,8 +130,8 @@ fn version_registers_read_the_build_and_map_versions() {
     let minor: u16 = parts.next().unwrap().parse().unwrap();
     let registers = Registers::defaults();
     assert_eq!(registers.read(38), Ok((major << 8) | minor));
-    // 3 since `stop_decel` and `sec_motor_vel` came and motion registers wait for
-    // standstill.
+    // 3 since the full scale offset, the erase count, the transmit drops,
+    // `stop_decel` and `sec_motor_vel` came, and motion registers wait for standstill.
     assert_eq!(registers.read(39), Ok(3));
 }
 
@@ -332,7 +344,10 @@ fn iter_lists_exactly_the_persistent_registers_with_current_values() {
     registers.write(19, 12345).unwrap();
     let listed: Vec<(u8, u16)> = registers.iter().collect();
     let addresses: Vec<u8> = listed.iter().map(|&(a, _)| a).collect();
-    assert_eq!(addresses, (0..=33).chain(48..=49).collect::<Vec<u8>>());
+    assert_eq!(
+        addresses,
+        (0..=33).chain([44, 45, 48, 49]).collect::<Vec<u8>>()
+    );
     assert!(listed.contains(&(19, 12345)));
     assert!(listed.contains(&(0, 142)));
 }
@@ -372,7 +387,7 @@ fn full_store_round_trips_without_fault() {
     written.write(28, 1).unwrap();
     let (loaded, report) = load_from(&store_of(&written));
     assert_eq!(loaded, written);
-    assert_eq!(report.applied, 36);
+    assert_eq!(report.applied, 38);
     assert_eq!(report.rejected, 0);
     assert!(!report.flash_fault());
 }
@@ -388,7 +403,7 @@ fn corrupt_record_is_skipped_and_flagged() {
     assert_eq!(loaded.get(Reg::WheelDist), 250);
     assert_eq!(loaded.get(Reg::CanAccel), 800);
     assert_eq!(report.rejected, 1);
-    assert_eq!(report.applied, 35);
+    assert_eq!(report.applied, 37);
     assert!(report.flash_fault());
 }
 
@@ -500,7 +515,7 @@ fn later_record_for_an_address_wins() {
 
 /// Addresses around and beyond the map, with values near the interesting edges.
 fn write_op() -> impl Strategy<Value = (u8, u16)> {
-    let address = prop_oneof![8 => 0u8..=41, 1 => any::<u8>()];
+    let address = prop_oneof![8 => 0u8..=49, 1 => any::<u8>()];
     let value = prop_oneof![
         any::<u16>(),
         0u16..=100,
@@ -528,6 +543,10 @@ proptest! {
                 Ok(WriteOutcome::Changed { address: a, value: v }) => {
                     prop_assert_eq!((a, v), (address, value));
                     prop_assert_eq!(registers.read(address), Ok(value));
+                }
+                Ok(WriteOutcome::OffsetChanged) => {
+                    prop_assert!([19, 44, 45].contains(&address));
+                    prop_assert_ne!(registers.weight_offset(), before.weight_offset());
                 }
                 Ok(WriteOutcome::Unchanged) => prop_assert_eq!(&registers, &before),
                 Ok(WriteOutcome::DefaultsRestored) => prop_assert_eq!(&registers, &Registers::defaults()),
@@ -594,4 +613,94 @@ fn docs_table_matches_the_register_table() {
     }
     let golden = encode_record(15, 50).map(|b| format!("{b:02X}")).join(" ");
     assert!(docs.contains(&format!("record: {golden}")), "{golden}");
+}
+
+#[test]
+fn a_tare_beyond_16_bits_keeps_the_full_offset_and_19_reads_it_clamped() {
+    let mut registers = Registers::defaults();
+    assert_eq!(registers.weight_offset(), 20_490);
+    assert_eq!(
+        registers.set_weight_offset(80_000),
+        Ok(WriteOutcome::OffsetChanged)
+    );
+    assert_eq!(registers.weight_offset(), 80_000);
+    assert_eq!(registers.read(19), Ok(65_535));
+    assert_eq!(
+        (registers.read(44), registers.read(45)),
+        (Ok(0x01), Ok(0x3880))
+    );
+    registers.set_weight_offset(-15_000).unwrap();
+    assert_eq!(registers.weight_offset(), -15_000);
+    assert_eq!(registers.read(19), Ok(0));
+    assert_eq!(
+        (registers.read(44), registers.read(45)),
+        (Ok(0xFF), Ok(0xC568))
+    );
+    assert_eq!(
+        registers.set_weight_offset(1 << 23),
+        Err(RegisterError::OutOfRange)
+    );
+}
+
+#[test]
+fn writing_19_back_as_read_keeps_the_full_offset_and_another_value_replaces_it() {
+    let mut registers = Registers::defaults();
+    registers.set_weight_offset(-15_000).unwrap();
+    // A PC tool that saves and restores register 19 writes back what it read.
+    assert_eq!(registers.write(19, 0), Ok(WriteOutcome::Unchanged));
+    assert_eq!(registers.weight_offset(), -15_000);
+    // Any other value is the new offset, as register 19 always meant.
+    assert_eq!(registers.write(19, 20_000), Ok(WriteOutcome::OffsetChanged));
+    assert_eq!(registers.weight_offset(), 20_000);
+    assert_eq!(
+        (registers.read(44), registers.read(45)),
+        (Ok(0), Ok(20_000))
+    );
+}
+
+#[test]
+fn the_offset_words_set_the_offset_and_19_follows() {
+    let mut registers = Registers::defaults();
+    assert_eq!(registers.write(44, 0x01), Ok(WriteOutcome::OffsetChanged));
+    assert_eq!(registers.weight_offset(), 0x01_0000 + 20_490);
+    assert_eq!(registers.read(19), Ok(65_535));
+    assert_eq!(registers.write(45, 0x3880), Ok(WriteOutcome::OffsetChanged));
+    assert_eq!(registers.weight_offset(), 80_000);
+    assert_eq!(registers.write(44, 256), Err(RegisterError::OutOfRange));
+}
+
+#[test]
+fn an_old_store_with_only_19_loads_it_as_the_full_offset() {
+    let (registers, report) = load_from(&[encode_record(19, 12_345)]);
+    assert_eq!(registers.weight_offset(), 12_345);
+    assert_eq!(registers.get(Reg::WeightOffsetLo), 12_345);
+    assert_eq!(report.applied, 1);
+    assert!(!report.flash_fault());
+}
+
+#[test]
+fn stored_offset_words_win_over_19_and_one_word_alone_is_rejected() {
+    let mut full = Registers::defaults();
+    full.set_weight_offset(-15_000).unwrap();
+    let records = full
+        .weight_offset_records()
+        .map(|(a, v)| encode_record(a, v));
+    let (registers, report) = load_from(&records);
+    assert_eq!(registers.weight_offset(), -15_000);
+    assert_eq!(registers.get(Reg::WeightOffset), 0);
+    assert!(!report.flash_fault());
+
+    let (registers, report) = load_from(&[encode_record(19, 300), encode_record(44, 1)]);
+    assert_eq!(registers.weight_offset(), 300);
+    assert_eq!(report.rejected, 1);
+}
+
+#[test]
+fn counters_are_read_only_and_set_by_the_firmware() {
+    let mut registers = Registers::defaults();
+    registers.set_counter(Reg::CanTxDropped, 7);
+    registers.set_counter(Reg::RadR, 7);
+    assert_eq!(registers.read(43), Ok(7));
+    assert_eq!(registers.get(Reg::RadR), 142);
+    assert_eq!(registers.write(43, 0), Err(RegisterError::ReadOnly));
 }

@@ -19,7 +19,7 @@
 //! a RAM copy of the newest record of every address, so an unchanged value costs no
 //! flash access at all. A write appends one item; nothing is rewritten in place.
 //! Restoring the defaults appends the default record of every register not already at
-//! its default (all 34 on a blank store), so the next boot loads the defaults from a
+//! its default (all 36 on a blank store), so the next boot loads the defaults from a
 //! store that is not blank. The store erases the range itself only when it cannot be
 //! read (see below).
 //!
@@ -29,10 +29,11 @@
 //! header (length, CRCs) and key + record padded to 8. A page holds 255 items after its
 //! two state words. When the open page is full, sequential-storage erases the oldest
 //! page and first copies into the new page the items that are still current there, at
-//! most one per persistent register (34). So every page erase buys at least
-//! 255 − 34 = 221 register writes, and with 4 pages used in turn each page is erased
-//! once per at least 4 × 221 = 884 writes. At the 100 000 erase cycles NOR flash is
-//! specified for, that is about 88 million register writes, far beyond the calibration
+//! most one per persistent register (36) and per store record (journal, two words of
+//! the erase count). So every page erase buys at least 255 − 39 = 216 register writes,
+//! and with 4 pages used in turn each page is erased once per at least 4 × 216 = 864
+//! writes. At the 100 000 erase cycles NOR flash is specified for, that is about 86
+//! million register writes, far beyond the calibration
 //! and configuration writes this store sees.
 //!
 //! # Blank, damaged, power cuts
@@ -58,6 +59,40 @@
 //!   counts as damaged and shows the fault). `sim/tests/store.rs` cuts the power after
 //!   every single byte of a write, of one that recycles a page, and of a restore.
 //!
+//! # Read-back, retries, blank pages
+//!
+//! Every item the store writes is read back through sequential-storage at once. One
+//! that reads back wrong (a stuck or weak flash byte) is written again, up to
+//! [`WRITE_ATTEMPTS`] times in all; each attempt lands on a new spot. A write that a
+//! retry saved returns [`StoreError::Retried`], one that no attempt saved the last
+//! error ([`StoreError::Unverified`] or [`StoreError::Flash`]): both raise the flash
+//! fault at once. After a write that erased a page (sequential-storage copied the live
+//! items of the oldest page forward), every record the store knows is read back and
+//! rewritten if it does not match.
+//!
+//! Before sequential-storage writes, every page that may have changed since it was last
+//! checked (all at boot, then each page after an erase) whose two state words read
+//! erased is checked blank throughout; one that holds leftovers (an erase cut short, a
+//! defective erase, an earlier firmware's data) is erased first, at boot before
+//! anything is read from it.
+//!
+//! # Dependent registers
+//!
+//! The members of one [`DEPENDENT_GROUPS`] group that change in one batch (for example
+//! `batt_empty_mv` and `batt_full_mv`) go through a journal: first one item under key
+//! 0xFE listing all their new values, then their records, then a closing item under
+//! 0xFE. A boot that finds the newest journal item open writes its records again and
+//! closes it. So a power cut leaves the group all old (cut before the journal is
+//! complete) or all new. A restore of the defaults is such a batch too. The closing
+//! item is a 6-byte record with the store schema byte (0x80), which an older firmware
+//! drops without a fault; an open journal exists only between a cut and the next boot.
+//!
+//! # Wear figure
+//!
+//! The store counts the pages it and sequential-storage erase and keeps the count in
+//! the flash as two store records (keys 0xFC high word, 0xFD low word, schema 0x80),
+//! rewritten after every operation that erased. [`RegisterStore::erases`] returns it.
+//!
 //! # Cache
 //!
 //! sequential-storage is given array caches for the page states, the page write
@@ -77,7 +112,7 @@ use core::cell::RefCell;
 
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::signal::Signal;
-use embedded_storage_async::nor_flash::NorFlash;
+use embedded_storage_async::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
 use heapless::Vec;
 use sequential_storage::cache::Cache;
 use sequential_storage::cache::key_pointers::ArrayKeyPointers;
@@ -88,9 +123,19 @@ use sequential_storage::map::{MapConfig, MapStorage};
 use crate::channels::{InputSender, RawMutex};
 use base_core::controller::{Input, Persist};
 use base_core::registers::{
-    ADDRESS_COUNT, Access, LoadReport, RECORD_LEN, RecordError, Registers, decode_record,
-    encode_record, info,
+    ADDRESS_COUNT, Access, DEPENDENT_GROUPS, LoadReport, RECORD_LEN, RecordError, Registers,
+    STORE_SCHEMA, decode_record, encode_record, encode_store_record, info,
 };
+
+/// Key of the store's batch journal (see the module doc, Dependent registers).
+const JOURNAL_KEY: u8 = 0xFE;
+/// Keys of the erase count's high and low words.
+const WEAR_HIGH_KEY: u8 = 0xFC;
+const WEAR_LOW_KEY: u8 = 0xFD;
+/// Registers one journal holds at most: the largest dependent group, with room.
+const JOURNAL_ENTRIES: usize = 8;
+/// Attempts at one write before it counts as failed: the first and two retries.
+const WRITE_ATTEMPTS: usize = 3;
 
 /// Pages of the board's register partition (4 × 4096 bytes); see the module doc on wear.
 pub const PARTITION_PAGES: u32 = 4;
@@ -138,6 +183,13 @@ pub enum StoreError {
     NotPersistent,
     /// The range is not whole pages, shorter than 2 pages or longer than [`MAX_PAGES`].
     Misconfigured,
+    /// Every attempt read back something other than what was written: the value is not
+    /// stored.
+    Unverified,
+    /// The value is stored and reads back as written, but the flash misbehaved on the
+    /// way: a read-back differed (a retry elsewhere stored it), or a page would not
+    /// erase blank. Reported so that the flash fault shows.
+    Retried,
 }
 
 impl<E> From<sequential_storage::Error<E>> for StoreError {
@@ -175,6 +227,11 @@ struct Newest {
     /// Counted per item, since the store keeps no slot for them.
     rejected: u16,
     dropped: u16,
+    /// The newest journal item: `Some` with the entries of a batch group whose writes
+    /// may not all have reached the flash, `None` when closed or absent.
+    journal: Option<Vec<(u8, u16), JOURNAL_ENTRIES>>,
+    /// The newest words of the erase count.
+    wear: [u16; 2],
 }
 
 impl Newest {
@@ -184,12 +241,40 @@ impl Newest {
             seen: false,
             rejected: 0,
             dropped: 0,
+            journal: None,
+            wear: [0; 2],
         }
+    }
+
+    fn erases(&self) -> u32 {
+        (u32::from(self.wear[0]) << 16) | u32::from(self.wear[1])
     }
 
     /// Takes the next item in store order; a later item of a key replaces an earlier one.
     fn note(&mut self, key: u8, value: &[u8]) {
         self.seen = true;
+        match key {
+            JOURNAL_KEY => {
+                self.journal = None;
+                if value == encode_store_record(JOURNAL_KEY, 0) {
+                    return;
+                }
+                match parse_journal(value) {
+                    Some(entries) => self.journal = Some(entries),
+                    None => self.rejected = self.rejected.saturating_add(1),
+                }
+                return;
+            }
+            WEAR_HIGH_KEY | WEAR_LOW_KEY => {
+                let word = usize::from(key == WEAR_LOW_KEY);
+                match decode_store_record(key, value) {
+                    Some(count) => self.wear[word] = count,
+                    None => self.rejected = self.rejected.saturating_add(1),
+                }
+                return;
+            }
+            _ => {}
+        }
         let record = <[u8; RECORD_LEN]>::try_from(value)
             .ok()
             .filter(|record| record[1] == key);
@@ -203,6 +288,18 @@ impl Newest {
                 // schema has.
                 _ => self.rejected = self.rejected.saturating_add(1),
             },
+        }
+    }
+
+    /// Rolls an open journal forward: its entries are the newest values of their
+    /// registers (the batch got as far as the journal, so it counts as done).
+    fn roll_forward(&mut self) {
+        if let Some(entries) = &self.journal {
+            for &(address, value) in entries {
+                if let Some(slot) = self.slots.get_mut(usize::from(address)) {
+                    *slot = Slot::Record(encode_record(address, value));
+                }
+            }
         }
     }
 
@@ -230,10 +327,106 @@ impl Newest {
     }
 }
 
+/// A journal item: `[STORE_SCHEMA, JOURNAL_KEY, n, (address, value MSB, value LSB) × n]`
+/// with 1 ≤ n ≤ [`JOURNAL_ENTRIES`], each address a persistent register.
+fn encode_journal(entries: &[(u8, u16)]) -> Vec<u8, { 3 + 3 * JOURNAL_ENTRIES }> {
+    let mut bytes = Vec::new();
+    let _ = bytes.extend_from_slice(&[STORE_SCHEMA, JOURNAL_KEY, entries.len() as u8]);
+    for &(address, value) in entries {
+        let [msb, lsb] = value.to_be_bytes();
+        let _ = bytes.extend_from_slice(&[address, msb, lsb]);
+    }
+    bytes
+}
+
+fn parse_journal(value: &[u8]) -> Option<Vec<(u8, u16), JOURNAL_ENTRIES>> {
+    let [STORE_SCHEMA, JOURNAL_KEY, count, rest @ ..] = value else {
+        return None;
+    };
+    let count = usize::from(*count);
+    if count == 0 || count > JOURNAL_ENTRIES || rest.len() != 3 * count {
+        return None;
+    }
+    let mut entries = Vec::new();
+    for &[address, msb, lsb] in rest.as_chunks::<3>().0 {
+        if !info(address).is_some_and(|register| register.access == Access::ReadWrite) {
+            return None;
+        }
+        let _ = entries.push((address, u16::from_be_bytes([msb, lsb])));
+    }
+    Some(entries)
+}
+
+/// The value of a store record of `key`, if `value` is one.
+fn decode_store_record(key: u8, value: &[u8]) -> Option<u16> {
+    let record = <[u8; RECORD_LEN]>::try_from(value).ok()?;
+    let count = u16::from_be_bytes([record[2], record[3]]);
+    (record == encode_store_record(key, count)).then_some(count)
+}
+
+/// The flash with its erases counted (the wear figure) and the pages they touched
+/// noted, so that the store checks those pages blank before sequential-storage writes
+/// into them.
+struct Counted<F> {
+    inner: F,
+    range_start: u32,
+    erases: u32,
+    /// Bit n: page n of the range must be checked blank before it is written.
+    unchecked: u16,
+}
+
+impl<F: ErrorType> ErrorType for Counted<F> {
+    type Error = F::Error;
+}
+
+impl<F: ReadNorFlash> ReadNorFlash for Counted<F> {
+    const READ_SIZE: usize = F::READ_SIZE;
+
+    async fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+        self.inner.read(offset, bytes).await
+    }
+
+    fn capacity(&self) -> usize {
+        self.inner.capacity()
+    }
+}
+
+impl<F: NorFlash> NorFlash for Counted<F> {
+    const WRITE_SIZE: usize = F::WRITE_SIZE;
+    const ERASE_SIZE: usize = F::ERASE_SIZE;
+
+    async fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+        let page = F::ERASE_SIZE as u32;
+        let mut start = from;
+        while start < to {
+            let index = start.saturating_sub(self.range_start) / page;
+            if index < 16 {
+                self.unchecked |= 1 << index;
+            }
+            start += page;
+        }
+        let result = self.inner.erase(from, to).await;
+        // Counted even when it failed: a failed erase wears the page too.
+        self.erases = self
+            .erases
+            .saturating_add(to.saturating_sub(from).div_ceil(page));
+        result
+    }
+
+    async fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+        self.inner.write(offset, bytes).await
+    }
+}
+
 /// The register flash: sequential-storage over `range`, plus the RAM copy of what it holds.
 pub struct RegisterStore<F: NorFlash> {
-    flash: F,
+    flash: Counted<F>,
     range: Range<u32>,
+    /// The erase count the flash holds.
+    stored_erases: u32,
+    /// A journal is open on the flash (its batch group is written but the closing item
+    /// failed): closed before anything else is written.
+    journal_open: bool,
     /// Taken out while an operation runs; a fresh one is always valid.
     cache: StoreCache,
     /// What the flash holds for each address, as far as the store knows.
@@ -262,8 +455,15 @@ impl<F: NorFlash> RegisterStore<F> {
             return Err(StoreError::Misconfigured);
         }
         Ok(Self {
-            flash,
+            flash: Counted {
+                inner: flash,
+                range_start: range.start,
+                erases: 0,
+                unchecked: u16::MAX,
+            },
             range,
+            stored_erases: 0,
+            journal_open: false,
             cache: new_cache(),
             stored: [Slot::Unknown; ADDRESS_COUNT],
             buffer: WorkBuffer([0; 32]),
@@ -275,15 +475,41 @@ impl<F: NorFlash> RegisterStore<F> {
     /// for blank, damaged and unreadable stores). Never panics.
     pub async fn load(&mut self) -> (Registers, LoadReport) {
         self.stored = [Slot::Unknown; ADDRESS_COUNT];
+        self.journal_open = false;
         let mut newest = Newest::new();
+        // Pages that read erased but hold leftovers are erased first: they are no part
+        // of the store, and sequential-storage would both read their items and write
+        // its own over them.
+        let blank_check = self.check_blank_pages().await;
         match self.read_items(&mut newest).await {
             Ok(()) => {
                 // A scan that cannot read the flash it just read is itself a fault.
                 let damaged = page_format::count_damaged(&mut self.flash, &self.range)
                     .await
                     .unwrap_or(1);
+                self.flash.erases = newest.erases();
+                self.stored_erases = self.flash.erases;
+                let journal = newest.journal.clone();
+                newest.roll_forward();
                 self.stored = newest.slots;
-                newest.finish(damaged)
+                let (registers, mut report) = newest.finish(damaged);
+                let mut repaired = blank_check;
+                if let Some(entries) = journal {
+                    // The batch reached its journal: finish it, so that the records
+                    // hold what the journal says and the journal can close.
+                    self.journal_open = true;
+                    let mut done = repaired.as_ref().is_ok_and(|clean| *clean);
+                    for (address, value) in entries {
+                        self.stored[usize::from(address)] = Slot::Unknown;
+                        done &= self.write_one(address, value).await.is_ok();
+                    }
+                    done &= self.close_journal().await.is_ok();
+                    repaired = Ok(done);
+                }
+                if !matches!(repaired, Ok(true)) {
+                    report.rejected = report.rejected.saturating_add(1);
+                }
+                (registers, report)
             }
             Err(error) => {
                 if error != StoreError::Flash {
@@ -300,12 +526,138 @@ impl<F: NorFlash> RegisterStore<F> {
         }
     }
 
+    /// Page erases since the store was first written (the wear figure): counted by the
+    /// store, kept in the flash, read at [`Self::load`].
+    pub fn erases(&self) -> u32 {
+        self.flash.erases
+    }
+
     /// Stores one value; a value equal to what is stored is not written again (flash
-    /// wear). The caller has validated it ([`Registers::write`]).
+    /// wear). The caller has validated it ([`Registers::write`]). The record is read back:
+    /// one that reads back wrong is written again (up to [`WRITE_ATTEMPTS`] times) and
+    /// reported as [`StoreError::Retried`] if a retry stored it, or as the last error if
+    /// none did.
     pub async fn write(&mut self, address: u8, value: u16) -> Result<(), StoreError> {
         if !info(address).is_some_and(|register| register.access == Access::ReadWrite) {
             return Err(StoreError::NotPersistent);
         }
+        let result = self.write_one(address, value).await;
+        self.finish_operation(result).await
+    }
+
+    /// Writes every persistent register's default that the flash does not already hold,
+    /// so the next boot loads the defaults (from a store that is not blank). Appended
+    /// like any write rather than erasing the range: a power cut then leaves each
+    /// register at its value or its default, and each dependent group entirely at its
+    /// values or entirely at its defaults, whereas an erase cut short could leave older
+    /// pages alive and bring back values overwritten long ago. Goes on after a failure
+    /// and returns the first error.
+    pub async fn restore_defaults(&mut self) -> Result<(), StoreError> {
+        self.apply(&PendingBatch {
+            restore_defaults: true,
+            writes: Vec::new(),
+        })
+        .await
+    }
+
+    /// Applies one batch of [`PendingWrites`]: the restore first, then every write. The
+    /// changed members of one dependent group ([`DEPENDENT_GROUPS`]) are written through
+    /// the journal, all at once. Goes on after a failure, so one bad write does not cost
+    /// the others, and returns the first error.
+    pub async fn apply(&mut self, batch: &PendingBatch) -> Result<(), StoreError> {
+        // The values the batch leaves: the defaults (on a restore) under the writes.
+        let mut wanted: Vec<(u8, u16), 64> = Vec::new();
+        if batch.restore_defaults {
+            for pair in Registers::defaults().iter() {
+                let _ = wanted.push(pair);
+            }
+        }
+        for &(address, value) in &batch.writes {
+            match wanted.iter_mut().find(|(wanted, _)| *wanted == address) {
+                Some(entry) => entry.1 = value,
+                None => {
+                    let _ = wanted.push((address, value));
+                }
+            }
+        }
+        let mut changes: Vec<(u8, u16), 64> = Vec::new();
+        let mut result = Ok(());
+        for (address, value) in wanted {
+            if !info(address).is_some_and(|register| register.access == Access::ReadWrite) {
+                result = result.and(Err(StoreError::NotPersistent));
+            } else if self.stored[usize::from(address)]
+                != Slot::Record(encode_record(address, value))
+            {
+                let _ = changes.push((address, value));
+            }
+        }
+        for group in DEPENDENT_GROUPS {
+            let members: Vec<(u8, u16), JOURNAL_ENTRIES> = changes
+                .iter()
+                .copied()
+                .filter(|(address, _)| group.iter().any(|reg| reg.address() == *address))
+                .take(JOURNAL_ENTRIES)
+                .collect();
+            if members.len() < 2 {
+                continue;
+            }
+            changes.retain(|change| !members.contains(change));
+            let written = self.write_group(&members).await;
+            result = result.and(written);
+        }
+        for (address, value) in changes {
+            let written = self.write_one(address, value).await;
+            result = result.and(written);
+        }
+        self.finish_operation(result).await
+    }
+
+    /// Writes dependent registers so that a power cut leaves all old or all new: first
+    /// a journal item naming every new value, then the records, then a closed journal.
+    /// A boot that finds an open journal finishes its records ([`Self::load`]).
+    async fn write_group(&mut self, members: &[(u8, u16)]) -> Result<(), StoreError> {
+        self.close_journal().await?;
+        let journal = encode_journal(members);
+        let mut result = self.store_verified(JOURNAL_KEY, &journal).await;
+        if result == Err(StoreError::Corrupted) {
+            // As for a single write: rebuild from the RAM copy, the group included (the
+            // rebuild writes every record of an empty store; a cut there loses the
+            // store anyway, which the next boot reports).
+            for &(address, value) in members {
+                self.stored[usize::from(address)] = Slot::Record(encode_record(address, value));
+            }
+            self.rebuild().await?;
+            return Err(StoreError::Rebuilt);
+        }
+        if result.is_err() && result != Err(StoreError::Retried) {
+            return result;
+        }
+        self.journal_open = true;
+        for &(address, value) in members {
+            result = result.and(self.write_one(address, value).await);
+        }
+        if matches!(result, Ok(()) | Err(StoreError::Retried)) {
+            result = result.and(self.close_journal().await);
+        }
+        result
+    }
+
+    /// Writes the closed journal if one is open.
+    async fn close_journal(&mut self) -> Result<(), StoreError> {
+        if !self.journal_open {
+            return Ok(());
+        }
+        let result = self
+            .store_verified(JOURNAL_KEY, &encode_store_record(JOURNAL_KEY, 0))
+            .await;
+        if matches!(result, Ok(()) | Err(StoreError::Retried)) {
+            self.journal_open = false;
+        }
+        result
+    }
+
+    /// One register record, unless the flash holds it already.
+    async fn write_one(&mut self, address: u8, value: u16) -> Result<(), StoreError> {
         let record = encode_record(address, value);
         let slot = usize::from(address);
         if self.stored[slot] == Slot::Record(record) {
@@ -313,10 +665,10 @@ impl<F: NorFlash> RegisterStore<F> {
         }
         // Until the write returns, the flash may hold either value.
         self.stored[slot] = Slot::Unknown;
-        match self.store_record(address, &record).await {
-            Ok(()) => {
+        match self.store_verified(address, &record).await {
+            result @ (Ok(()) | Err(StoreError::Retried)) => {
                 self.stored[slot] = Slot::Record(record);
-                Ok(())
+                result
             }
             Err(StoreError::Corrupted) => {
                 // The next boot would erase the store and lose every value; the RAM copy
@@ -329,35 +681,130 @@ impl<F: NorFlash> RegisterStore<F> {
         }
     }
 
-    /// Writes every persistent register's default that the flash does not already hold,
-    /// so the next boot loads the defaults (from a store that is not blank). Appended
-    /// like any write rather than erasing the range: a power cut then leaves each
-    /// register at its value or its default, whereas an erase cut short could leave
-    /// older pages alive and bring back values overwritten long ago. Goes on after a
-    /// failure and returns the first error.
-    pub async fn restore_defaults(&mut self) -> Result<(), StoreError> {
-        let defaults = Registers::defaults();
-        let mut result = Ok(());
-        for (address, value) in defaults.iter() {
-            let written = self.write(address, value).await;
-            result = result.and(written);
+    /// After a write or a batch: if pages were erased, every record the store knows is
+    /// read back (sequential-storage copied the live ones into a new page) and the
+    /// erase count is stored.
+    async fn finish_operation(
+        &mut self,
+        mut result: Result<(), StoreError>,
+    ) -> Result<(), StoreError> {
+        if self.flash.erases == self.stored_erases {
+            return result;
         }
-        result
+        if matches!(result, Ok(()) | Err(StoreError::Retried)) {
+            for address in 0..ADDRESS_COUNT as u8 {
+                if let Slot::Record(record) = self.stored[usize::from(address)]
+                    && !self.reads_back(address, &record).await
+                {
+                    self.stored[usize::from(address)] = Slot::Unknown;
+                    let value = u16::from_be_bytes([record[2], record[3]]);
+                    result = result.and(Err(StoreError::Retried));
+                    if let Err(error) = self.write_one(address, value).await
+                        && error != StoreError::Retried
+                    {
+                        result = Err(error);
+                    }
+                }
+            }
+        }
+        let erases = self.flash.erases;
+        let [high, low] = [(erases >> 16) as u16, erases as u16];
+        let mut stored = self
+            .store_verified(WEAR_LOW_KEY, &encode_store_record(WEAR_LOW_KEY, low))
+            .await;
+        if (self.stored_erases >> 16) as u16 != high {
+            stored = stored.and(
+                self.store_verified(WEAR_HIGH_KEY, &encode_store_record(WEAR_HIGH_KEY, high))
+                    .await,
+            );
+        }
+        if matches!(stored, Ok(()) | Err(StoreError::Retried)) {
+            // The count as it was before storing it: the item just written may have
+            // erased another page, stored with the next operation.
+            self.stored_erases = erases;
+        }
+        result.and(stored)
     }
 
-    /// Applies one batch of [`PendingWrites`]: the restore first, then every write. Goes
-    /// on after a failure, so one bad write does not cost the others, and returns the
-    /// first error.
-    pub async fn apply(&mut self, batch: &PendingBatch) -> Result<(), StoreError> {
-        let mut result = Ok(());
-        if batch.restore_defaults {
-            result = self.restore_defaults().await;
+    /// Stores one item and reads it back; retried up to [`WRITE_ATTEMPTS`] times.
+    async fn store_verified(&mut self, key: u8, value: &[u8]) -> Result<(), StoreError> {
+        let mut misbehaved = false;
+        let mut last = StoreError::Flash;
+        for _ in 0..WRITE_ATTEMPTS {
+            match self.check_blank_pages().await {
+                Ok(clean) => misbehaved |= !clean,
+                Err(error) => {
+                    last = error;
+                    continue;
+                }
+            }
+            match self.store_item(key, value).await {
+                Ok(()) => {}
+                Err(StoreError::Corrupted) => return Err(StoreError::Corrupted),
+                Err(error) => {
+                    last = error;
+                    misbehaved = true;
+                    continue;
+                }
+            }
+            if self.reads_back(key, value).await {
+                return if misbehaved {
+                    Err(StoreError::Retried)
+                } else {
+                    Ok(())
+                };
+            }
+            // sequential-storage's caches may point at the item that reads wrong.
+            self.cache = new_cache();
+            last = StoreError::Unverified;
+            misbehaved = true;
         }
-        for &(address, value) in &batch.writes {
-            let written = self.write(address, value).await;
-            result = result.and(written);
+        Err(last)
+    }
+
+    /// Whether the newest item of `key` reads back as `value`.
+    async fn reads_back(&mut self, key: u8, value: &[u8]) -> bool {
+        let Ok(mut map) = open_map(&mut self.flash, &self.range, &mut self.cache) else {
+            return false;
+        };
+        let same = matches!(
+            map.fetch_item::<&[u8]>(&mut self.buffer.0, &key).await,
+            Ok(Some(read)) if read == value
+        );
+        self.cache = map.destroy().1;
+        same
+    }
+
+    /// Checks every page that may have changed since its last check: a page whose
+    /// state words read erased must be blank throughout, or sequential-storage would
+    /// write its items over leftovers. Such a page is erased; `Ok(false)` if it still
+    /// is not blank (a defective flash: the read-back of every write catches what lands
+    /// on the defect).
+    async fn check_blank_pages(&mut self) -> Result<bool, StoreError> {
+        let mut clean = true;
+        let page_size = F::ERASE_SIZE as u32;
+        let pages = (self.range.end - self.range.start) / page_size;
+        for index in 0..pages {
+            if self.flash.unchecked & (1 << index) == 0 {
+                continue;
+            }
+            let page = self.range.start + index * page_size;
+            let verdict = page_format::leftovers(&mut self.flash.inner, page, page_size)
+                .await
+                .map_err(|_| StoreError::Flash)?;
+            if verdict == page_format::PageCheck::Leftovers {
+                self.flash
+                    .erase(page, page + page_size)
+                    .await
+                    .map_err(|_| StoreError::Flash)?;
+                let again = page_format::leftovers(&mut self.flash.inner, page, page_size)
+                    .await
+                    .map_err(|_| StoreError::Flash)?;
+                clean &= again != page_format::PageCheck::Leftovers;
+            }
+            self.flash.unchecked &= !(1 << index);
         }
-        result
+        Ok(clean)
     }
 
     async fn read_items(&mut self, newest: &mut Newest) -> Result<(), StoreError> {
@@ -377,15 +824,9 @@ impl<F: NorFlash> RegisterStore<F> {
         result
     }
 
-    async fn store_record(
-        &mut self,
-        address: u8,
-        record: &[u8; RECORD_LEN],
-    ) -> Result<(), StoreError> {
+    async fn store_item(&mut self, key: u8, value: &[u8]) -> Result<(), StoreError> {
         let mut map = open_map(&mut self.flash, &self.range, &mut self.cache)?;
-        let result = map
-            .store_item(&mut self.buffer.0, &address, &&record[..])
-            .await;
+        let result = map.store_item(&mut self.buffer.0, &key, &value).await;
         self.cache = map.destroy().1;
         Ok(result?)
     }
@@ -394,6 +835,7 @@ impl<F: NorFlash> RegisterStore<F> {
     /// `erase_all`, which leaves its cache believing in the erased pages.
     async fn erase(&mut self) -> Result<(), StoreError> {
         self.stored = [Slot::Unknown; ADDRESS_COUNT];
+        self.journal_open = false;
         self.cache = new_cache();
         self.flash
             .erase(self.range.start, self.range.end)
@@ -401,14 +843,16 @@ impl<F: NorFlash> RegisterStore<F> {
             .map_err(|_| StoreError::Flash)
     }
 
-    /// Erases the store and writes back every record of the RAM copy.
+    /// Erases the store and writes back every record of the RAM copy (and the erase
+    /// count, at the next [`Self::finish_operation`]).
     async fn rebuild(&mut self) -> Result<(), StoreError> {
         let wanted = self.stored;
         self.erase().await?;
+        self.stored_erases = u32::MAX;
         for (address, slot) in wanted.iter().enumerate() {
             if let Slot::Record(record) = slot {
                 let address = address as u8;
-                self.store_record(address, record).await?;
+                self.store_item(address, record).await?;
                 self.stored[usize::from(address)] = Slot::Record(*record);
             }
         }
@@ -417,9 +861,10 @@ impl<F: NorFlash> RegisterStore<F> {
 }
 
 /// The store task: waits for pending register changes, applies each batch and reports
-/// any failure as [`Input::FlashFault`]. A failed write is not retried: the flash that
-/// refused it would most likely refuse again, the controller keeps running on the value
-/// in RAM, and the address is written again with its next change.
+/// any failure as [`Input::FlashFault`], and a changed erase count as
+/// [`Input::FlashErases`]. The store itself retries a write that reads back wrong
+/// ([`RegisterStore::write`]); a write that still fails keeps the controller running on
+/// the value in RAM, and the address is written again with its next change.
 ///
 /// Flash is written only while the base is at rest (drives de-excited): on the chip a
 /// sector erase masks interrupts for up to 400 ms, which must never freeze the control
@@ -431,10 +876,15 @@ pub async fn run<F: NorFlash>(
     pending: &PendingWrites,
     faults: InputSender<'_>,
 ) -> ! {
+    let mut erases = store.erases();
     loop {
         let batch = pending.take_at_rest().await;
         if store.apply(&batch).await.is_err() {
             faults.send(Input::FlashFault).await;
+        }
+        if store.erases() != erases {
+            erases = store.erases();
+            faults.send(Input::FlashErases(erases)).await;
         }
     }
 }

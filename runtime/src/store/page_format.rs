@@ -86,6 +86,46 @@ pub(super) async fn count_damaged<F: NorFlash>(
     Ok(damaged)
 }
 
+/// What [`leftovers`] found in a page.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum PageCheck {
+    /// A state word is marked: sequential-storage uses the page and owns its content.
+    InUse,
+    /// Both state words read erased and so does every other byte.
+    Blank,
+    /// Both state words read erased, so sequential-storage would open the page and
+    /// write items into it as if it were blank, but other bytes are not erased.
+    Leftovers,
+}
+
+/// Checks the page at `page`: sequential-storage 8 keeps its state in the page's first
+/// and last word and takes a page whose words are both unmarked for erased.
+pub(super) async fn leftovers<F: NorFlash>(
+    flash: &mut F,
+    page: u32,
+    page_size: u32,
+) -> Result<PageCheck, F::Error> {
+    let mut buffer = WorkBuffer([0; 32]);
+    let word = F::READ_SIZE.max(F::WRITE_SIZE) as u32;
+    if is_marked(flash, page, &mut buffer.0).await?
+        || is_marked(flash, page + page_size - word, &mut buffer.0).await?
+    {
+        return Ok(PageCheck::InUse);
+    }
+    let chunk_len = (buffer.0.len() as u32 / word) * word;
+    let mut address = page;
+    while address < page + page_size {
+        let len = chunk_len.min(page + page_size - address);
+        let chunk = &mut buffer.0[..len as usize];
+        flash.read(address, chunk).await?;
+        if chunk.iter().any(|&byte| byte != 0xFF) {
+            return Ok(PageCheck::Leftovers);
+        }
+        address += len;
+    }
+    Ok(PageCheck::Blank)
+}
+
 /// Whether the page's first word carries sequential-storage's marker: at least 4 of its
 /// bits cleared (the crate tolerates bit flips in the marker).
 async fn is_marked<F: NorFlash>(
