@@ -63,9 +63,19 @@ fn simulator_binary() -> PathBuf {
     binary
 }
 
-/// A domain no other run uses at the same time.
-fn domain_id() -> String {
-    (100 + std::process::id() % 100).to_string()
+/// Cyclone DDS on the loopback interface only, without multicast (a CI machine may
+/// have no multicast-capable interface): it finds base-ros2 by unicast on 127.0.0.1,
+/// where RustDDS announces itself to same-host peers.
+const CYCLONEDDS_LOOPBACK: &str = "<CycloneDDS><Domain id=\"any\"><General>\
+    <Interfaces><NetworkInterface name=\"lo\"/></Interfaces>\
+    <AllowMulticast>false</AllowMulticast></General>\
+    <Discovery><ParticipantIndex>auto</ParticipantIndex>\
+    <Peers><Peer address=\"127.0.0.1\"/></Peers></Discovery></Domain></CycloneDDS>";
+
+/// A domain no other run, and no other test of this run (`test`: 0, 1, 2 …), uses at
+/// the same time.
+fn domain_id(test: u32) -> String {
+    (100 + (std::process::id() % 30) * 4 + test).to_string()
 }
 
 struct Simulator {
@@ -136,8 +146,13 @@ struct Bridge {
 
 impl Bridge {
     fn start(socketcand: &str, domain: &str) -> Self {
+        Self::with_args(socketcand, domain, &[])
+    }
+
+    fn with_args(socketcand: &str, domain: &str, args: &[&str]) -> Self {
         let mut child = Command::new(env!("CARGO_BIN_EXE_base-ros2"))
             .args(["--interface", "socketcand", "--channel", socketcand])
+            .args(args)
             .env("ROS_DOMAIN_ID", domain)
             .stdin(Stdio::null())
             .stdout(Stdio::null())
@@ -241,13 +256,14 @@ fn a_ros2_peer_on_cyclone_dds_drives_the_simulated_base_and_reads_odom_tf_batter
     let started = Instant::now();
     let mut simulator = Simulator::start("scenarios");
     let mut listener = Listener::start(&simulator.socketcand);
-    let domain = domain_id();
+    let domain = domain_id(0);
     let bridge = Bridge::start(&simulator.socketcand, &domain);
     let mut peer = Command::new("python3")
         .arg(python_dir().join("ros_peer.py"))
         .arg("scenarios")
         .current_dir(python_dir())
         .env("ROS_DOMAIN_ID", &domain)
+        .env("CYCLONEDDS_URI", CYCLONEDDS_LOOPBACK)
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -345,6 +361,31 @@ fn a_ros2_peer_on_cyclone_dds_drives_the_simulated_base_and_reads_odom_tf_batter
 }
 
 #[test]
+fn with_stamped_the_node_drives_on_twist_stamped() {
+    if !cyclonedds_available() {
+        return;
+    }
+    let simulator = Simulator::start("stamped");
+    let domain = domain_id(1);
+    let bridge = Bridge::with_args(&simulator.socketcand, &domain, &["--stamped"]);
+    let output = Command::new("python3")
+        .arg(python_dir().join("ros_peer.py"))
+        .arg("stamped")
+        .current_dir(python_dir())
+        .env("ROS_DOMAIN_ID", &domain)
+        .env("CYCLONEDDS_URI", CYCLONEDDS_LOOPBACK)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        output.status.success() && stdout.contains("DONE"),
+        "{stdout}\n{}\nbase-ros2 said:\n{}",
+        String::from_utf8_lossy(&output.stderr),
+        bridge.log()
+    );
+}
+
+#[test]
 fn without_a_bus_the_node_exits_with_a_message_and_a_bad_option_is_refused() {
     // A port nothing listens on (the listener is dropped at once).
     let port = std::net::TcpListener::bind("127.0.0.1:0")
@@ -354,7 +395,7 @@ fn without_a_bus_the_node_exits_with_a_message_and_a_bad_option_is_refused() {
         .port();
     let output = Command::new(env!("CARGO_BIN_EXE_base-ros2"))
         .args(["--channel", &format!("127.0.0.1:{port}")])
-        .env("ROS_DOMAIN_ID", domain_id())
+        .env("ROS_DOMAIN_ID", domain_id(2))
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&output.stderr);
@@ -378,7 +419,7 @@ fn without_a_bus_the_node_exits_with_a_message_and_a_bad_option_is_refused() {
 fn cmd_vel_latency() {
     assert!(cyclonedds_available(), "the measurement needs cyclonedds");
     let simulator = Simulator::start("latency");
-    let domain = domain_id();
+    let domain = domain_id(3);
     let bridge = Bridge::start(&simulator.socketcand, &domain);
     let (host, port) = simulator.socketcand.split_once(':').unwrap();
     let output = Command::new("python3")
@@ -386,6 +427,7 @@ fn cmd_vel_latency() {
         .args(["latency", "1000", host, port])
         .current_dir(python_dir())
         .env("ROS_DOMAIN_ID", &domain)
+        .env("CYCLONEDDS_URI", CYCLONEDDS_LOOPBACK)
         .output()
         .unwrap();
     let stdout = String::from_utf8_lossy(&output.stdout);

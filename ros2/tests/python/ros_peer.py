@@ -3,6 +3,7 @@ tests in ros2/tests/dds.rs: it publishes /cmd_vel and /reset_odometry and reads 
 /tf, /battery_state and /diagnostics with ROS 2's type and topic names on the wire.
 
     python3 ros_peer.py scenarios   # the end-to-end checks; prints PASS lines
+    python3 ros_peer.py stamped     # /cmd_vel as TwistStamped (base-ros2 --stamped)
     python3 ros_peer.py latency N HOST PORT   # /cmd_vel -> 0x0C8 on the bus, N times
 
 In `scenarios`, the peer prints `ESTOP?` when it wants the e-stop pressed on the
@@ -22,7 +23,8 @@ from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
 from ros_types import (
-    BatteryState, DiagnosticArray, Empty, Odometry, TFMessage, Twist, Vector3, yaw)
+    BatteryState, DiagnosticArray, Empty, Header, Odometry, TFMessage, Twist, TwistStamped,
+    Vector3, yaw)
 
 # ROS 2's default QoS: reliable, volatile, keep the last 10.
 QOS = Qos(Policy.Reliability.Reliable(max_blocking_time=duration(milliseconds=100)),
@@ -40,11 +42,13 @@ def check(condition, what):
 
 
 class Peer:
-    def __init__(self):
+    def __init__(self, stamped=False):
         domain = int(os.environ.get("ROS_DOMAIN_ID", "0"))
         self.participant = DomainParticipant(domain)
         p = self.participant
-        self.cmd_vel = DataWriter(p, Topic(p, "rt/cmd_vel", Twist), qos=QOS)
+        self.stamped = stamped
+        self.cmd_vel = DataWriter(
+            p, Topic(p, "rt/cmd_vel", TwistStamped if stamped else Twist), qos=QOS)
         self.reset = DataWriter(p, Topic(p, "rt/reset_odometry", Empty), qos=QOS)
         self.types = {"odom": Odometry, "tf": TFMessage, "battery": BatteryState,
                       "diagnostics": DiagnosticArray}
@@ -70,7 +74,10 @@ class Peer:
         """Publishes one Twist `rate_hz` times a second for `seconds`."""
         end = time.monotonic() + seconds
         while time.monotonic() < end:
-            self.cmd_vel.write(Twist(linear=Vector3(x=linear_x), angular=Vector3(z=angular_z)))
+            twist = Twist(linear=Vector3(x=linear_x), angular=Vector3(z=angular_z))
+            if self.stamped:
+                twist = TwistStamped(header=Header(frame_id="base_link"), twist=twist)
+            self.cmd_vel.write(twist)
             self.wait(1.0 / rate_hz)
 
     def wait(self, seconds):
@@ -189,6 +196,21 @@ def scenarios():
     print("DONE", flush=True)
 
 
+def stamped():
+    """base-ros2 --stamped: geometry_msgs/TwistStamped on /cmd_vel drives as Twist does."""
+    peer = Peer(stamped=True)
+    peer.wait_for(lambda: peer.odom() is not None, 20, "/odom arrives (discovery)")
+    start = peer.odom().pose.pose.position.x
+    peer.drive(0.3, -0.2, 1.5)
+    odom = peer.odom()
+    moved = odom.pose.pose.position.x - start
+    check(moved > 0.15, f"a TwistStamped forward moves /odom x: {moved:.3f} m")
+    w = odom.twist.twist.angular.z
+    check(w < -0.1, f"a TwistStamped clockwise turn (angular.z -0.2) is a negative yaw rate: "
+                    f"{w:.3f} rad/s")
+    print("DONE", flush=True)
+
+
 def latency(count, host, port):
     """/cmd_vel published -> its 0x0C8 frame seen on the bus by a socketcand client,
     `count` times, each a new speed so each frame is matched to its command."""
@@ -231,6 +253,8 @@ if __name__ == "__main__":
     try:
         if sys.argv[1] == "scenarios":
             scenarios()
+        elif sys.argv[1] == "stamped":
+            stamped()
         elif sys.argv[1] == "latency":
             latency(int(sys.argv[2]), sys.argv[3], sys.argv[4])
         else:

@@ -40,6 +40,12 @@ class Twist(IdlStruct, typename="geometry_msgs::msg::dds_::Twist_"):
 
 
 @dataclass
+class TwistStamped(IdlStruct, typename="geometry_msgs::msg::dds_::TwistStamped_"):
+    header: Header = field(default_factory=Header)
+    twist: Twist = field(default_factory=Twist)
+
+
+@dataclass
 class Point(IdlStruct, typename="geometry_msgs::msg::dds_::Point_"):
     x: float64 = 0.0
     y: float64 = 0.0
