@@ -47,9 +47,13 @@ fn simulator_binary() -> PathBuf {
     let profile_dir = exe.parent().unwrap().parent().unwrap();
     let binary = profile_dir.join("virtual-base-controller");
     let status = Command::new(env!("CARGO"))
+        // The profile `cargo test` builds everything with: in a workspace run the
+        // simulator is already built and this is a no-op.
         .args([
             "build",
             "-q",
+            "--profile",
+            "test",
             "-p",
             "virtual-robot",
             "--bin",
