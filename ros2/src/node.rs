@@ -1,0 +1,681 @@
+//! The node: one thread owns the bus and the ROS 2 entities. Each turn of its loop
+//! takes every waiting `/cmd_vel` and odometry reset, sends what is due, then waits
+//! up to 1 ms for a frame from the base (so a new `/cmd_vel` waits at most that long
+//! before it goes out).
+
+use std::fmt;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use base_core::can::{Command, Mode, RawFrame, Rejection, Report, Status};
+use basectl::bus::{Bus, BusError};
+use ros2_client::{
+    Context, ContextOptions, Name, Node, NodeName, NodeOptions, Publisher, QosProfile,
+    Subscription,
+    qos::{Durability, History},
+};
+
+use crate::bridge::{CommandSide, Counts, OdometrySample, OdometrySide};
+use crate::msgs::{self, *};
+
+/// How long the loop waits for a frame before it looks at DDS again.
+const POLL: Duration = Duration::from_millis(1);
+/// Without any frame from the base for this long, `/diagnostics` says it is stale.
+const SILENCE: Duration = Duration::from_secs(3);
+
+/// Everything the node is told by its command line.
+#[derive(Debug, Clone)]
+pub struct Settings {
+    pub domain_id: u16,
+    pub node_name: String,
+    pub namespace: String,
+    pub cmd_vel_timeout: Duration,
+    pub command_period: Duration,
+    pub stamped: bool,
+    pub odom_frame: String,
+    pub base_frame: String,
+    pub publish_tf: bool,
+    pub pose_covariance: [f64; 6],
+    pub twist_covariance: [f64; 6],
+    /// 0 = no heartbeat.
+    pub heartbeat_period: Duration,
+    pub hardware_id: String,
+}
+
+#[derive(Debug)]
+pub enum Error {
+    Ros(String),
+    Bus(BusError),
+}
+
+impl fmt::Display for Error {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Error::Ros(what) => write!(f, "ROS 2: {what}"),
+            Error::Bus(error) => write!(f, "CAN bus: {error}"),
+        }
+    }
+}
+
+impl std::error::Error for Error {}
+
+impl From<BusError> for Error {
+    fn from(error: BusError) -> Self {
+        Error::Bus(error)
+    }
+}
+
+fn ros<E: fmt::Debug>(what: &str) -> impl FnOnce(E) -> Error + '_ {
+    move |error| Error::Ros(format!("{what}: {error:?}"))
+}
+
+enum CmdVel {
+    Plain(Subscription<Twist>),
+    Stamped(Subscription<TwistStamped>),
+}
+
+impl CmdVel {
+    /// The next waiting command as (linear.x, angular.z); `Err` for one that could
+    /// not be decoded.
+    fn take(&self) -> Option<Result<Twist, String>> {
+        match self {
+            CmdVel::Plain(subscription) => match subscription.take() {
+                Ok(Some((twist, _))) => Some(Ok(twist)),
+                Ok(None) => None,
+                Err(error) => Some(Err(format!("{error:?}"))),
+            },
+            CmdVel::Stamped(subscription) => match subscription.take() {
+                Ok(Some((stamped, _))) => Some(Ok(stamped.twist)),
+                Ok(None) => None,
+                Err(error) => Some(Err(format!("{error:?}"))),
+            },
+        }
+    }
+}
+
+struct Ros {
+    _node: Node,
+    cmd_vel: CmdVel,
+    reset: Subscription<Empty>,
+    odom: Publisher<Odometry>,
+    tf: Option<Publisher<TfMessage>>,
+    battery: Publisher<BatteryState>,
+    diagnostics: Publisher<DiagnosticArray>,
+}
+
+fn name(namespace: &str, topic: &str) -> Result<Name, Error> {
+    Name::new(namespace, topic).map_err(ros("topic name"))
+}
+
+impl Ros {
+    fn open(settings: &Settings) -> Result<Self, Error> {
+        let context = Context::with_options(ContextOptions::new().domain_id(settings.domain_id))
+            .map_err(ros("DDS participant"))?;
+        let mut node = context
+            .new_node(
+                NodeName::new(&settings.namespace, &settings.node_name)
+                    .map_err(ros("node name"))?,
+                NodeOptions::new().enable_rosout(false),
+            )
+            .map_err(ros("node"))?;
+        let ns = &settings.namespace;
+        // ROS 2's default: reliable, volatile, the last 10.
+        let reliable = QosProfile::publisher_default()
+            .durability(Durability::Volatile)
+            .history(History::KeepLast { depth: 10 });
+        // A best-effort reader matches reliable and best-effort writers alike: any
+        // teleop node's /cmd_vel is taken.
+        let command_qos = QosProfile::subscription_default()
+            .durability(Durability::Volatile)
+            .history(History::KeepLast { depth: 10 });
+
+        let cmd_vel = if settings.stamped {
+            let topic = node
+                .create_topic(
+                    &name(ns, "cmd_vel")?,
+                    msgs::type_name("geometry_msgs", "TwistStamped"),
+                    &command_qos,
+                )
+                .map_err(ros("/cmd_vel"))?;
+            CmdVel::Stamped(
+                node.create_subscription(&topic, None)
+                    .map_err(ros("/cmd_vel"))?,
+            )
+        } else {
+            let topic = node
+                .create_topic(
+                    &name(ns, "cmd_vel")?,
+                    msgs::type_name("geometry_msgs", "Twist"),
+                    &command_qos,
+                )
+                .map_err(ros("/cmd_vel"))?;
+            CmdVel::Plain(
+                node.create_subscription(&topic, None)
+                    .map_err(ros("/cmd_vel"))?,
+            )
+        };
+        let topic = node
+            .create_topic(
+                &name(ns, "reset_odometry")?,
+                msgs::type_name("std_msgs", "Empty"),
+                &reliable,
+            )
+            .map_err(ros("/reset_odometry"))?;
+        let reset = node
+            .create_subscription(&topic, None)
+            .map_err(ros("/reset_odometry"))?;
+        let topic = node
+            .create_topic(
+                &name(ns, "odom")?,
+                msgs::type_name("nav_msgs", "Odometry"),
+                &reliable,
+            )
+            .map_err(ros("/odom"))?;
+        let odom = node.create_publisher(&topic, None).map_err(ros("/odom"))?;
+        let tf = if settings.publish_tf {
+            // /tf is always the absolute topic: tf2 listens there.
+            let tf_qos = reliable.clone().history(History::KeepLast { depth: 100 });
+            let topic = node
+                .create_topic(
+                    &name("/", "tf")?,
+                    msgs::type_name("tf2_msgs", "TFMessage"),
+                    &tf_qos,
+                )
+                .map_err(ros("/tf"))?;
+            Some(node.create_publisher(&topic, None).map_err(ros("/tf"))?)
+        } else {
+            None
+        };
+        let topic = node
+            .create_topic(
+                &name(ns, "battery_state")?,
+                msgs::type_name("sensor_msgs", "BatteryState"),
+                &reliable,
+            )
+            .map_err(ros("/battery_state"))?;
+        let battery = node
+            .create_publisher(&topic, None)
+            .map_err(ros("/battery_state"))?;
+        let topic = node
+            .create_topic(
+                &name("/", "diagnostics")?,
+                msgs::type_name("diagnostic_msgs", "DiagnosticArray"),
+                &reliable,
+            )
+            .map_err(ros("/diagnostics"))?;
+        let diagnostics = node
+            .create_publisher(&topic, None)
+            .map_err(ros("/diagnostics"))?;
+        Ok(Ros {
+            _node: node,
+            cmd_vel,
+            reset,
+            odom,
+            tf,
+            battery,
+            diagnostics,
+        })
+    }
+}
+
+fn header(frame_id: &str) -> Header {
+    Header {
+        stamp: Time::now(),
+        frame_id: frame_id.to_owned(),
+    }
+}
+
+/// Runs the node until `stop` is set (Ctrl-C, SIGTERM) or the bus fails. Before it
+/// returns, a driving base is stopped (zero velocity, enable withdrawn).
+pub fn run(settings: &Settings, bus: &mut dyn Bus, stop: &Arc<AtomicBool>) -> Result<(), Error> {
+    let ros = Ros::open(settings)?;
+    eprintln!(
+        "base-ros2: node {}/{} on ROS_DOMAIN_ID {}; /cmd_vel time-out {} ms",
+        settings.namespace.trim_end_matches('/'),
+        settings.node_name,
+        settings.domain_id,
+        settings.cmd_vel_timeout.as_millis()
+    );
+    let mut state = State::new(settings);
+    let result = state.run(&ros, bus, stop);
+    // Whatever ended the loop: the base must not keep driving on our last command.
+    let frames = state.commands.stop();
+    let stopped = send_all(bus, &frames);
+    result.and(stopped)
+}
+
+fn send_all(bus: &mut dyn Bus, commands: &[Command]) -> Result<(), Error> {
+    for command in commands {
+        bus.send(&command.encode())?;
+    }
+    Ok(())
+}
+
+struct State<'a> {
+    settings: &'a Settings,
+    commands: CommandSide,
+    odometry: OdometrySide,
+    last_status: Option<Status>,
+    last_frame: Instant,
+    next_heartbeat: Instant,
+    next_silence_report: Instant,
+    malformed_cmd_vel: u64,
+    malformed_frames: u64,
+}
+
+impl<'a> State<'a> {
+    fn new(settings: &'a Settings) -> Self {
+        let now = Instant::now();
+        State {
+            settings,
+            commands: CommandSide::new(settings.cmd_vel_timeout, settings.command_period),
+            odometry: OdometrySide::default(),
+            last_status: None,
+            last_frame: now,
+            next_heartbeat: now,
+            next_silence_report: now + SILENCE,
+            malformed_cmd_vel: 0,
+            malformed_frames: 0,
+        }
+    }
+
+    fn run(&mut self, ros: &Ros, bus: &mut dyn Bus, stop: &AtomicBool) -> Result<(), Error> {
+        while !stop.load(Ordering::Relaxed) {
+            let now = Instant::now();
+            while let Some(taken) = ros.cmd_vel.take() {
+                match taken {
+                    Ok(twist) => {
+                        match self
+                            .commands
+                            .on_cmd_vel(now, twist.linear.x, twist.angular.z)
+                        {
+                            Ok(frames) => send_all(bus, &frames)?,
+                            Err(_) => eprintln!(
+                                "base-ros2: /cmd_vel refused: linear.x {} angular.z {} is not \
+                                 finite ({} so far)",
+                                twist.linear.x, twist.angular.z, self.commands.counts.not_finite
+                            ),
+                        }
+                    }
+                    Err(error) => {
+                        self.malformed_cmd_vel += 1;
+                        eprintln!(
+                            "base-ros2: a /cmd_vel could not be decoded ({} so far): {error}",
+                            self.malformed_cmd_vel
+                        );
+                    }
+                }
+            }
+            while let Ok(Some(_)) = ros.reset.take() {
+                bus.send(&Command::ResetOdometry.encode())?;
+                self.odometry.forget_previous();
+                eprintln!("base-ros2: odometry reset");
+            }
+            let timeouts = self.commands.counts.timeouts;
+            send_all(bus, &self.commands.tick(now))?;
+            if self.commands.counts.timeouts != timeouts {
+                eprintln!(
+                    "base-ros2: /cmd_vel older than {} ms: base stopped",
+                    self.settings.cmd_vel_timeout.as_millis()
+                );
+            }
+            if !self.settings.heartbeat_period.is_zero() && now >= self.next_heartbeat {
+                bus.send(&Command::Heartbeat.encode())?;
+                self.next_heartbeat = now + self.settings.heartbeat_period;
+            }
+            if now >= self.next_silence_report && now - self.last_frame >= SILENCE {
+                self.publish_silence(ros, now - self.last_frame);
+                self.next_silence_report = now + Duration::from_secs(1);
+            }
+            if let Some(frame) = bus.receive(POLL)? {
+                self.on_frame(ros, &frame);
+            }
+        }
+        Ok(())
+    }
+
+    fn on_frame(&mut self, ros: &Ros, frame: &RawFrame) {
+        let now = Instant::now();
+        let report = match Report::decode(frame.id(), frame.data()) {
+            Ok(Some(report)) => report,
+            Ok(None) => return,
+            Err(error) => {
+                self.malformed_frames += 1;
+                eprintln!(
+                    "base-ros2: frame 0x{:03X} ignored: {error} ({} so far)",
+                    frame.id(),
+                    self.malformed_frames
+                );
+                return;
+            }
+        };
+        self.last_frame = now;
+        self.next_silence_report = now + SILENCE;
+        match report {
+            Report::Position { x_mm, y_mm } => self.odometry.on_position(x_mm, y_mm),
+            Report::Heading { heading_mrad } => {
+                if let Some(sample) = self.odometry.on_heading(now, heading_mrad) {
+                    self.publish_odometry(ros, &sample);
+                }
+            }
+            Report::Battery {
+                percent,
+                voltage_mv,
+            } => self.publish_battery(ros, percent, voltage_mv),
+            Report::Status(status) => {
+                if self.last_status.map(|last| last.mode) != Some(status.mode) {
+                    eprintln!("base-ros2: base controller mode {:?}", status.mode);
+                }
+                self.last_status = Some(status);
+                self.publish_status(ros, &status);
+            }
+            Report::Weight { .. }
+            | Report::RegisterValue { .. }
+            | Report::RegisterReadError { .. } => {}
+        }
+    }
+
+    fn publish_odometry(&self, ros: &Ros, sample: &OdometrySample) {
+        let settings = self.settings;
+        let orientation = Quaternion::from_yaw(sample.pose.yaw);
+        let header = header(&settings.odom_frame);
+        let odometry = Odometry {
+            header: header.clone(),
+            child_frame_id: settings.base_frame.clone(),
+            pose: PoseWithCovariance {
+                pose: Pose {
+                    position: Point {
+                        x: sample.pose.x,
+                        y: sample.pose.y,
+                        z: 0.0,
+                    },
+                    orientation,
+                },
+                covariance: Covariance::diagonal(settings.pose_covariance),
+            },
+            twist: TwistWithCovariance {
+                twist: Twist {
+                    linear: Vector3 {
+                        x: sample.linear_x,
+                        y: 0.0,
+                        z: 0.0,
+                    },
+                    angular: Vector3 {
+                        x: 0.0,
+                        y: 0.0,
+                        z: sample.angular_z,
+                    },
+                },
+                covariance: Covariance::diagonal(settings.twist_covariance),
+            },
+        };
+        if let Err(error) = ros.odom.publish(odometry) {
+            eprintln!("base-ros2: /odom not published: {error:?}");
+        }
+        if let Some(tf) = &ros.tf {
+            let transform = TransformStamped {
+                header,
+                child_frame_id: settings.base_frame.clone(),
+                transform: Transform {
+                    translation: Vector3 {
+                        x: sample.pose.x,
+                        y: sample.pose.y,
+                        z: 0.0,
+                    },
+                    rotation: orientation,
+                },
+            };
+            if let Err(error) = tf.publish(TfMessage {
+                transforms: vec![transform],
+            }) {
+                eprintln!("base-ros2: /tf not published: {error:?}");
+            }
+        }
+    }
+
+    fn publish_battery(&self, ros: &Ros, percent: u8, voltage_mv: u16) {
+        let battery = BatteryState {
+            header: header(&self.settings.base_frame),
+            voltage: f32::from(voltage_mv) / 1000.0,
+            temperature: f32::NAN,
+            current: f32::NAN,
+            charge: f32::NAN,
+            capacity: f32::NAN,
+            design_capacity: f32::NAN,
+            percentage: f32::from(percent) / 100.0,
+            // UNKNOWN: the base does not report charging or health.
+            power_supply_status: 0,
+            power_supply_health: 0,
+            power_supply_technology: 0,
+            present: true,
+            cell_voltage: Vec::new(),
+            cell_temperature: Vec::new(),
+            location: String::new(),
+            serial_number: String::new(),
+        };
+        if let Err(error) = ros.battery.publish(battery) {
+            eprintln!("base-ros2: /battery_state not published: {error:?}");
+        }
+    }
+
+    fn publish_status(&self, ros: &Ros, status: &Status) {
+        let diagnostic = diagnose(status, &self.settings.hardware_id, self.counts());
+        self.publish_diagnostic(ros, diagnostic);
+    }
+
+    fn publish_silence(&self, ros: &Ros, silent: Duration) {
+        let diagnostic = DiagnosticStatus {
+            level: DIAGNOSTIC_STALE,
+            name: DIAGNOSTIC_NAME.into(),
+            message: format!(
+                "no frame from the base controller for {:.0} s",
+                silent.as_secs_f64()
+            ),
+            hardware_id: self.settings.hardware_id.clone(),
+            values: Vec::new(),
+        };
+        self.publish_diagnostic(ros, diagnostic);
+    }
+
+    fn publish_diagnostic(&self, ros: &Ros, diagnostic: DiagnosticStatus) {
+        let array = DiagnosticArray {
+            header: header(""),
+            status: vec![diagnostic],
+        };
+        if let Err(error) = ros.diagnostics.publish(array) {
+            eprintln!("base-ros2: /diagnostics not published: {error:?}");
+        }
+    }
+
+    fn counts(&self) -> BridgeCounts {
+        BridgeCounts {
+            commands: self.commands.counts,
+            malformed_cmd_vel: self.malformed_cmd_vel,
+            malformed_frames: self.malformed_frames,
+        }
+    }
+}
+
+const DIAGNOSTIC_NAME: &str = "base_controller";
+const DIAGNOSTIC_STALE: u8 = 3;
+
+/// The bridge's own counters, shown next to the base's status.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct BridgeCounts {
+    pub commands: Counts,
+    pub malformed_cmd_vel: u64,
+    pub malformed_frames: u64,
+}
+
+/// The status frame as one diagnostic: ERROR in an emergency, a fault mode or with a
+/// drive or CAN fault latched; WARN with another fault latched (flash, scale,
+/// watchdog reset) or while starting, awaiting the confirm press or recovering; OK
+/// otherwise. Every field is a key/value, the last rejection by name.
+pub fn diagnose(status: &Status, hardware_id: &str, counts: BridgeCounts) -> DiagnosticStatus {
+    let flags = status.flags;
+    let faults = status.faults;
+    let fault_names: Vec<&str> = [
+        (faults.left_drive_silent, "left_drive_silent"),
+        (faults.left_drive_alarm, "left_drive_alarm"),
+        (faults.right_drive_silent, "right_drive_silent"),
+        (faults.right_drive_alarm, "right_drive_alarm"),
+        (faults.flash, "flash"),
+        (faults.scale, "scale"),
+        (faults.can_bus, "can_bus"),
+        (faults.watchdog_reset, "watchdog_reset"),
+    ]
+    .into_iter()
+    .filter_map(|(set, name)| set.then_some(name))
+    .collect();
+    // A drive or the CAN bus failing stops the base or loses frames; defaults loaded
+    // from a blank flash, a missing scale or a watchdog reset leave it able to drive.
+    let grave_fault = faults.left_drive_silent
+        || faults.left_drive_alarm
+        || faults.right_drive_silent
+        || faults.right_drive_alarm
+        || faults.can_bus;
+    let level = match status.mode {
+        Mode::Emergency | Mode::Fault => DIAGNOSTIC_ERROR,
+        _ if grave_fault => DIAGNOSTIC_ERROR,
+        _ if faults.any() => DIAGNOSTIC_WARN,
+        Mode::Starting | Mode::AwaitingConfirm | Mode::Recovering => DIAGNOSTIC_WARN,
+        Mode::Standby | Mode::Active => DIAGNOSTIC_OK,
+    };
+    let mut message = format!("{:?}", status.mode);
+    if flags.estop_pressed {
+        message.push_str(": e-stop pressed");
+    }
+    if !fault_names.is_empty() {
+        message.push_str(&format!("; faults: {}", fault_names.join(", ")));
+    }
+    if flags.remote_in_control {
+        message.push_str("; the gamepad is in control");
+    }
+    let last_rejection = match status.last_rejection {
+        0 => "none".to_owned(),
+        code => Rejection::from_code(code)
+            .map(|reason| reason.name().to_owned())
+            .unwrap_or_else(|| format!("unknown code 0x{code:02X}")),
+    };
+    let yes_no = |value: bool| if value { "yes" } else { "no" }.to_owned();
+    let value = |key: &str, value: String| KeyValue {
+        key: key.to_owned(),
+        value,
+    };
+    DiagnosticStatus {
+        level,
+        name: DIAGNOSTIC_NAME.into(),
+        message,
+        hardware_id: hardware_id.to_owned(),
+        values: vec![
+            value("mode", format!("{:?}", status.mode)),
+            value("control", format!("{:?}", status.control)),
+            value("estop_pressed", yes_no(flags.estop_pressed)),
+            value("enable_fresh", yes_no(flags.enable_fresh)),
+            value("pc_on", yes_no(flags.pc_on)),
+            value("safety_zone", yes_no(flags.safety_zone)),
+            value("remote_bonded", yes_no(flags.remote_bonded)),
+            value("remote_connected", yes_no(flags.remote_connected)),
+            value("remote_in_control", yes_no(flags.remote_in_control)),
+            value("brakes_applied", yes_no(flags.brakes_applied)),
+            value(
+                "faults",
+                if fault_names.is_empty() {
+                    "none".into()
+                } else {
+                    fault_names.join(", ")
+                },
+            ),
+            value("rejected_count", status.rejected_count.to_string()),
+            value("last_rejection", last_rejection),
+            value(
+                "last_rejection_subject",
+                format!("0x{:02X}", status.last_rejection_subject),
+            ),
+            value("drive_alarm", format!("0x{:02X}", status.drive_alarm)),
+            value("modbus_errors", status.modbus_errors.to_string()),
+            value("cmd_vel_taken", counts.commands.commands.to_string()),
+            value("cmd_vel_not_finite", counts.commands.not_finite.to_string()),
+            value("cmd_vel_clamped", counts.commands.clamped.to_string()),
+            value("cmd_vel_timeouts", counts.commands.timeouts.to_string()),
+            value("cmd_vel_undecodable", counts.malformed_cmd_vel.to_string()),
+            value("frames_malformed", counts.malformed_frames.to_string()),
+        ],
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use base_core::can::{Faults, StatusFlags};
+
+    #[test]
+    fn an_emergency_with_the_estop_pressed_is_an_error_that_says_so() {
+        let status = Status {
+            mode: Mode::Emergency,
+            flags: StatusFlags {
+                estop_pressed: true,
+                ..StatusFlags::default()
+            },
+            ..Status::default()
+        };
+        let diagnostic = diagnose(&status, "base", BridgeCounts::default());
+        assert_eq!(diagnostic.level, DIAGNOSTIC_ERROR);
+        assert_eq!(diagnostic.message, "Emergency: e-stop pressed");
+    }
+
+    #[test]
+    fn the_last_rejection_is_named_and_faults_listed() {
+        let status = Status {
+            mode: Mode::Standby,
+            faults: Faults {
+                left_drive_alarm: true,
+                ..Faults::default()
+            },
+            rejected_count: 3,
+            last_rejection: 0x02,
+            last_rejection_subject: 0xC8,
+            ..Status::default()
+        };
+        let diagnostic = diagnose(&status, "base", BridgeCounts::default());
+        assert_eq!(diagnostic.level, DIAGNOSTIC_ERROR);
+        let get = |key: &str| {
+            diagnostic
+                .values
+                .iter()
+                .find(|pair| pair.key == key)
+                .map(|pair| pair.value.clone())
+        };
+        assert_eq!(get("last_rejection").as_deref(), Some("BadVelocityMarker"));
+        assert_eq!(get("last_rejection_subject").as_deref(), Some("0xC8"));
+        assert_eq!(get("faults").as_deref(), Some("left_drive_alarm"));
+    }
+
+    #[test]
+    fn defaults_loaded_from_a_blank_flash_are_a_warning() {
+        let status = Status {
+            mode: Mode::Standby,
+            faults: Faults {
+                flash: true,
+                ..Faults::default()
+            },
+            ..Status::default()
+        };
+        let diagnostic = diagnose(&status, "base", BridgeCounts::default());
+        assert_eq!(diagnostic.level, DIAGNOSTIC_WARN);
+        assert_eq!(diagnostic.message, "Standby; faults: flash");
+    }
+
+    #[test]
+    fn standby_without_faults_is_ok() {
+        let status = Status {
+            mode: Mode::Standby,
+            ..Status::default()
+        };
+        assert_eq!(
+            diagnose(&status, "base", BridgeCounts::default()).level,
+            DIAGNOSTIC_OK
+        );
+    }
+}
