@@ -178,8 +178,10 @@ fn last_decel(robot: &RemoteRobot) -> i32 {
         .decel_rpm_per_s
 }
 
-/// A value of `Contr_acc_high` no other rule uses, to recognise its braking.
-const RELEASE_BRAKING: u16 = 777;
+/// A value of `Contr_acc_high` no other rule uses, to recognise its braking: above
+/// `stop_decel` (2000), the floor of every stop but the e-stop, so the register itself
+/// is in force.
+const RELEASE_BRAKING: u16 = 2777;
 
 #[test]
 fn dead_man_and_stick_turn_the_wheels_and_release_stops_them() {
