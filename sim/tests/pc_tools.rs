@@ -14,6 +14,8 @@ use std::sync::mpsc::{Receiver, channel};
 use std::thread;
 use std::time::{Duration, Instant};
 
+use base_core::registers::REGMAP_VERSION;
+
 const CHILD_ARGS: &str = "BASECTL_TEST_CHILD_ARGS";
 
 /// Not a test: the body of a basectl child process. Other tests start this test
@@ -430,9 +432,10 @@ fn config_save_then_factory_reset_then_config_load_restores_every_register() {
 fn info_tells_versions_mode_faults_and_counters_in_one_shot_also_as_json() {
     let simulator = Simulator::start("info");
     let text = run_ok(&["--channel", &simulator.socketcand, "info"]);
+    let register_map = format!("register map    {REGMAP_VERSION}");
     for part in [
         "firmware",
-        "register map    2",
+        register_map.as_str(),
         "mode            Standby",
         "flash           ",
         "modbus errors",
@@ -442,7 +445,7 @@ fn info_tells_versions_mode_faults_and_counters_in_one_shot_also_as_json() {
     }
     let json = run_ok(&["--channel", &simulator.socketcand, "--json", "info"]);
     let value: serde_json::Value = serde_json::from_str(&json).unwrap();
-    assert_eq!(value["regmap_version"], 2);
+    assert_eq!(value["regmap_version"], REGMAP_VERSION);
     assert_eq!(value["mode"], "Standby");
     // A fresh flash file is blank, which the controller reports as a flash fault.
     let flash_fault = value["faults"]
