@@ -369,31 +369,33 @@ impl<C: HciController + ControllerCmdSync<LeSetScanParams>> PadLink<'_, '_, C> {
         &self,
         conn: &Connection<'c, DefaultPacketPool>,
     ) -> Option<GattClient<'c, C, DefaultPacketPool, MAX_SERVICES>> {
-        let secured = with_timeout(
-            PAIRING_TIMEOUT,
-            select(
-                GattClient::<C, DefaultPacketPool, MAX_SERVICES>::new(self.stack, conn),
-                async {
-                    loop {
-                        // The bonded encryption ends in PairingComplete as well; a
-                        // failed one in BondLost (and no fresh pairing, as we did not
-                        // ask for security ourselves).
-                        match conn.next().await {
-                            ConnectionEvent::PairingFailed(_)
-                            | ConnectionEvent::BondLost
-                            | ConnectionEvent::Disconnected { .. } => return,
-                            ConnectionEvent::RequestConnectionParams(request) => {
-                                answer_params(request, self.stack).await;
-                            }
-                            _ => {}
-                        }
+        let secured = with_timeout(PAIRING_TIMEOUT, async {
+            let mut client = core::pin::pin!(
+                GattClient::<C, DefaultPacketPool, MAX_SERVICES>::new(self.stack, conn)
+            );
+            loop {
+                match select(client.as_mut(), conn.next()).await {
+                    Either::First(client) => return client.ok(),
+                    // The bonded encryption ends in PairingComplete as well; a failed one
+                    // in BondLost (and no fresh pairing, as we did not ask for security
+                    // ourselves).
+                    Either::Second(
+                        ConnectionEvent::PairingFailed(_)
+                        | ConnectionEvent::BondLost
+                        | ConnectionEvent::Disconnected { .. },
+                    ) => return None,
+                    // Answered to the end outside the race with the client: an answer cut
+                    // short when the client gets ready would leave the pad's parameters.
+                    Either::Second(ConnectionEvent::RequestConnectionParams(request)) => {
+                        answer_params(request, self.stack).await;
                     }
-                },
-            ),
-        )
+                    Either::Second(_) => {}
+                }
+            }
+        })
         .await;
         match secured {
-            Ok(Either::First(Ok(client)))
+            Ok(Some(client))
                 if conn.is_bonded_peer()
                     && conn
                         .security_level()
