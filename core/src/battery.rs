@@ -2,7 +2,7 @@
 //! reading jump, and maps a voltage to a percentage. The battery task feeds it samples;
 //! frame 0x0EB reports the filtered voltage and its percentage.
 
-use crate::time::Instant;
+use crate::time::Timestamp;
 
 /// The two ends of the discharge curve (registers `batt_empty_mv`, `batt_full_mv`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -108,7 +108,7 @@ enum FilterState {
     Empty,
     Running {
         filtered_mv: f32,
-        at: Instant,
+        at: Timestamp,
     },
 }
 
@@ -122,7 +122,7 @@ impl BatteryFilter {
     }
 
     /// Feed a sample taken at `now`; returns the filtered voltage.
-    pub fn update(&mut self, now: Instant, sample_mv: u16) -> u16 {
+    pub fn update(&mut self, now: Timestamp, sample_mv: u16) -> u16 {
         let sample = f32::from(sample_mv);
         let filtered_mv = match self.state {
             FilterState::Empty => sample,
@@ -207,8 +207,8 @@ mod tests {
         full_mv: 25_400,
     };
 
-    fn ms(ms: u64) -> Instant {
-        Instant::from_millis(ms)
+    fn ms(ms: u64) -> Timestamp {
+        Timestamp::from_millis(ms)
     }
 
     #[test]

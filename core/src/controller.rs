@@ -22,7 +22,7 @@ use crate::registers::{
 use crate::remote::{self, Control, PairingWindow, Remote};
 use crate::scale::{self, RawAverage};
 use crate::supervisor::{self, Setpoint, Supervisor, Wheel};
-use crate::time::Instant;
+use crate::time::Timestamp;
 
 /// BLV R position counters: 0.01° of the motor shaft per count.
 pub const COUNTS_PER_MOTOR_REV: f64 = 36_000.0;
@@ -189,14 +189,14 @@ pub struct Controller {
     pairing: PairingWindow,
     modbus_errors: u8,
     /// When the last drive feedback arrived, for the odometry's plausibility check.
-    last_feedback_at: Option<Instant>,
+    last_feedback_at: Option<Timestamp>,
     /// Register values wait for the flash (the runtime's store says so).
     persist_pending: bool,
 }
 
 impl Controller {
     /// A controller starting at `now` with the registers the flash task loaded.
-    pub fn new(now: Instant, registers: Registers) -> Self {
+    pub fn new(now: Timestamp, registers: Registers) -> Self {
         Self {
             registers,
             supervisor: Supervisor::new(),
@@ -245,7 +245,7 @@ impl Controller {
 
     /// Handles one input at `now`. Periodic frames that are due go out with whatever
     /// the input caused, so the shell may feed frames and ticks in any mix.
-    pub fn handle(&mut self, now: Instant, input: Input) -> Output {
+    pub fn handle(&mut self, now: Timestamp, input: Input) -> Output {
         let mut out = Output::default();
         match input {
             Input::CanFrame(frame) => self.can_frame(now, frame, &mut out),
@@ -344,7 +344,7 @@ impl Controller {
     /// The next wheel command ramps from here. Limited to ±`max_motor_vel`: no command
     /// is ever faster, so a reading beyond it is garbage, and believing it would stretch
     /// the other wheel's share of a stop without bound.
-    pub fn estimated_rpm(&self, now: Instant) -> MotorRpm {
+    pub fn estimated_rpm(&self, now: Timestamp) -> MotorRpm {
         let limit = i32::from(self.registers.get(Reg::MaxMotorVel));
         let rpm = self.speed.advanced(now, &self.in_force).rpm();
         MotorRpm {
@@ -367,7 +367,7 @@ impl Controller {
     }
 
     /// The status frame as it would be sent now.
-    pub fn status(&self, now: Instant) -> Status {
+    pub fn status(&self, now: Timestamp) -> Status {
         let supervisor = &self.supervisor;
         let drive = supervisor.faults();
         Status {
@@ -402,7 +402,7 @@ impl Controller {
         }
     }
 
-    fn can_frame(&mut self, now: Instant, frame: RawFrame, out: &mut Output) {
+    fn can_frame(&mut self, now: Timestamp, frame: RawFrame, out: &mut Output) {
         let command = match Command::decode(frame.id(), frame.data()) {
             Ok(Some(command)) => command,
             Ok(None) => return,
@@ -492,7 +492,7 @@ impl Controller {
     /// A new value for a motion register, and restore-defaults, are refused with
     /// `NotAtRest` unless the base stands: a geometry, direction or limit that changes
     /// under a moving base turns a straight drive into a spin.
-    fn write_register(&mut self, now: Instant, address: u8, value: u16, out: &mut Output) {
+    fn write_register(&mut self, now: Timestamp, address: u8, value: u16, out: &mut Output) {
         let changes_motion = match Reg::from_address(address) {
             Some(Reg::Command) => value == RESTORE_DEFAULTS_KEY,
             Some(reg) => {
@@ -513,7 +513,7 @@ impl Controller {
     /// Acts on the outcome of a register write to `address`.
     fn register_written(
         &mut self,
-        now: Instant,
+        now: Timestamp,
         address: u8,
         outcome: Result<WriteOutcome, RegisterError>,
         out: &mut Output,
@@ -565,7 +565,7 @@ impl Controller {
 
     fn drive_feedback(
         &mut self,
-        now: Instant,
+        now: Timestamp,
         counts: EncoderCounts,
         rpm: MotorRpm,
         out: &mut Output,
@@ -599,7 +599,7 @@ impl Controller {
         self.supervise(now, supervisor::Event::AtRest(at_rest), out);
     }
 
-    fn supervise(&mut self, now: Instant, event: supervisor::Event, out: &mut Output) {
+    fn supervise(&mut self, now: Timestamp, event: supervisor::Event, out: &mut Output) {
         let effects = self.supervisor.step(now, event, &self.supervisor_params());
         if let Some(setpoint) = effects.setpoint {
             self.setpoint = setpoint;
@@ -644,7 +644,7 @@ impl Controller {
     /// start the wheel ramp from a command the drives were never sent.
     fn remote_step(
         &mut self,
-        now: Instant,
+        now: Timestamp,
         event: remote::Event,
         otherwise: Option<supervisor::Event>,
         out: &mut Output,
@@ -666,7 +666,7 @@ impl Controller {
         }
     }
 
-    fn power_event(&mut self, now: Instant, event: power::Event, out: &mut Output) {
+    fn power_event(&mut self, now: Timestamp, event: power::Event, out: &mut Output) {
         let power = self.power.step(now, event, &power_params(&self.registers));
         if power.confirm {
             self.supervise(now, supervisor::Event::ConfirmPressed, out);
@@ -676,7 +676,7 @@ impl Controller {
         }
     }
 
-    fn periodic_frames(&mut self, now: Instant, out: &mut Output) {
+    fn periodic_frames(&mut self, now: Timestamp, out: &mut Output) {
         let periods = FeedbackPeriods {
             odometry_ms: u32::from(self.registers.get(Reg::LoopEndDelay)),
             battery_ms: u32::from(self.registers.get(Reg::VoltTime)),
@@ -843,11 +843,11 @@ const STANDING: WheelCommand = WheelCommand {
 struct SpeedEstimate {
     left: f32,
     right: f32,
-    at: Instant,
+    at: Timestamp,
 }
 
 impl SpeedEstimate {
-    fn standing(now: Instant) -> Self {
+    fn standing(now: Timestamp) -> Self {
         Self {
             left: 0.0,
             right: 0.0,
@@ -855,7 +855,7 @@ impl SpeedEstimate {
         }
     }
 
-    fn measured(now: Instant, rpm: MotorRpm) -> Self {
+    fn measured(now: Timestamp, rpm: MotorRpm) -> Self {
         Self {
             left: rpm.left as f32,
             right: rpm.right as f32,
@@ -864,7 +864,7 @@ impl SpeedEstimate {
     }
 
     /// Moved along `command` until `now`.
-    fn advanced(self, now: Instant, command: &WheelCommand) -> Self {
+    fn advanced(self, now: Timestamp, command: &WheelCommand) -> Self {
         let seconds = now.millis_since(self.at) as f32 / 1000.0;
         let toward = |speed: f32, target: i32, accel: u32| {
             let target = target as f32;
@@ -929,8 +929,8 @@ fn push_frame(out: &mut Output, frame: RawFrame) {
 mod tests {
     use super::*;
 
-    fn at(ms: u64) -> Instant {
-        Instant::from_millis(ms)
+    fn at(ms: u64) -> Timestamp {
+        Timestamp::from_millis(ms)
     }
 
     fn can(command: Command) -> Input {

@@ -2,7 +2,7 @@
 //! the stable level of one input. The input task samples the pin and feeds every
 //! sample in; the supervisor and the power logic only see the stable level's changes.
 
-use crate::time::Instant;
+use crate::time::Timestamp;
 
 /// Debounces one digital input: a new level is accepted only after the raw input has
 /// shown it, without interruption, for `stable_ms`. A glitch shorter than that (contact
@@ -16,7 +16,7 @@ pub struct Debouncer {
     stable: bool,
     stable_ms: u32,
     /// When the raw input first differed from `stable`; `None` while it agrees.
-    changing_since: Option<Instant>,
+    changing_since: Option<Timestamp>,
 }
 
 impl Debouncer {
@@ -33,7 +33,7 @@ impl Debouncer {
 
     /// Feed the raw level sampled at `now`. Returns the new stable level when it
     /// changes, `None` otherwise.
-    pub fn update(&mut self, now: Instant, raw: bool) -> Option<bool> {
+    pub fn update(&mut self, now: Timestamp, raw: bool) -> Option<bool> {
         if raw == self.stable {
             self.changing_since = None;
             return None;
@@ -59,8 +59,8 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
 
-    fn ms(ms: u64) -> Instant {
-        Instant::from_millis(ms)
+    fn ms(ms: u64) -> Timestamp {
+        Timestamp::from_millis(ms)
     }
 
     /// Feed (time, raw) samples, return the reported changes as (time, level).

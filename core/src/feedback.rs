@@ -2,7 +2,7 @@
 //! (0x0EA) and status (0x0EE). The controller polls it with the time and the periods from
 //! the registers; the CAN task sends what is due.
 
-use crate::time::Instant;
+use crate::time::Timestamp;
 
 /// The periods in ms, straight from the registers. A status period of 0 turns the status
 /// frame off; the others are never 0 (the register table forbids it).
@@ -31,11 +31,11 @@ pub struct FeedbackDue {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 struct Periodic {
-    next: Instant,
+    next: Timestamp,
 }
 
 impl Periodic {
-    fn due(&mut self, now: Instant, period_ms: u32) -> bool {
+    fn due(&mut self, now: Timestamp, period_ms: u32) -> bool {
         if period_ms == 0 || now < self.next {
             return false;
         }
@@ -61,7 +61,7 @@ pub struct FeedbackSchedule {
 
 impl FeedbackSchedule {
     /// Every frame is first due at `start`.
-    pub const fn new(start: Instant) -> Self {
+    pub const fn new(start: Timestamp) -> Self {
         let first = Periodic { next: start };
         Self {
             odometry: first,
@@ -76,7 +76,7 @@ impl FeedbackSchedule {
     /// their old rhythm afterwards instead of all at once.
     pub fn poll(
         &mut self,
-        now: Instant,
+        now: Timestamp,
         periods: &FeedbackPeriods,
         emergency: bool,
     ) -> FeedbackDue {
@@ -92,7 +92,7 @@ impl FeedbackSchedule {
     }
 
     /// The earliest deadline, so the shell can sleep until then.
-    pub fn next_deadline(&self, periods: &FeedbackPeriods) -> Option<Instant> {
+    pub fn next_deadline(&self, periods: &FeedbackPeriods) -> Option<Timestamp> {
         [
             (self.odometry, periods.odometry_ms),
             (self.battery, periods.battery_ms),
@@ -125,7 +125,7 @@ mod tests {
     ) -> [u32; 4] {
         let mut counts = [0; 4];
         for ms in from_ms..to_ms {
-            let due = schedule.poll(Instant::from_millis(ms), &PERIODS, emergency);
+            let due = schedule.poll(Timestamp::from_millis(ms), &PERIODS, emergency);
             for (count, fired) in
                 counts
                     .iter_mut()
@@ -139,7 +139,7 @@ mod tests {
 
     #[test]
     fn default_periods_give_the_manuals_rates_over_ten_seconds() {
-        let mut schedule = FeedbackSchedule::new(Instant::BOOT);
+        let mut schedule = FeedbackSchedule::new(Timestamp::BOOT);
         assert_eq!(
             count_over(&mut schedule, 0, 10_000, false),
             [200, 2, 10, 10]
@@ -148,21 +148,21 @@ mod tests {
 
     #[test]
     fn emergency_suppresses_every_feedback_frame_but_not_the_status() {
-        let mut schedule = FeedbackSchedule::new(Instant::BOOT);
+        let mut schedule = FeedbackSchedule::new(Timestamp::BOOT);
         assert_eq!(count_over(&mut schedule, 0, 10_000, true), [0, 0, 0, 10]);
     }
 
     #[test]
     fn feedback_resumes_on_its_rhythm_after_an_emergency() {
-        let mut schedule = FeedbackSchedule::new(Instant::BOOT);
+        let mut schedule = FeedbackSchedule::new(Timestamp::BOOT);
         count_over(&mut schedule, 0, 1_000, true);
-        let due = schedule.poll(Instant::from_millis(1_000), &PERIODS, false);
+        let due = schedule.poll(Timestamp::from_millis(1_000), &PERIODS, false);
         assert!(due.odometry && due.weight && due.status && !due.battery);
     }
 
     #[test]
     fn status_period_zero_turns_the_status_frame_off() {
-        let mut schedule = FeedbackSchedule::new(Instant::BOOT);
+        let mut schedule = FeedbackSchedule::new(Timestamp::BOOT);
         let periods = FeedbackPeriods {
             status_ms: 0,
             ..PERIODS
@@ -170,7 +170,7 @@ mod tests {
         for ms in 0..3_000 {
             assert!(
                 !schedule
-                    .poll(Instant::from_millis(ms), &periods, false)
+                    .poll(Timestamp::from_millis(ms), &periods, false)
                     .status
             );
         }
@@ -178,35 +178,35 @@ mod tests {
 
     #[test]
     fn a_stalled_caller_gets_one_frame_not_a_burst() {
-        let mut schedule = FeedbackSchedule::new(Instant::BOOT);
-        assert!(schedule.poll(Instant::BOOT, &PERIODS, false).odometry);
+        let mut schedule = FeedbackSchedule::new(Timestamp::BOOT);
+        assert!(schedule.poll(Timestamp::BOOT, &PERIODS, false).odometry);
         assert!(
             schedule
-                .poll(Instant::from_millis(1_000), &PERIODS, false)
+                .poll(Timestamp::from_millis(1_000), &PERIODS, false)
                 .odometry
         );
         assert!(
             !schedule
-                .poll(Instant::from_millis(1_001), &PERIODS, false)
+                .poll(Timestamp::from_millis(1_001), &PERIODS, false)
                 .odometry
         );
         assert!(
             schedule
-                .poll(Instant::from_millis(1_050), &PERIODS, false)
+                .poll(Timestamp::from_millis(1_050), &PERIODS, false)
                 .odometry
         );
     }
 
     #[test]
     fn late_polls_keep_the_average_rate_without_drift() {
-        let mut schedule = FeedbackSchedule::new(Instant::BOOT);
+        let mut schedule = FeedbackSchedule::new(Timestamp::BOOT);
         // Polled every 7 ms: each frame goes out up to 6 ms late, but 1000 s still give
         // exactly 20 000 odometry frames.
         let sent = (0..1_000_000u64)
             .step_by(7)
             .filter(|&ms| {
                 schedule
-                    .poll(Instant::from_millis(ms), &PERIODS, false)
+                    .poll(Timestamp::from_millis(ms), &PERIODS, false)
                     .odometry
             })
             .count();
@@ -215,11 +215,11 @@ mod tests {
 
     #[test]
     fn next_deadline_is_the_earliest_enabled_one() {
-        let mut schedule = FeedbackSchedule::new(Instant::BOOT);
-        schedule.poll(Instant::BOOT, &PERIODS, false);
+        let mut schedule = FeedbackSchedule::new(Timestamp::BOOT);
+        schedule.poll(Timestamp::BOOT, &PERIODS, false);
         assert_eq!(
             schedule.next_deadline(&PERIODS),
-            Some(Instant::from_millis(50))
+            Some(Timestamp::from_millis(50))
         );
     }
 }

@@ -4,7 +4,7 @@
 //! the ticks; the supervisor takes `confirm`, the shell drives the switch pin, and the
 //! status frame reads `pc_on`.
 
-use crate::time::Instant;
+use crate::time::Timestamp;
 
 /// Timing of the button and the PC, from registers 21–23 plus two extensions.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -102,14 +102,14 @@ pub enum HoldStage {
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum ButtonState {
     Released,
-    Held { since: Instant, stage: HoldStage },
+    Held { since: Timestamp, stage: HoldStage },
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum SwitchState {
     Open,
-    Closed { until: Instant },
+    Closed { until: Timestamp },
 }
 
 /// What we believe about the PC.
@@ -121,16 +121,16 @@ pub enum PcState {
     /// We switched it on at `since`: on until `boot_grace_ms` has passed, and after that
     /// for as long as heartbeats keep coming.
     Booting {
-        since: Instant,
-        last_heartbeat: Option<Instant>,
+        since: Timestamp,
+        last_heartbeat: Option<Timestamp>,
     },
     /// Heartbeats: on until `heartbeat_timeout_ms` after the last one.
-    Alive { last_heartbeat: Instant },
+    Alive { last_heartbeat: Timestamp },
 }
 
 impl PcState {
-    fn is_on(self, now: Instant, params: &Params) -> bool {
-        let fresh = |hb: Instant| now.millis_since(hb) < u64::from(params.heartbeat_timeout_ms);
+    fn is_on(self, now: Timestamp, params: &Params) -> bool {
+        let fresh = |hb: Timestamp| now.millis_since(hb) < u64::from(params.heartbeat_timeout_ms);
         match self {
             PcState::Off => false,
             PcState::Booting {
@@ -145,7 +145,7 @@ impl PcState {
     }
 
     /// Drop what has expired by `now`, so the state says what is true now.
-    fn settle(self, now: Instant, params: &Params) -> PcState {
+    fn settle(self, now: Timestamp, params: &Params) -> PcState {
         let after_grace = match self {
             PcState::Booting {
                 since,
@@ -163,7 +163,7 @@ impl PcState {
         }
     }
 
-    fn heartbeat(self, now: Instant) -> PcState {
+    fn heartbeat(self, now: Timestamp) -> PcState {
         match self {
             PcState::Booting { since, .. } => PcState::Booting {
                 since,
@@ -247,7 +247,7 @@ impl PowerState {
 ///   its heartbeats keep coming: the OS is still shutting down, and the button keeps
 ///   meaning "off" until the PC has really gone quiet. Another 8 s hold in that time
 ///   sends another pulse (for a PC that ignored the first one).
-fn next(state: PowerState, now: Instant, event: Event, params: &Params) -> (PowerState, Effects) {
+fn next(state: PowerState, now: Timestamp, event: Event, params: &Params) -> (PowerState, Effects) {
     let mut out = Effects::NONE;
     let mut pc = state.pc.settle(now, params);
     let mut switch = state.switch;
@@ -334,7 +334,7 @@ impl PowerControl {
 
     /// Handles one event at `now` and returns what must happen. New register values
     /// (`params`) take effect at once; a running press keeps its start time.
-    pub fn step(&mut self, now: Instant, event: Event, params: &Params) -> Effects {
+    pub fn step(&mut self, now: Timestamp, event: Event, params: &Params) -> Effects {
         let (state, effects) = next(self.state, now, event, params);
         self.state = state;
         effects
@@ -342,7 +342,7 @@ impl PowerControl {
 
     /// Whether the PC counts as on at `now` (heartbeat fresh or boot grace running),
     /// for the status frame.
-    pub fn pc_on(&self, now: Instant, params: &Params) -> bool {
+    pub fn pc_on(&self, now: Timestamp, params: &Params) -> bool {
         self.state.pc.is_on(now, params)
     }
 
@@ -394,7 +394,7 @@ mod tests {
 
     fn run_with(control: &mut PowerControl, params: &Params, rows: &[(u64, Event, Effects)]) {
         for (i, &(t, event, expected)) in rows.iter().enumerate() {
-            let got = control.step(Instant::from_millis(t), event, params);
+            let got = control.step(Timestamp::from_millis(t), event, params);
             assert_eq!(got, expected, "row {i}: {event:?} at {t} ms");
         }
     }
@@ -406,7 +406,7 @@ mod tests {
     /// A PC that has been sending heartbeats every 2 s since boot, up to `until_ms`.
     fn with_heartbeats(control: &mut PowerControl, until_ms: u64) {
         for t in (0..=until_ms).step_by(2_000) {
-            control.step(Instant::from_millis(t), Hb, &PARAMS);
+            control.step(Timestamp::from_millis(t), Hb, &PARAMS);
         }
     }
 
@@ -426,7 +426,7 @@ mod tests {
                 (15_000, Tick, NONE),
             ],
         );
-        assert!(c.pc_on(Instant::from_millis(15_000), &PARAMS));
+        assert!(c.pc_on(Timestamp::from_millis(15_000), &PARAMS));
     }
 
     #[test]
@@ -442,7 +442,7 @@ mod tests {
                 (10_000, Tick, NONE),
             ],
         );
-        assert!(!c.pc_on(Instant::from_millis(10_000), &PARAMS));
+        assert!(!c.pc_on(Timestamp::from_millis(10_000), &PARAMS));
     }
 
     #[test]
@@ -523,7 +523,7 @@ mod tests {
                 (23_500, Release, NONE),
             ],
         );
-        assert!(c.pc_on(Instant::from_millis(23_500), &PARAMS));
+        assert!(c.pc_on(Timestamp::from_millis(23_500), &PARAMS));
     }
 
     #[test]
@@ -544,7 +544,7 @@ mod tests {
             ],
         );
         // No heartbeat ever came, so without the grace nothing keeps it "on".
-        assert!(!c.pc_on(Instant::from_millis(29_000), &PARAMS));
+        assert!(!c.pc_on(Timestamp::from_millis(29_000), &PARAMS));
     }
 
     #[test]
@@ -560,7 +560,7 @@ mod tests {
             ],
         );
         for (t, on) in [(3_000, true), (62_999, true), (63_000, false)] {
-            assert_eq!(c.pc_on(Instant::from_millis(t), &PARAMS), on, "at {t} ms");
+            assert_eq!(c.pc_on(Timestamp::from_millis(t), &PARAMS), on, "at {t} ms");
         }
         // Grace over without a heartbeat: the PC did not start; 3 s tries again.
         run(&mut c, &[(70_000, Press, NONE), (73_000, Tick, CLOSE)]);
@@ -578,16 +578,16 @@ mod tests {
             ],
         );
         for t in (40_000..=80_000).step_by(2_000) {
-            c.step(Instant::from_millis(t), Hb, &PARAMS);
+            c.step(Timestamp::from_millis(t), Hb, &PARAMS);
         }
-        assert!(c.pc_on(Instant::from_millis(84_999), &PARAMS));
-        assert!(!c.pc_on(Instant::from_millis(85_000), &PARAMS));
+        assert!(c.pc_on(Timestamp::from_millis(84_999), &PARAMS));
+        assert!(!c.pc_on(Timestamp::from_millis(85_000), &PARAMS));
     }
 
     #[test]
     fn heartbeat_lapse_turns_the_pc_off() {
         let mut c = fresh();
-        assert!(!c.pc_on(Instant::from_millis(0), &PARAMS));
+        assert!(!c.pc_on(Timestamp::from_millis(0), &PARAMS));
         run(&mut c, &[(1_000, Hb, NONE), (3_000, Hb, NONE)]);
         for (t, on) in [
             (3_000, true),
@@ -595,7 +595,7 @@ mod tests {
             (8_000, false),
             (60_000, false),
         ] {
-            assert_eq!(c.pc_on(Instant::from_millis(t), &PARAMS), on, "at {t} ms");
+            assert_eq!(c.pc_on(Timestamp::from_millis(t), &PARAMS), on, "at {t} ms");
         }
         // Now off, a 3 s hold switches it on.
         run(&mut c, &[(9_000, Press, NONE), (12_000, Tick, CLOSE)]);
@@ -652,8 +652,8 @@ mod tests {
                 (20_000, Hb, NONE), // last one
             ],
         );
-        assert!(c.pc_on(Instant::from_millis(24_999), &PARAMS));
-        assert!(!c.pc_on(Instant::from_millis(25_000), &PARAMS));
+        assert!(c.pc_on(Timestamp::from_millis(24_999), &PARAMS));
+        assert!(!c.pc_on(Timestamp::from_millis(25_000), &PARAMS));
         // Gone quiet: the next 3 s press switches it on again.
         run(&mut c, &[(26_000, Press, NONE), (29_000, Tick, CLOSE)]);
     }
@@ -801,7 +801,7 @@ mod tests {
                 {
                     closes_this_press = 0;
                 }
-                let out = c.step(Instant::from_millis(t), event, &PARAMS);
+                let out = c.step(Timestamp::from_millis(t), event, &PARAMS);
                 match out.switch {
                     Some(SwitchLevel::Closed) => {
                         closes_this_press += 1;

@@ -23,7 +23,7 @@
 
 use crate::gamepad::{Buttons, GamepadState};
 use crate::kinematics::Twist;
-use crate::time::Instant;
+use crate::time::Timestamp;
 
 /// The button that must be held for the remote to drive: RB \[R1\].
 pub const DEAD_MAN: Buttons = Buttons::RIGHT_BUMPER;
@@ -112,7 +112,7 @@ struct Session {
     /// The latest report of this connection; `None` until the first.
     last: Option<GamepadState>,
     /// The latest report, or the connection before the first: AFK counts from here.
-    last_input: Instant,
+    last_input: Timestamp,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -147,7 +147,7 @@ impl Remote {
     }
 
     /// Handles one event at `now` and returns what must happen.
-    pub fn step(&mut self, now: Instant, event: Event, params: &Params) -> Effects {
+    pub fn step(&mut self, now: Timestamp, event: Event, params: &Params) -> Effects {
         let mut effects = Effects::default();
         self.state = match (self.state, event) {
             (_, Event::Disconnected) => {
@@ -196,7 +196,7 @@ impl Remote {
 impl Session {
     fn report(
         mut self,
-        now: Instant,
+        now: Timestamp,
         pad: GamepadState,
         params: &Params,
         effects: &mut Effects,
@@ -298,7 +298,7 @@ pub enum PairingWindow {
     #[default]
     Closed,
     Open {
-        until: Instant,
+        until: Timestamp,
     },
 }
 
@@ -308,7 +308,7 @@ impl PairingWindow {
     }
 
     /// Opens the window for [`PAIRING_WINDOW_MS`] from `now`; an open one starts over.
-    pub fn open(&mut self, now: Instant) {
+    pub fn open(&mut self, now: Timestamp) {
         *self = PairingWindow::Open {
             until: now.plus_millis(PAIRING_WINDOW_MS),
         };
@@ -322,7 +322,7 @@ impl PairingWindow {
     }
 
     /// Closes the window if its time is up at `now`; whether it closed.
-    pub fn expire(&mut self, now: Instant) -> bool {
+    pub fn expire(&mut self, now: Timestamp) -> bool {
         match *self {
             PairingWindow::Open { until } if now >= until => self.close(),
             _ => false,
@@ -342,8 +342,8 @@ mod tests {
         afk_timeout_ms: 30_000,
     };
 
-    fn at(ms: u64) -> Instant {
-        Instant::from_millis(ms)
+    fn at(ms: u64) -> Timestamp {
+        Timestamp::from_millis(ms)
     }
 
     fn connected() -> Remote {

@@ -37,7 +37,7 @@
 
 use crate::can::{ControlSource, Mode};
 use crate::kinematics::{SafetyLimits, Twist};
-use crate::time::Instant;
+use crate::time::Timestamp;
 
 /// Which wheel a drive event is about.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -168,15 +168,19 @@ enum State {
     Active {
         setpoint: Setpoint,
         stop_accel: u32,
-        at_rest_since: Option<Instant>,
+        at_rest_since: Option<Timestamp>,
     },
     /// The e-stop is pressed. `excited_since_stop` is when zero was commanded to
     /// drives that were excited then: they are de-excited [`STOPPED_AFTER_MS`] later,
     /// when every wheel stands, whether or not feedback says so.
-    Emergency { excited_since_stop: Option<Instant> },
+    Emergency {
+        excited_since_stop: Option<Timestamp>,
+    },
     /// The e-stop was released; a confirm press is needed. The drives' excitation as in
     /// `Emergency`.
-    AwaitingConfirm { excited_since_stop: Option<Instant> },
+    AwaitingConfirm {
+        excited_since_stop: Option<Timestamp>,
+    },
     /// Confirmed; the drive link sets the drives up again.
     Recovering,
     /// A drive fault outside an e-stop; a confirm press starts the recovery. The drive
@@ -185,8 +189,8 @@ enum State {
     /// comes first.
     Fault {
         excited: bool,
-        at_rest_since: Option<Instant>,
-        stopped_at: Instant,
+        at_rest_since: Option<Timestamp>,
+        stopped_at: Timestamp,
     },
 }
 
@@ -199,7 +203,7 @@ pub const STOPPED_AFTER_MS: u64 = crate::registers::ESTOP_POWER_CUT_MS as u64;
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 struct CanCommand {
     twist: Twist,
-    received: Instant,
+    received: Timestamp,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -229,7 +233,7 @@ impl RemoteInput {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 struct Inputs {
-    enable_refreshed: Option<Instant>,
+    enable_refreshed: Option<Timestamp>,
     can_command: Option<CanCommand>,
     remote: RemoteInput,
     safety_zone: bool,
@@ -288,7 +292,7 @@ impl Supervisor {
     }
 
     /// Handles one event at `now` and returns what must happen.
-    pub fn step(&mut self, now: Instant, event: Event, params: &Params) -> Effects {
+    pub fn step(&mut self, now: Timestamp, event: Event, params: &Params) -> Effects {
         let mut effects = Effects::default();
         self.expire_can(now, params);
         match event {
@@ -408,7 +412,7 @@ impl Supervisor {
         )
     }
 
-    pub fn enable_fresh(&self, now: Instant, params: &Params) -> bool {
+    pub fn enable_fresh(&self, now: Timestamp, params: &Params) -> bool {
         self.inputs
             .enable_refreshed
             .is_some_and(|at| now.millis_since(at) < u64::from(params.enable_timeout_ms))
@@ -477,7 +481,7 @@ impl Supervisor {
 
     /// Drops the stored CAN velocity when its enable lapsed or (with `cmd_timeout`) when
     /// it went stale, so a returning enable never resumes an old command.
-    fn expire_can(&mut self, now: Instant, params: &Params) {
+    fn expire_can(&mut self, now: Timestamp, params: &Params) {
         if !self.enable_fresh(now, params) {
             self.withdraw_enable(params);
         }
@@ -515,7 +519,7 @@ impl Supervisor {
         }
     }
 
-    fn enter_emergency(&mut self, now: Instant, params: &Params, effects: &mut Effects) {
+    fn enter_emergency(&mut self, now: Timestamp, params: &Params, effects: &mut Effects) {
         self.state = State::Emergency {
             excited_since_stop: (!self.brakes_applied()).then_some(now),
         };
@@ -528,7 +532,7 @@ impl Supervisor {
 
     fn drive_fault(
         &mut self,
-        now: Instant,
+        now: Timestamp,
         wheel: Wheel,
         alarm: Option<u8>,
         params: &Params,
@@ -564,7 +568,7 @@ impl Supervisor {
     }
 
     /// Arbitrates the sources, clamps to the safety zone and runs the brake timer.
-    fn update_motion(&mut self, now: Instant, params: &Params, effects: &mut Effects) {
+    fn update_motion(&mut self, now: Timestamp, params: &Params, effects: &mut Effects) {
         let (setpoint, stop_accel, at_rest_since) = match self.state {
             State::Fault {
                 excited,
@@ -673,11 +677,11 @@ impl Supervisor {
     /// de-excited, something is requested or the wheels are measured moving.
     fn standstill_since(
         &self,
-        now: Instant,
+        now: Timestamp,
         excited: bool,
         requested: bool,
-        at_rest_since: Option<Instant>,
-    ) -> Option<Instant> {
+        at_rest_since: Option<Timestamp>,
+    ) -> Option<Timestamp> {
         if !excited || requested || !self.inputs.at_rest {
             return None;
         }
@@ -686,7 +690,7 @@ impl Supervisor {
 }
 
 /// The base has stood for `disable_time`: the drives may be de-excited.
-fn brake_due(now: Instant, standstill_since: Option<Instant>, params: &Params) -> bool {
+fn brake_due(now: Timestamp, standstill_since: Option<Timestamp>, params: &Params) -> bool {
     standstill_since
         .is_some_and(|since| now.millis_since(since) >= u64::from(params.disable_time_ms))
 }
@@ -715,8 +719,8 @@ mod tests {
         rotation_mrad_s: 0,
     };
 
-    fn at(ms: u64) -> Instant {
-        Instant::from_millis(ms)
+    fn at(ms: u64) -> Timestamp {
+        Timestamp::from_millis(ms)
     }
 
     fn ready() -> Supervisor {

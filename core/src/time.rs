@@ -1,16 +1,16 @@
 //! Time as a plain value. The core never reads a clock: every function that cares
-//! about time takes `now: Instant`, so the async shell (or a test) decides what "now" is.
+//! about time takes `now: Timestamp`, so the async shell (or a test) decides what "now" is.
 
 /// A point in time, in milliseconds since boot. Milliseconds are the unit of every
 /// period and timeout of the CAN protocol.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct Instant {
+pub struct Timestamp {
     ms: u64,
 }
 
-impl Instant {
-    pub const BOOT: Instant = Instant { ms: 0 };
+impl Timestamp {
+    pub const BOOT: Timestamp = Timestamp { ms: 0 };
 
     pub const fn from_millis(ms: u64) -> Self {
         Self { ms }
@@ -21,12 +21,12 @@ impl Instant {
     }
 
     /// Milliseconds from `earlier` to `self`; zero if `earlier` is in the future.
-    pub const fn millis_since(self, earlier: Instant) -> u64 {
+    pub const fn millis_since(self, earlier: Timestamp) -> u64 {
         self.ms.saturating_sub(earlier.ms)
     }
 
-    pub const fn plus_millis(self, ms: u64) -> Instant {
-        Instant {
+    pub const fn plus_millis(self, ms: u64) -> Timestamp {
+        Timestamp {
             ms: self.ms.saturating_add(ms),
         }
     }
@@ -38,8 +38,8 @@ mod tests {
 
     #[test]
     fn millis_since_saturates_instead_of_wrapping() {
-        let early = Instant::from_millis(10);
-        let late = Instant::from_millis(25);
+        let early = Timestamp::from_millis(10);
+        let late = Timestamp::from_millis(25);
         assert_eq!(late.millis_since(early), 15);
         assert_eq!(early.millis_since(late), 0);
     }

@@ -17,7 +17,7 @@ use base_core::registers::{
 };
 use base_core::remote::{MODIFIER_THRESHOLD, PAIRING_WINDOW_MS};
 use base_core::supervisor::Wheel;
-use base_core::time::Instant;
+use base_core::time::Timestamp;
 use proptest::prelude::*;
 use proptest::strategy::ValueTree;
 use proptest::test_runner::{TestCaseError, TestRunner};
@@ -428,7 +428,7 @@ mod model {
     #[derive(Debug, Clone, Copy)]
     struct CanVelocity {
         twist: Twist,
-        received: Instant,
+        received: Timestamp,
         /// The enable session it arrived in: a lapse or a withdrawal starts a new one.
         session: u32,
     }
@@ -443,7 +443,7 @@ mod model {
             /// The latest report since the connection.
             last: Option<GamepadState>,
             /// The latest report, or the connection: "no input" counts from here.
-            last_input: Instant,
+            last_input: Timestamp,
         },
         /// L2 + Home or AFK asked for the disconnect; nothing from the pad counts.
         SwitchingOff,
@@ -486,7 +486,7 @@ mod model {
     pub struct Model {
         pub estop_pressed: bool,
         pub safety_zone: bool,
-        enable_refreshed: Option<Instant>,
+        enable_refreshed: Option<Timestamp>,
         session: u32,
         can: Option<CanVelocity>,
         pad: Pad,
@@ -506,7 +506,7 @@ mod model {
         /// AFK, or a report from a pad already asked to go.
         pub disconnect_due: bool,
         /// The pairing window is open until then.
-        pairing_until: Option<Instant>,
+        pairing_until: Option<Timestamp>,
         /// The pairing window opened (`true`) or closed (`false`) with the input just
         /// observed.
         pub pairing_change: Option<bool>,
@@ -518,7 +518,7 @@ mod model {
 
     impl Model {
         /// §5.1: the last 0x2E4 `40` is younger than `enable_timeout`.
-        pub fn enable_fresh(&self, now: Instant, registers: &Registers) -> bool {
+        pub fn enable_fresh(&self, now: Timestamp, registers: &Registers) -> bool {
             let timeout = u64::from(registers.get(Reg::EnableTimeout));
             self.enable_refreshed
                 .is_some_and(|at| now.millis_since(at) < timeout)
@@ -535,7 +535,7 @@ mod model {
         }
 
         /// The CAN velocity that may drive now, if any.
-        pub fn can_twist(&self, now: Instant, registers: &Registers) -> Option<Twist> {
+        pub fn can_twist(&self, now: Timestamp, registers: &Registers) -> Option<Twist> {
             let velocity = self.can?;
             let cmd_timeout = u64::from(registers.get(Reg::CmdTimeout));
             let current = cmd_timeout == 0 || now.millis_since(velocity.received) < cmd_timeout;
@@ -550,7 +550,7 @@ mod model {
         /// safety-zone clamp), ignoring the mode.
         pub fn source(
             &self,
-            now: Instant,
+            now: Timestamp,
             registers: &Registers,
         ) -> Option<(ControlSource, Twist)> {
             if self.estop_pressed {
@@ -615,7 +615,7 @@ mod model {
         fn gamepad(
             &mut self,
             pad: GamepadState,
-            now: Instant,
+            now: Timestamp,
             before: Mode,
             registers: &Registers,
         ) {
@@ -671,7 +671,7 @@ mod model {
         pub fn observe(
             &mut self,
             input: &Input,
-            now: Instant,
+            now: Timestamp,
             before: Mode,
             registers: &Registers,
         ) {
@@ -808,7 +808,7 @@ struct Snapshot {
 }
 
 impl Snapshot {
-    fn of(controller: &Controller, now: Instant) -> Self {
+    fn of(controller: &Controller, now: Timestamp) -> Self {
         Self {
             estimated: controller.estimated_rpm(now),
             registers: controller.registers().clone(),
@@ -822,7 +822,7 @@ impl Snapshot {
 
 /// One event and everything around it.
 struct Step<'a> {
-    now: Instant,
+    now: Timestamp,
     input: &'a Input,
     out: &'a Output,
     before: &'a Snapshot,
@@ -846,7 +846,7 @@ fn run(
     events: &[(u64, Input)],
     mut check: impl FnMut(&Step) -> Result<(), TestCaseError>,
 ) -> Result<(), TestCaseError> {
-    let mut now = Instant::BOOT;
+    let mut now = Timestamp::BOOT;
     let mut controller = Controller::new(now, Registers::defaults());
     let mut model = Model::default();
     let mut in_force = MotorRpm::ZERO;
@@ -1526,10 +1526,10 @@ proptest! {
     /// run within it, up to the 2 r/min the drives' readings wobble by.
     #[test]
     fn the_motor_speed_never_exceeds_the_safety_zone_limit(events in sequence()) {
-        let mut now = Instant::BOOT;
+        let mut now = Timestamp::BOOT;
         let mut controller = Controller::new(now, Registers::defaults());
         let mut drives = DriveModel::default();
-        let mut zone_since: Option<Instant> = None;
+        let mut zone_since: Option<Timestamp> = None;
         for (gap, input) in &events {
             drives.advance(*gap);
             now = now.plus_millis(*gap);

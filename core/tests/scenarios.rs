@@ -12,7 +12,7 @@ use base_core::odometry::EncoderCounts;
 use base_core::power::SwitchLevel;
 use base_core::registers::{Reg, Registers};
 use base_core::supervisor::Wheel;
-use base_core::time::Instant;
+use base_core::time::Timestamp;
 
 /// What one row expects.
 #[derive(Debug, Clone, Copy)]
@@ -192,7 +192,7 @@ fn is_feedback(frame: &RawFrame) -> bool {
     )
 }
 
-fn check(controller: &Controller, now: Instant, out: &Output, check: Check, row: usize) {
+fn check(controller: &Controller, now: Timestamp, out: &Output, check: Check, row: usize) {
     let status = controller.status(now);
     match check {
         Wheels {
@@ -294,10 +294,10 @@ fn check(controller: &Controller, now: Instant, out: &Output, check: Check, row:
 
 /// Runs the rows in order on a controller whose drives became ready at t = 0.
 fn run(registers: Registers, rows: &[Row]) -> Controller {
-    let mut controller = Controller::new(Instant::BOOT, registers);
-    controller.handle(Instant::BOOT, Input::DrivesReady);
+    let mut controller = Controller::new(Timestamp::BOOT, registers);
+    controller.handle(Timestamp::BOOT, Input::DrivesReady);
     for (index, (ms, input, checks)) in rows.iter().enumerate() {
-        let now = Instant::from_millis(*ms);
+        let now = Timestamp::from_millis(*ms);
         let out = controller.handle(now, *input);
         for check in checks.iter() {
             self::check(&controller, now, &out, *check, index);
@@ -1028,7 +1028,7 @@ fn drive_that_stops_answering_stops_the_other_wheel_and_latches_a_fault() {
     );
     assert!(
         controller
-            .status(Instant::from_millis(300))
+            .status(Timestamp::from_millis(300))
             .faults
             .right_drive_silent
     );
@@ -1047,13 +1047,13 @@ fn drive_alarm_is_reported_and_cleared_by_the_recovery() {
             &[Mode(Mode::Fault)],
         )],
     );
-    let status = controller.status(Instant::from_millis(1));
+    let status = controller.status(Timestamp::from_millis(1));
     assert!(status.faults.left_drive_alarm);
     assert_eq!(status.drive_alarm, 0x84);
-    controller.handle(Instant::from_millis(10), Input::Button(true));
-    controller.handle(Instant::from_millis(100), Input::Button(false));
-    controller.handle(Instant::from_millis(900), Input::DrivesReady);
-    let status = controller.status(Instant::from_millis(900));
+    controller.handle(Timestamp::from_millis(10), Input::Button(true));
+    controller.handle(Timestamp::from_millis(100), Input::Button(false));
+    controller.handle(Timestamp::from_millis(900), Input::DrivesReady);
+    let status = controller.status(Timestamp::from_millis(900));
     assert!(!status.faults.any());
     assert_eq!(status.mode, Mode::Standby);
 }
@@ -1501,7 +1501,7 @@ fn restore_defaults_command_is_reported_for_persisting() {
         )],
     );
     let out = controller.handle(
-        Instant::from_millis(10),
+        Timestamp::from_millis(10),
         raw(id::REGISTER_WRITE, &[40, 0xDE, 0xF0]),
     );
     assert!(out.persist.defaults_restored);
@@ -1609,15 +1609,15 @@ fn odometry_does_not_jump_when_the_drives_come_back_with_new_counters() {
 
 #[test]
 fn feedback_frames_carry_pose_battery_and_weight_at_their_periods() {
-    let mut controller = Controller::new(Instant::BOOT, defaults());
-    controller.handle(Instant::BOOT, Input::DrivesReady);
-    controller.handle(Instant::BOOT, Input::BatterySample { voltage_mv: 25_500 });
+    let mut controller = Controller::new(Timestamp::BOOT, defaults());
+    controller.handle(Timestamp::BOOT, Input::DrivesReady);
+    controller.handle(Timestamp::BOOT, Input::BatterySample { voltage_mv: 25_500 });
     for _ in 0..10 {
-        controller.handle(Instant::BOOT, Input::ScaleSample(20_490 + 19 * 1234));
+        controller.handle(Timestamp::BOOT, Input::ScaleSample(20_490 + 19 * 1234));
     }
     let mut sent = Vec::new();
     for ms in 1..=10_000 {
-        let out = controller.handle(Instant::from_millis(ms), Input::Tick);
+        let out = controller.handle(Timestamp::from_millis(ms), Input::Tick);
         sent.extend(out.frames.iter().map(|frame| frame.id()));
     }
     let count = |id| sent.iter().filter(|&&sent_id| sent_id == id).count();
@@ -1626,7 +1626,7 @@ fn feedback_frames_carry_pose_battery_and_weight_at_their_periods() {
     assert_eq!(count(id::BATTERY), 2);
     assert_eq!(count(id::WEIGHT), 10);
     assert_eq!(count(id::STATUS), 10);
-    let out = controller.handle(Instant::from_millis(15_000), Input::Tick);
+    let out = controller.handle(Timestamp::from_millis(15_000), Input::Tick);
     assert!(
         out.frames.contains(
             &Report::Battery {

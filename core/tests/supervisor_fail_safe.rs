@@ -5,7 +5,7 @@
 use base_core::can::Mode;
 use base_core::kinematics::{SafetyLimits, Twist};
 use base_core::supervisor::{Event, Params, STOPPED_AFTER_MS, Supervisor, Wheel};
-use base_core::time::Instant;
+use base_core::time::Timestamp;
 
 const PARAMS: Params = Params {
     enable_timeout_ms: 500,
@@ -22,8 +22,8 @@ const PARAMS: Params = Params {
     },
 };
 
-fn at(ms: u64) -> Instant {
-    Instant::from_millis(ms)
+fn at(ms: u64) -> Timestamp {
+    Timestamp::from_millis(ms)
 }
 
 /// Drives ready, CAN enabled and driving forward since 0 ms.

@@ -24,8 +24,8 @@ use crate::store::PendingWrites;
 pub const TICK: Duration = Duration::from_millis(10);
 
 /// The core's time: milliseconds since boot.
-pub fn core_now() -> time::Instant {
-    time::Instant::from_millis(Instant::now().as_millis())
+pub fn core_now() -> time::Timestamp {
+    time::Timestamp::from_millis(Instant::now().as_millis())
 }
 
 /// The controller task's channel ends (see [`crate::channels::Channels`]).

@@ -17,6 +17,9 @@ pub const HELP: &str = "\
   battery MV             the battery voltage, in mV (0-65535)
   weight G               the load on the scale, in g (may be negative)
   drives power on|off    switch the drives' power (off: they stop answering)
+  drive left|right silent on|off
+                         cut one drive from the RS-485 line (on) or reconnect it
+                         (off): it keeps running its last command, unheard
   status                 print everything the simulator knows, on five lines
   help                   this list
   quit                   stop the simulator";
@@ -34,9 +37,31 @@ pub enum ConsoleCommand {
     BatteryMillivolts(u16),
     WeightGrams(f64),
     DrivesPower(bool),
+    /// One drive cut from the line (`true`) or back on it.
+    DriveSilent {
+        wheel: Side,
+        silent: bool,
+    },
     Status,
     Help,
     Quit,
+}
+
+/// Which wheel's drive a command is about.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Side {
+    Left,
+    Right,
+}
+
+impl Side {
+    /// The drive's Modbus address (left 1, right 2, as the drive settings default).
+    pub const fn slave(self) -> u8 {
+        match self {
+            Side::Left => 1,
+            Side::Right => 2,
+        }
+    }
 }
 
 /// Why a console line was refused.
@@ -98,6 +123,19 @@ pub fn parse_console_line(line: &str) -> Result<Option<ConsoleCommand>, ConsoleE
             ConsoleCommand::DrivesPower(on_off(state, "drives power on|off")?)
         }
         ["drives", ..] => return Err(ConsoleError::Usage("drives power on|off")),
+        ["drive", side, "silent", state] => {
+            const USAGE: &str = "drive left|right silent on|off";
+            let wheel = match *side {
+                "left" => Side::Left,
+                "right" => Side::Right,
+                _ => return Err(ConsoleError::Usage(USAGE)),
+            };
+            ConsoleCommand::DriveSilent {
+                wheel,
+                silent: on_off(state, USAGE)?,
+            }
+        }
+        ["drive", ..] => return Err(ConsoleError::Usage("drive left|right silent on|off")),
         ["status"] => ConsoleCommand::Status,
         ["help"] => ConsoleCommand::Help,
         ["quit" | "exit"] => ConsoleCommand::Quit,
@@ -143,6 +181,20 @@ mod tests {
             ("weight 1250.5", ConsoleCommand::WeightGrams(1_250.5)),
             ("weight -40", ConsoleCommand::WeightGrams(-40.0)),
             ("drives power off", ConsoleCommand::DrivesPower(false)),
+            (
+                "drive right silent on",
+                ConsoleCommand::DriveSilent {
+                    wheel: Side::Right,
+                    silent: true,
+                },
+            ),
+            (
+                "drive left silent off",
+                ConsoleCommand::DriveSilent {
+                    wheel: Side::Left,
+                    silent: false,
+                },
+            ),
             ("status # comments are allowed", ConsoleCommand::Status),
             ("help", ConsoleCommand::Help),
             ("quit", ConsoleCommand::Quit),
@@ -182,6 +234,9 @@ mod tests {
             ("weight NaN", "weight G, G a number of grams"),
             ("drives power", "drives power on|off"),
             ("drives power 1", "drives power on|off"),
+            ("drive middle silent on", "drive left|right silent on|off"),
+            ("drive left silent", "drive left|right silent on|off"),
+            ("drive left silent maybe", "drive left|right silent on|off"),
             ("quit now", "status, help and quit take no arguments"),
         ] {
             assert_eq!(

@@ -566,6 +566,9 @@ async fn serve_console(lines: &QueueReceiver<String>, view: &View<'_>) {
             }
             ConsoleCommand::WeightGrams(grams) => robot.load_cell.set_load_grams(grams),
             ConsoleCommand::DrivesPower(on) => robot.drives.power(on),
+            ConsoleCommand::DriveSilent { wheel, silent } => {
+                robot.drives.set_silent(wheel.slave(), silent)
+            }
             ConsoleCommand::Status => view.output.message(&view.status_report()),
             ConsoleCommand::Help => view.output.message(HELP),
             ConsoleCommand::Quit => return,
