@@ -9,3 +9,13 @@ pub mod can;
 pub mod flash;
 pub mod rs485;
 pub mod watchdog;
+
+/// Called by esp-backtrace's panic handler after it printed the panic, in the firmware
+/// and in the on-target tests alike (both link this library): resets the chip
+/// at once. The drives are then held at zero by the next boot's first frames (and by
+/// their own communication timeout meanwhile), instead of running on while a halted
+/// chip waits for the watchdog.
+#[unsafe(no_mangle)]
+fn custom_halt() -> ! {
+    esp_hal::system::software_reset()
+}

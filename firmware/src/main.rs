@@ -148,12 +148,3 @@ async fn main(_spawner: embassy_executor::Spawner) {
     let (never, ()) = join(base_runtime::run(hardware, settings, &CHANNELS), remote).await;
     never
 }
-
-/// Called by esp-backtrace's panic handler after it printed the panic: resets the chip
-/// at once. The drives are then held at zero by the next boot's first frames (and by
-/// their own communication timeout meanwhile), instead of running on while a halted
-/// chip waits for the watchdog.
-#[unsafe(no_mangle)]
-fn custom_halt() -> ! {
-    esp_hal::system::software_reset()
-}
