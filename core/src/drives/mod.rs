@@ -1,9 +1,12 @@
 //! The two Oriental Motor BLV R drives as the controller knows them: their Modbus
-//! register addresses ([`reg`]) and what must match their configuration
-//! ([`settings`]). The runtime's drive link speaks to them (see `docs/drives.md`).
+//! register addresses ([`reg`]), what must match their configuration ([`settings`]),
+//! and the drive link's decisions ([`link`]), which the runtime's drive link task
+//! carries out on the line (see `docs/drives.md`).
 
+pub mod link;
 pub mod settings;
 
+pub use link::{DriveDemand, DriveLink};
 pub use settings::{AccelUnit, DriveSettings, LineSettings, Parity};
 
 /// Drive registers (address = 2 × NET-ID) and the NET-IDs of the share lists.

@@ -92,6 +92,16 @@ pub enum RequestError {
     UnevenMembers,
 }
 
+/// Why a transaction brought no reply to parse.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum TransferError {
+    /// Not a single byte came back in time.
+    NoReply,
+    /// The port failed to send or receive.
+    Port,
+}
+
 /// Why a reply was rejected.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

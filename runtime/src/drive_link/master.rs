@@ -4,19 +4,9 @@
 use embassy_time::{Duration, Instant, Timer, with_timeout};
 
 use crate::hw::Rs485;
-use base_core::modbus::{Frame, MAX_FRAME};
+use base_core::modbus::{Frame, MAX_FRAME, TransferError};
 
 use base_core::drives::settings::LineSettings;
-
-/// Why a transaction brought no reply to parse.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum TransferError {
-    /// Not a single byte came back in time.
-    NoReply,
-    /// The port failed to send or receive.
-    Port,
-}
 
 /// Extra silence after a failed transaction, so that a slave still answering late
 /// has finished before the next query (Oriental's own master waits 5 ms).

@@ -1,0 +1,974 @@
+//! The drive link as a state machine: which Modbus request goes to the drives next,
+//! what each reply means, and when the drives count as lost. It never touches the
+//! line: the runtime's drive link task sends each [`Request`], feeds the reply (or why
+//! none came) back as an [`Event`], waits as long as [`Next::WaitUntil`] says, and
+//! passes the [`Effects::reports`] on to the controller.
+//!
+//! ```text
+//!        boot, setup request, failed setup
+//!                 │
+//!                 ▼
+//!   ┌──▶ Holding(ForSetup) ──── power-up wait passed ───▶ SettingUp(left, right)
+//!   │      │   ▲                and both answered           │        │
+//!   │      ▼   │ poll_interval                              │ failed │ done
+//!   │    HoldPause(ForSetup) ◀────── (also after a failed   ◀┘        ▼
+//!   │                                 setup or group check)       CheckingGroup
+//!   │                                                                 │ the group
+//!   │  setup request                                                  │ answers:
+//!   ├────────────────── CycleWait ◀──── Exciting ◀─── cycle start ◀───┘ DrivesReady
+//!   │                   │  ▲    ▲        (S-ON/OFF    ▲    │
+//!   │    next cycle or  │  │    │        changes)     │    ▼
+//!   │    a new demand ──┼──┼────┼─────────────────────┘  Exchanging (one 17h)
+//!   │                   │  └────┴── ok, or < N failures ─────┘
+//!   │                   │
+//!   │                   │        N failed cycles in a row
+//!   │                   ▼
+//!   │   Holding(Escalation) ──▶ Probing(left, right) ──▶ Holding(UntilSetupRequested)
+//!   │                                                          │   ▲
+//!   │                                                          ▼   │ poll_interval
+//!   └────────────────── setup request ──────────── HoldPause(UntilSetupRequested)
+//! ```
+//!
+//! Rules that hold in every state:
+//! - Outside the cycle the link *holds*: every drive that answers gets, by unicast,
+//!   zero speed with `stop_decel` (with the DDO operation type, so the trigger cannot
+//!   start anything else), the trigger, and S-OFF unless the controller still wants it
+//!   excited (braking to a stop after a fault: its brakes close once the base stands).
+//!   A drive that does not answer is skipped; one that answers garbled is counted
+//!   ([`Input::ModbusError`]) and held again next round.
+//! - The first request after boot is such a hold: a controller that restarts while the
+//!   base drives stops the wheels at once, before and during the drives' power-up wait,
+//!   whichever drive answers.
+//! - Only `Exchanging` sends a non-zero speed, and only while excited and after
+//!   `excite_settle_ms` has passed since S-ON.
+//! - N = `failures_before_loss` failed cycles in a row (the group silent, a member
+//!   silent or reset, or the group frame alone failing while each drive answers
+//!   unicast) end the cycle: zero goes out by unicast at once, then each drive is
+//!   probed and the lost ones are reported ([`Input::DriveSilent`]; both when both
+//!   answer alone, because the commands cannot reach the wheels).
+//! - [`Input::DrivesReady`] comes only after boot or a setup request (the controller's
+//!   contract): drives that come back unasked stay held until the controller asks.
+//! - A request is answered before anything else moves the machine: a demand that
+//!   comes while a request is out is kept and acts from the next request on.
+
+use heapless::Vec;
+
+use super::{DriveSettings, reg};
+use crate::controller::Input;
+use crate::kinematics::{MotorRpm, WheelCommand};
+use crate::modbus::{self, Frame, ReplyError, Target, TransferError};
+use crate::odometry::EncoderCounts;
+use crate::registers::{Reg, Registers};
+use crate::supervisor::Wheel;
+use crate::time::Timestamp;
+
+/// What the controller wants from the drives right now.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct DriveDemand {
+    /// Motor speeds and accelerations for both wheels.
+    pub wheels: WheelCommand,
+    /// Drives excited (S-ON, brakes released).
+    pub excite: bool,
+    /// How many times the controller asked for a fresh setup; the link sets the drives
+    /// up again whenever this grows past what it served.
+    pub setup_requests: u32,
+    /// The control cycle (`loop_end_delay`), ms.
+    pub cycle_ms: u16,
+    /// `estop_decel`, (r/min)/s: how a held drive brakes to zero.
+    pub stop_decel: u32,
+}
+
+impl DriveDemand {
+    pub const fn at_rest(cycle_ms: u16, stop_decel: u32) -> Self {
+        Self {
+            wheels: WheelCommand {
+                rpm: MotorRpm::ZERO,
+                left_accel: 0,
+                right_accel: 0,
+            },
+            excite: false,
+            setup_requests: 0,
+            cycle_ms,
+            stop_decel,
+        }
+    }
+}
+
+/// Everything the drive link reacts to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Event<'a> {
+    /// The controller's new demand.
+    Demand(DriveDemand),
+    /// The reply to the request of the last [`Next::Send`]: its bytes, or why none came.
+    Reply(Result<&'a [u8], TransferError>),
+    /// The moment of the last [`Next::WaitUntil`] came.
+    Timer,
+}
+
+/// One Modbus request and how to read its reply.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Request {
+    pub frame: Frame,
+    /// The length of a complete normal reply, so the master knows when it is done.
+    pub expected_len: usize,
+}
+
+impl Request {
+    fn new(frame: Frame, target: Target) -> Self {
+        // Every request the link builds has a reply; 0 would only end the read early.
+        let expected_len = modbus::expected_reply_len(&frame, target).unwrap_or(0);
+        Self {
+            frame,
+            expected_len,
+        }
+    }
+}
+
+/// What the runtime does next.
+// No heap in the firmware to box the frame in; one `Next` lives in the task at a time.
+#[allow(clippy::large_enum_variant)]
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Next {
+    /// Send this request, then step its [`Event::Reply`].
+    Send(Request),
+    /// Wait until this moment ([`Event::Timer`]) or a new demand ([`Event::Demand`]).
+    WaitUntil(Timestamp),
+}
+
+/// What a step asks for. The most a step reports is a feedback and two alarms.
+pub type Reports = Vec<Input, 4>;
+
+/// What must happen now.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Effects {
+    /// `None`: carry on with the request that is out, or the wait.
+    pub next: Option<Next>,
+    /// For the controller, in this order.
+    pub reports: Reports,
+}
+
+/// Why the link holds the drives.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Hold {
+    /// Boot, a setup request or a failed setup: the drives are set up once the
+    /// power-up wait has passed and both answer.
+    ForSetup,
+    /// N failed cycles: zero by unicast first, then each drive is probed.
+    Escalation,
+    /// After a loss, until the controller asks for a setup.
+    UntilSetupRequested,
+}
+
+/// The three writes that hold one drive, in order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum HoldWrite {
+    /// Operation type, position, zero speed, `stop_decel` twice.
+    ZeroSpeed,
+    Trigger,
+    ServoOff,
+}
+
+/// The setup of one drive, in order (docs/drives.md, What happens on the wire).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum SetupStep {
+    ShareControl,
+    ShareLists,
+    CommTimeout,
+    ReadAlarm,
+    /// The reset acts on the 0 → 1 change.
+    AlarmResetOn,
+    AlarmResetOff,
+    ReadAlarmAfterReset,
+    ServoOff,
+}
+
+/// One pass over both drives while holding.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct HoldRound {
+    pub wheel: Wheel,
+    pub write: HoldWrite,
+    /// Which drives answered so far in this round.
+    pub answering: [bool; 2],
+    /// Rounds in a row each drive stayed silent after the power-up wait (`ForSetup`).
+    pub silent_rounds: [u8; 2],
+}
+
+/// What the running cycle keeps.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Cycle {
+    /// When the next cycle frame is due.
+    pub next_at: Timestamp,
+    /// Failed cycles in a row.
+    pub failures: u8,
+    /// No speed but zero before this moment: the drives settle after S-ON.
+    pub settled_at: Timestamp,
+    /// The last exchange sent zero instead of the demanded speed, for the settle.
+    pub held_for_settle: bool,
+    /// The last alarm code per wheel, so each alarm is reported once.
+    pub alarms: [u32; 2],
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum State {
+    /// One hold write is out.
+    Holding { hold: Hold, round: HoldRound },
+    /// Between two hold rounds.
+    HoldPause {
+        hold: Hold,
+        wake_at: Timestamp,
+        silent_rounds: [u8; 2],
+    },
+    /// One setup write or read is out.
+    SettingUp { wheel: Wheel, step: SetupStep },
+    /// Both drives are set up; one share read must pass before the cycle starts.
+    CheckingGroup,
+    /// The S-ON (or S-OFF) write of one drive is out, before the cycle's exchange.
+    Exciting {
+        wheel: Wheel,
+        excite: bool,
+        cycle: Cycle,
+    },
+    /// The cycle's 17h transaction is out.
+    Exchanging { cycle: Cycle },
+    /// Until the next cycle frame is due, or a new demand comes.
+    CycleWait { wake_at: Timestamp, cycle: Cycle },
+    /// After escalation: the share control block of one drive is being read.
+    Probing { wheel: Wheel, lost: bool },
+}
+
+/// The drive link (see the module documentation).
+#[derive(Debug, Clone)]
+pub struct DriveLink {
+    state: State,
+    demand: DriveDemand,
+    /// Setup requests served so far.
+    served_setups: u32,
+    /// What the drives were last told about S-ON, and acknowledged.
+    excited: bool,
+    /// Nothing is set up before the drives had this long to power up.
+    powered_up_at: Timestamp,
+}
+
+impl DriveLink {
+    /// The link at boot, and its first request: the hold of the left drive.
+    pub fn boot(now: Timestamp, settings: &DriveSettings) -> (Self, Effects) {
+        let defaults = Registers::defaults();
+        let mut link = Self {
+            state: State::CheckingGroup,
+            // Until the controller's first demand, which comes at once.
+            demand: DriveDemand::at_rest(
+                defaults.get(Reg::LoopEndDelay),
+                u32::from(defaults.get(Reg::EstopDecel)),
+            ),
+            served_setups: 0,
+            excited: false,
+            powered_up_at: now.plus_millis(u64::from(settings.power_up_wait_ms)),
+        };
+        let mut effects = Effects::default();
+        link.begin_hold(Hold::ForSetup, [0; 2], settings, &mut effects);
+        (link, effects)
+    }
+
+    pub fn state(&self) -> State {
+        self.state
+    }
+
+    /// Whether the drives were last told S-ON (and acknowledged it).
+    pub fn excited(&self) -> bool {
+        self.excited
+    }
+
+    pub fn step(&mut self, now: Timestamp, event: Event<'_>, settings: &DriveSettings) -> Effects {
+        let mut effects = Effects::default();
+        match (self.state, event) {
+            (_, Event::Demand(demand)) => {
+                self.demand = demand;
+                match self.state {
+                    State::HoldPause {
+                        hold,
+                        silent_rounds,
+                        ..
+                    } => self.begin_hold(hold, silent_rounds, settings, &mut effects),
+                    // A new demand goes out at once, not at the next cycle.
+                    State::CycleWait { cycle, .. } => {
+                        self.begin_cycle(now, cycle, settings, &mut effects)
+                    }
+                    State::Holding { .. }
+                    | State::SettingUp { .. }
+                    | State::CheckingGroup
+                    | State::Exciting { .. }
+                    | State::Exchanging { .. }
+                    | State::Probing { .. } => {}
+                }
+            }
+            (
+                State::HoldPause {
+                    hold,
+                    silent_rounds,
+                    ..
+                },
+                Event::Timer,
+            ) => self.begin_hold(hold, silent_rounds, settings, &mut effects),
+            (State::CycleWait { cycle, .. }, Event::Timer) => {
+                self.begin_cycle(now, cycle, settings, &mut effects)
+            }
+            (State::Holding { hold, round }, Event::Reply(reply)) => {
+                self.on_hold_reply(now, hold, round, reply, settings, &mut effects)
+            }
+            (State::SettingUp { wheel, step }, Event::Reply(reply)) => {
+                self.on_setup_reply(now, wheel, step, reply, settings, &mut effects)
+            }
+            (State::CheckingGroup, Event::Reply(reply)) => {
+                self.on_group_check(now, reply, settings, &mut effects)
+            }
+            (
+                State::Exciting {
+                    wheel,
+                    excite,
+                    cycle,
+                },
+                Event::Reply(reply),
+            ) => self.on_excite_reply(now, wheel, excite, cycle, reply, settings, &mut effects),
+            (State::Exchanging { cycle }, Event::Reply(reply)) => {
+                self.on_exchange(now, cycle, reply, settings, &mut effects)
+            }
+            (State::Probing { wheel, lost }, Event::Reply(reply)) => {
+                self.on_probe(wheel, lost, reply, settings, &mut effects)
+            }
+            // The runtime sends a reply only for a request and a timer only for a wait:
+            // anything else changes nothing.
+            (State::HoldPause { .. } | State::CycleWait { .. }, Event::Reply(_)) => {
+                warn!("drive link: a reply while no request was out, ignored");
+            }
+            (
+                State::Holding { .. }
+                | State::SettingUp { .. }
+                | State::CheckingGroup
+                | State::Exciting { .. }
+                | State::Exchanging { .. }
+                | State::Probing { .. },
+                Event::Timer,
+            ) => {}
+        }
+        effects
+    }
+
+    fn setup_requested(&self) -> bool {
+        self.demand.setup_requests != self.served_setups
+    }
+
+    /// Starts a hold round with the left drive.
+    fn begin_hold(
+        &mut self,
+        hold: Hold,
+        silent_rounds: [u8; 2],
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        let (hold, silent_rounds) = match hold {
+            Hold::UntilSetupRequested if self.setup_requested() => (Hold::ForSetup, [0; 2]),
+            _ => (hold, silent_rounds),
+        };
+        if hold == Hold::ForSetup {
+            // This round leads to the setup that serves every request so far.
+            self.served_setups = self.demand.setup_requests;
+        }
+        let round = HoldRound {
+            wheel: Wheel::Left,
+            write: HoldWrite::ZeroSpeed,
+            answering: [false; 2],
+            silent_rounds,
+        };
+        self.send_hold(hold, round, settings, effects);
+    }
+
+    fn send_hold(
+        &mut self,
+        hold: Hold,
+        round: HoldRound,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        let slave = slave(round.wheel, settings);
+        let frame = match round.write {
+            HoldWrite::ZeroSpeed => {
+                let decel = settings.accel_unit.field(self.demand.stop_decel);
+                // Operation type, position (unused in continuous operation), speed, rates.
+                let fields = [settings.operation_type, 0, 0, decel, decel];
+                modbus::write_items(slave, reg::DDO_OPERATION_TYPE, &fields)
+            }
+            HoldWrite::Trigger => modbus::write_items(slave, reg::DDO_TRIGGER, &[1]),
+            HoldWrite::ServoOff => modbus::write_items(slave, reg::DRIVER_INPUT_COMMAND, &[0]),
+        };
+        self.state = State::Holding { hold, round };
+        effects.next = Some(Next::Send(Request::new(frame, Target::Unicast)));
+    }
+
+    fn on_hold_reply(
+        &mut self,
+        now: Timestamp,
+        hold: Hold,
+        mut round: HoldRound,
+        reply: Result<&[u8], TransferError>,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        let index = wheel_index(round.wheel);
+        let (start, items) = match round.write {
+            HoldWrite::ZeroSpeed => (reg::DDO_OPERATION_TYPE, 5),
+            HoldWrite::Trigger => (reg::DDO_TRIGGER, 1),
+            HoldWrite::ServoOff => (reg::DRIVER_INPUT_COMMAND, 1),
+        };
+        let slave = slave(round.wheel, settings);
+        let next_write = match reply.map(|bytes| write_echo(bytes, slave, start, items)) {
+            // Silent: the next drive.
+            Err(_) => None,
+            Ok(Err(_)) => {
+                // It answered, but not as asked: counted, and held again next round.
+                report(effects, Input::ModbusError);
+                round.answering[index] = true;
+                None
+            }
+            Ok(Ok(())) => match round.write {
+                HoldWrite::ZeroSpeed => Some(HoldWrite::Trigger),
+                // A drive the controller still wants excited keeps S-ON.
+                HoldWrite::Trigger if !(self.excited && self.demand.excite) => {
+                    Some(HoldWrite::ServoOff)
+                }
+                HoldWrite::Trigger | HoldWrite::ServoOff => {
+                    round.answering[index] = true;
+                    None
+                }
+            },
+        };
+        if let Some(write) = next_write {
+            round.write = write;
+            return self.send_hold(hold, round, settings, effects);
+        }
+        if round.wheel == Wheel::Left {
+            round.wheel = Wheel::Right;
+            round.write = HoldWrite::ZeroSpeed;
+            return self.send_hold(hold, round, settings, effects);
+        }
+        self.end_hold_round(now, hold, round, settings, effects);
+    }
+
+    fn end_hold_round(
+        &mut self,
+        now: Timestamp,
+        hold: Hold,
+        mut round: HoldRound,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        if !self.demand.excite {
+            self.excited = false;
+        }
+        match hold {
+            Hold::ForSetup if now >= self.powered_up_at => {
+                if round.answering == [true, true] {
+                    return self.send_setup(
+                        Wheel::Left,
+                        SetupStep::ShareControl,
+                        settings,
+                        effects,
+                    );
+                }
+                // A drive silent for N rounds in a row is reported once, so the status
+                // frame says why the base does not get ready (unpowered, unplugged,
+                // wrong address or baud rate).
+                for (index, wheel) in [Wheel::Left, Wheel::Right].into_iter().enumerate() {
+                    if round.answering[index] {
+                        round.silent_rounds[index] = 0;
+                        continue;
+                    }
+                    round.silent_rounds[index] = round.silent_rounds[index].saturating_add(1);
+                    if round.silent_rounds[index] == settings.failures_before_loss {
+                        warn!("{} drive does not answer", wheel);
+                        report(effects, Input::DriveSilent(wheel));
+                    }
+                }
+                self.pause(now, hold, round.silent_rounds, settings, effects);
+            }
+            Hold::ForSetup | Hold::UntilSetupRequested => {
+                self.pause(now, hold, round.silent_rounds, settings, effects)
+            }
+            Hold::Escalation => self.send_probe(Wheel::Left, false, settings, effects),
+        }
+    }
+
+    /// Waits one poll interval, or less if a new demand comes.
+    fn pause(
+        &mut self,
+        now: Timestamp,
+        hold: Hold,
+        silent_rounds: [u8; 2],
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        let wake_at = now.plus_millis(u64::from(settings.poll_interval_ms));
+        self.state = State::HoldPause {
+            hold,
+            wake_at,
+            silent_rounds,
+        };
+        effects.next = Some(Next::WaitUntil(wake_at));
+    }
+
+    fn send_setup(
+        &mut self,
+        wheel: Wheel,
+        step: SetupStep,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        let slave = slave(wheel, settings);
+        let frame = match step {
+            SetupStep::ShareControl => {
+                modbus::write_items(slave, reg::SHARE_CONTROL, &share_control(wheel, settings))
+            }
+            SetupStep::ShareLists => modbus::write_items(slave, reg::SHARE_LISTS, &share_lists()),
+            SetupStep::CommTimeout => {
+                let timeout_ms = settings.drive_comm_timeout_ms.unwrap_or(0);
+                modbus::write_items(slave, reg::COMM_TIMEOUT, &[u32::from(timeout_ms)])
+            }
+            SetupStep::ReadAlarm | SetupStep::ReadAlarmAfterReset => {
+                modbus::read_items(slave, reg::PRESENT_ALARM, 1)
+            }
+            SetupStep::AlarmResetOn => modbus::write_items(slave, reg::ALARM_RESET, &[1]),
+            SetupStep::AlarmResetOff => modbus::write_items(slave, reg::ALARM_RESET, &[0]),
+            // Known state: de-excited, brakes holding, until the controller asks.
+            SetupStep::ServoOff => modbus::write_items(slave, reg::DRIVER_INPUT_COMMAND, &[0]),
+        };
+        self.state = State::SettingUp { wheel, step };
+        effects.next = Some(Next::Send(Request::new(frame, Target::Unicast)));
+    }
+
+    fn on_setup_reply(
+        &mut self,
+        now: Timestamp,
+        wheel: Wheel,
+        step: SetupStep,
+        reply: Result<&[u8], TransferError>,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        let slave = slave(wheel, settings);
+        let bytes = match reply {
+            Ok(bytes) => bytes,
+            Err(_) => return self.setup_failed(now, settings, effects),
+        };
+        let echo = |start: u16, items: usize| write_echo(bytes, slave, start, items);
+        let alarm = || modbus::parse_read(bytes, slave, 1).map(|values| values[0]);
+        let next = match step {
+            SetupStep::ShareControl => echo(reg::SHARE_CONTROL, 3).map(|()| SetupStep::ShareLists),
+            SetupStep::ShareLists => echo(reg::SHARE_LISTS, 2 * reg::SHARE_LIST_SLOTS).map(|()| {
+                match settings.drive_comm_timeout_ms {
+                    Some(_) => SetupStep::CommTimeout,
+                    None => SetupStep::ReadAlarm,
+                }
+            }),
+            SetupStep::CommTimeout => echo(reg::COMM_TIMEOUT, 1).map(|()| SetupStep::ReadAlarm),
+            SetupStep::ReadAlarm => alarm().map(|code| match code {
+                0 => SetupStep::ServoOff,
+                _ => SetupStep::AlarmResetOn,
+            }),
+            SetupStep::AlarmResetOn => echo(reg::ALARM_RESET, 1).map(|()| SetupStep::AlarmResetOff),
+            SetupStep::AlarmResetOff => {
+                echo(reg::ALARM_RESET, 1).map(|()| SetupStep::ReadAlarmAfterReset)
+            }
+            SetupStep::ReadAlarmAfterReset => match alarm() {
+                Ok(0) => Ok(SetupStep::ServoOff),
+                Ok(code) => {
+                    warn!(
+                        "{} drive alarm {=u32:#x} stays after the reset",
+                        wheel, code
+                    );
+                    report(
+                        effects,
+                        Input::DriveAlarm {
+                            wheel,
+                            code: alarm_byte(code),
+                        },
+                    );
+                    // The alarm is reported; the failure is not a line error.
+                    return self.pause(now, Hold::ForSetup, [0; 2], settings, effects);
+                }
+                Err(error) => Err(error),
+            },
+            SetupStep::ServoOff => {
+                if let Err(error) = echo(reg::DRIVER_INPUT_COMMAND, 1) {
+                    warn!("{} drive setup: {}", wheel, error);
+                    return self.setup_failed(now, settings, effects);
+                }
+                return match wheel {
+                    Wheel::Left => {
+                        self.send_setup(Wheel::Right, SetupStep::ShareControl, settings, effects)
+                    }
+                    Wheel::Right => self.send_group_check(settings, effects),
+                };
+            }
+        };
+        match next {
+            Ok(step) => self.send_setup(wheel, step, settings, effects),
+            Err(error) => {
+                warn!("{} drive setup: {}", wheel, error);
+                self.setup_failed(now, settings, effects)
+            }
+        }
+    }
+
+    /// A setup that failed on the line is counted and tried again after a pause.
+    fn setup_failed(&mut self, now: Timestamp, settings: &DriveSettings, effects: &mut Effects) {
+        warn!("drive setup failed");
+        report(effects, Input::ModbusError);
+        self.pause(now, Hold::ForSetup, [0; 2], settings, effects);
+    }
+
+    fn send_group_check(&mut self, settings: &DriveSettings, effects: &mut Effects) {
+        let frame = modbus::share_read(
+            settings.share_group,
+            0,
+            reg::SHARE_READ_LIST.len() as u16,
+            2,
+        );
+        self.state = State::CheckingGroup;
+        effects.next = Some(Next::Send(Request::new(frame, Target::Share)));
+    }
+
+    fn on_group_check(
+        &mut self,
+        now: Timestamp,
+        reply: Result<&[u8], TransferError>,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        let answered = reply.is_ok_and(|bytes| {
+            modbus::parse_share_reply(
+                bytes,
+                settings.share_group,
+                modbus::READ_HOLDING,
+                2,
+                reg::SHARE_READ_LIST.len(),
+            )
+            .is_ok()
+        });
+        if !answered {
+            return self.setup_failed(now, settings, effects);
+        }
+        info!("drives set up");
+        self.excited = false;
+        report(effects, Input::DrivesReady);
+        let cycle = Cycle {
+            next_at: now,
+            failures: 0,
+            settled_at: now,
+            held_for_settle: false,
+            alarms: [0; 2],
+        };
+        self.begin_cycle(now, cycle, settings, effects);
+    }
+
+    /// One cycle: a setup request ends it; S-ON changes go first, then the exchange.
+    fn begin_cycle(
+        &mut self,
+        now: Timestamp,
+        cycle: Cycle,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        if self.setup_requested() {
+            return self.begin_hold(Hold::ForSetup, [0; 2], settings, effects);
+        }
+        if self.demand.excite != self.excited {
+            return self.send_excite(Wheel::Left, self.demand.excite, cycle, settings, effects);
+        }
+        self.send_exchange(now, cycle, settings, effects);
+    }
+
+    fn send_excite(
+        &mut self,
+        wheel: Wheel,
+        excite: bool,
+        cycle: Cycle,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        let word = if excite { reg::S_ON } else { 0 };
+        let frame = modbus::write_items(slave(wheel, settings), reg::DRIVER_INPUT_COMMAND, &[word]);
+        self.state = State::Exciting {
+            wheel,
+            excite,
+            cycle,
+        };
+        effects.next = Some(Next::Send(Request::new(frame, Target::Unicast)));
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn on_excite_reply(
+        &mut self,
+        now: Timestamp,
+        wheel: Wheel,
+        excite: bool,
+        mut cycle: Cycle,
+        reply: Result<&[u8], TransferError>,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        let acknowledged = reply.is_ok_and(|bytes| {
+            write_echo(bytes, slave(wheel, settings), reg::DRIVER_INPUT_COMMAND, 1).is_ok()
+        });
+        if !acknowledged {
+            return self.cycle_failed(now, cycle, settings, effects);
+        }
+        if wheel == Wheel::Left {
+            return self.send_excite(Wheel::Right, excite, cycle, settings, effects);
+        }
+        self.excited = excite;
+        if excite {
+            cycle.settled_at = now.plus_millis(u64::from(settings.excite_settle_ms));
+        }
+        self.send_exchange(now, cycle, settings, effects);
+    }
+
+    /// One 17h transaction that writes both wheels' command and reads both positions,
+    /// speeds and alarms.
+    fn send_exchange(
+        &mut self,
+        now: Timestamp,
+        mut cycle: Cycle,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        let command = self.demand.wheels;
+        let rpm = if self.excited && now >= cycle.settled_at {
+            command.rpm
+        } else {
+            MotorRpm::ZERO
+        };
+        cycle.held_for_settle = self.excited && rpm != command.rpm;
+        let unit = settings.accel_unit;
+        let member = |speed: i32, accel: u32| {
+            let accel = unit.field(accel);
+            // Signed speeds go on the wire as two's complement.
+            [settings.operation_type, speed as u32, accel, accel, 1]
+        };
+        let left = member(rpm.left, command.left_accel);
+        let right = member(rpm.right, command.right_accel);
+        let frame = modbus::share_read_write(
+            settings.share_group,
+            0,
+            reg::SHARE_READ_LIST.len() as u16,
+            0,
+            &[&left, &right],
+        );
+        self.state = State::Exchanging { cycle };
+        effects.next = Some(Next::Send(Request::new(frame, Target::Share)));
+    }
+
+    fn on_exchange(
+        &mut self,
+        now: Timestamp,
+        mut cycle: Cycle,
+        reply: Result<&[u8], TransferError>,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        let share = reply.ok().and_then(|bytes| {
+            modbus::parse_share_reply(
+                bytes,
+                settings.share_group,
+                modbus::READ_WRITE_MULTIPLE,
+                2,
+                reg::SHARE_READ_LIST.len(),
+            )
+            .ok()
+        });
+        let Some(share) = share else {
+            return self.cycle_failed(now, cycle, settings, effects);
+        };
+        let (left, right) = (share.member(0), share.member(1));
+        report(
+            effects,
+            Input::DriveFeedback {
+                counts: EncoderCounts {
+                    left: left[0] as i32,
+                    right: right[0] as i32,
+                },
+                rpm: MotorRpm {
+                    left: left[1] as i32,
+                    right: right[1] as i32,
+                },
+            },
+        );
+        for (index, (wheel, code)) in [Wheel::Left, Wheel::Right]
+            .into_iter()
+            .zip([left[2], right[2]])
+            .enumerate()
+        {
+            if code != 0 && cycle.alarms[index] == 0 {
+                report(
+                    effects,
+                    Input::DriveAlarm {
+                        wheel,
+                        code: alarm_byte(code),
+                    },
+                );
+            }
+            cycle.alarms[index] = code;
+        }
+        cycle.failures = 0;
+        self.wait_for_next_cycle(now, cycle, settings, effects);
+    }
+
+    /// A cycle whose frames did not reach both drives is counted; N in a row end it.
+    fn cycle_failed(
+        &mut self,
+        now: Timestamp,
+        mut cycle: Cycle,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        report(effects, Input::ModbusError);
+        cycle.failures = cycle.failures.saturating_add(1);
+        if cycle.failures >= settings.failures_before_loss {
+            // No command reached the drives for N cycles: zero by unicast first, then
+            // find out why.
+            return self.begin_hold(Hold::Escalation, [0; 2], settings, effects);
+        }
+        self.wait_for_next_cycle(now, cycle, settings, effects);
+    }
+
+    fn wait_for_next_cycle(
+        &mut self,
+        now: Timestamp,
+        mut cycle: Cycle,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        let period = u64::from(cycle_period_ms(self.demand.cycle_ms, settings));
+        cycle.next_at = cycle.next_at.plus_millis(period).max(now);
+        let mut wake_at = cycle.next_at;
+        // A speed held back for the brake release goes out as soon as it may.
+        if self.excited && cycle.held_for_settle {
+            wake_at = wake_at.min(cycle.settled_at.max(now));
+        }
+        self.state = State::CycleWait { wake_at, cycle };
+        effects.next = Some(Next::WaitUntil(wake_at));
+    }
+
+    fn send_probe(
+        &mut self,
+        wheel: Wheel,
+        lost: bool,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        let frame = modbus::read_items(slave(wheel, settings), reg::SHARE_CONTROL, 3);
+        self.state = State::Probing { wheel, lost };
+        effects.next = Some(Next::Send(Request::new(frame, Target::Unicast)));
+    }
+
+    /// A drive that is silent or lost its share setup (it lost power since the setup)
+    /// is reported; when both answer as set up, the group frame alone fails (a marginal
+    /// line fails long frames first) and both are reported.
+    fn on_probe(
+        &mut self,
+        wheel: Wheel,
+        mut lost: bool,
+        reply: Result<&[u8], TransferError>,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        let ready = match reply.map(|bytes| modbus::parse_read(bytes, slave(wheel, settings), 3)) {
+            Err(_) => false,
+            Ok(Ok(values)) => values[..] == share_control(wheel, settings),
+            Ok(Err(_)) => {
+                report(effects, Input::ModbusError);
+                false
+            }
+        };
+        if !ready {
+            warn!("{} drive lost", wheel);
+            lost = true;
+            report(effects, Input::DriveSilent(wheel));
+        }
+        if wheel == Wheel::Left {
+            return self.send_probe(Wheel::Right, lost, settings, effects);
+        }
+        if !lost {
+            warn!("the share group fails while both drives answer alone");
+            report(effects, Input::DriveSilent(Wheel::Left));
+            report(effects, Input::DriveSilent(Wheel::Right));
+        }
+        self.begin_hold(Hold::UntilSetupRequested, [0; 2], settings, effects);
+    }
+}
+
+/// Checks the echo of a write of `items` 32-bit items (two registers each).
+fn write_echo(bytes: &[u8], slave: u8, start: u16, items: usize) -> Result<(), ReplyError> {
+    modbus::parse_write_echo(bytes, slave, start, 2 * items as u16)
+}
+
+/// Adds a report. A step reports at most three things, so the room never runs out.
+fn report(effects: &mut Effects, input: Input) {
+    let pushed = effects.reports.push(input);
+    debug_assert!(pushed.is_ok(), "drive link: more reports than room");
+}
+
+fn slave(wheel: Wheel, settings: &DriveSettings) -> u8 {
+    match wheel {
+        Wheel::Left => settings.left_slave,
+        Wheel::Right => settings.right_slave,
+    }
+}
+
+fn wheel_index(wheel: Wheel) -> usize {
+    match wheel {
+        Wheel::Left => 0,
+        Wheel::Right => 1,
+    }
+}
+
+/// Global ID, member count and local ID of one wheel's drive.
+fn share_control(wheel: Wheel, settings: &DriveSettings) -> [u32; 3] {
+    let local_id = match wheel {
+        Wheel::Left => 1,
+        Wheel::Right => 2,
+    };
+    [u32::from(settings.share_group), 2, local_id]
+}
+
+/// The share read list, then the share write list, each in its 12 slots.
+fn share_lists() -> [u32; 2 * reg::SHARE_LIST_SLOTS] {
+    let mut lists = [0u32; 2 * reg::SHARE_LIST_SLOTS];
+    lists[..reg::SHARE_READ_LIST.len()].copy_from_slice(&reg::SHARE_READ_LIST);
+    lists[reg::SHARE_LIST_SLOTS..][..reg::SHARE_WRITE_LIST.len()]
+        .copy_from_slice(&reg::SHARE_WRITE_LIST);
+    lists
+}
+
+/// The time between two cycle frames: `loop_end_delay`, but at most a third of the
+/// drives' communication timeout, so that a long cycle can never trip it.
+pub fn cycle_period_ms(cycle_ms: u16, settings: &DriveSettings) -> u32 {
+    let cycle = u32::from(cycle_ms.max(1));
+    match settings.drive_comm_timeout_ms {
+        Some(timeout) if timeout > 0 => cycle.min((u32::from(timeout) / 3).max(1)),
+        _ => cycle,
+    }
+}
+
+/// Oriental alarm codes are one byte (e.g. 84h); the register is 32 bits wide.
+fn alarm_byte(code: u32) -> u8 {
+    u8::try_from(code).unwrap_or(u8::MAX)
+}
+
+#[cfg(test)]
+mod tests;

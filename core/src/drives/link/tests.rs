@@ -1,0 +1,877 @@
+//! Table tests of the drive link: every transition of the diagram in the module
+//! documentation, as rows of (time, what the line did) → (next request or wait, reports).
+//!
+//! A [`Bench`] plays both drives: it answers each request the way a drive with the
+//! given alarm, share setup and feedback would, or stays silent, or garbles.
+
+use super::*;
+use crate::kinematics::WheelCommand;
+use crate::modbus::{READ_HOLDING, READ_WRITE_MULTIPLE, WRITE_MULTIPLE, crc16};
+
+const SETTINGS: DriveSettings = DriveSettings::DEFAULT;
+const WRITE: u8 = WRITE_MULTIPLE;
+const READ: u8 = READ_HOLDING;
+const GROUP: u8 = 15;
+
+/// What the line does with the request that is out, or what else happens.
+#[derive(Debug, Clone, Copy)]
+enum Line {
+    /// Both drives as set up: each answers correctly.
+    Answer,
+    /// No byte comes back.
+    Silent,
+    /// A reply with a broken CRC.
+    Garbled,
+    /// The wait's moment came.
+    Timer,
+    /// The controller's new demand.
+    Demand(DriveDemand),
+}
+
+/// What the link must do next: send (address, function, start register), wait until
+/// a moment, or carry on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Then {
+    Send(u8, u8, u16),
+    WaitUntil(u64),
+    CarryOn,
+}
+
+use Line::{Answer, Garbled, Silent, Timer};
+use Then::{CarryOn, Send, WaitUntil};
+
+struct Bench {
+    link: DriveLink,
+    settings: DriveSettings,
+    /// The request that is out.
+    out: Option<Request>,
+    /// Present alarm of each drive; `alarm_after_reset` is what stays after a reset.
+    alarm: [u32; 2],
+    alarm_after_reset: [u32; 2],
+    /// Whether each drive still has its share setup (it loses it on a power cycle).
+    configured: [bool; 2],
+    /// Each drive's share read items in 17h replies: position, speed, alarm, comm error.
+    feedback: [[u32; 4]; 2],
+}
+
+impl Bench {
+    fn boot_at(now: u64, settings: DriveSettings) -> (Self, Effects) {
+        let (link, effects) = DriveLink::boot(at(now), &settings);
+        let mut bench = Self {
+            link,
+            settings,
+            out: None,
+            alarm: [0; 2],
+            alarm_after_reset: [0; 2],
+            configured: [true; 2],
+            feedback: [[0; 4]; 2],
+        };
+        bench.remember(&effects);
+        (bench, effects)
+    }
+
+    fn boot() -> Self {
+        Self::boot_at(0, SETTINGS).0
+    }
+
+    fn remember(&mut self, effects: &Effects) {
+        match &effects.next {
+            Some(Next::Send(request)) => self.out = Some(request.clone()),
+            Some(Next::WaitUntil(_)) => self.out = None,
+            None => {}
+        }
+    }
+
+    fn step(&mut self, now: u64, line: Line) -> Effects {
+        let reply;
+        let event = match line {
+            Answer => {
+                reply = self.reply();
+                Event::Reply(Ok(&reply[..]))
+            }
+            Silent => Event::Reply(Err(TransferError::NoReply)),
+            Garbled => {
+                reply = {
+                    let mut bytes = self.reply();
+                    let last = bytes.len() - 1;
+                    bytes[last] ^= 0xFF;
+                    bytes
+                };
+                Event::Reply(Ok(&reply[..]))
+            }
+            Timer => Event::Timer,
+            Line::Demand(demand) => Event::Demand(demand),
+        };
+        let effects = self.link.step(at(now), event, &self.settings);
+        self.remember(&effects);
+        effects
+    }
+
+    /// Runs `rows` of (time, line) → (then, reports) and checks each.
+    fn run(&mut self, rows: &[(u64, Line, Then, &[Input])]) {
+        for (row, &(now, line, then, reports)) in rows.iter().enumerate() {
+            let effects = self.step(now, line);
+            assert_eq!(
+                describe(&effects.next),
+                then,
+                "row {row}: {line:?} at {now} ms, state now {:?}",
+                self.link.state()
+            );
+            assert_eq!(effects.reports[..], reports[..], "row {row}: reports");
+        }
+    }
+
+    /// Answers up to the cycle: one hold round, the setups, the group check.
+    fn set_up(&mut self, now: u64) -> Effects {
+        for _ in 0..40 {
+            let effects = self.step(now, Answer);
+            if matches!(self.link.state(), State::Exchanging { .. }) {
+                return effects;
+            }
+        }
+        panic!("no cycle after 40 answers: {:?}", self.link.state());
+    }
+
+    /// A bench whose drives are set up at 1000 ms, its first exchange out.
+    fn cycling() -> Self {
+        let mut bench = Self::boot();
+        // The boot round, before the power-up wait: then the pause.
+        for _ in 0..6 {
+            bench.step(0, Answer);
+        }
+        bench.step(1_000, Timer);
+        bench.set_up(1_000);
+        bench
+    }
+
+    /// The drives' alarm reset: what stays is `alarm_after_reset`.
+    fn reset_alarms(&mut self) {
+        self.alarm = self.alarm_after_reset;
+    }
+
+    /// What is out, as a row's `Then`.
+    fn out(&self) -> Then {
+        describe(&self.out.clone().map(Next::Send))
+    }
+
+    fn request(&self) -> &Request {
+        self.out.as_ref().expect("a request is out")
+    }
+
+    /// The reply a drive (or the group) would send to the request that is out.
+    fn reply(&self) -> std::vec::Vec<u8> {
+        let request = &self.request().frame;
+        let (address, function) = (request[0], request[1]);
+        let start = u16::from_be_bytes([request[2], request[3]]);
+        let index = usize::from(address.saturating_sub(1)).min(1);
+        match (address, function) {
+            (GROUP, READ_HOLDING) => self.share_reply(READ_HOLDING),
+            (GROUP, READ_WRITE_MULTIPLE) => self.share_reply(READ_WRITE_MULTIPLE),
+            (_, WRITE_MULTIPLE) => with_crc(request[..6].to_vec()),
+            (_, READ_HOLDING) => {
+                let values: std::vec::Vec<u32> = match start {
+                    reg::PRESENT_ALARM => {
+                        vec![self.alarm[index]]
+                    }
+                    reg::SHARE_CONTROL if self.configured[index] => {
+                        vec![u32::from(GROUP), 2, index as u32 + 1]
+                    }
+                    reg::SHARE_CONTROL => vec![0, 0, 0],
+                    other => panic!("a read of {other:#x} the bench does not know"),
+                };
+                let mut body = vec![address, READ_HOLDING, 4 * values.len() as u8];
+                for value in values {
+                    body.extend_from_slice(&value.to_be_bytes());
+                }
+                with_crc(body)
+            }
+            other => panic!("a request the bench does not know: {other:?}"),
+        }
+    }
+
+    /// A share group reply: each member's items followed by the CRC so far.
+    fn share_reply(&self, function: u8) -> std::vec::Vec<u8> {
+        let mut reply = vec![GROUP, function, 2 * (4 * 4 + 2)];
+        for member in self.feedback {
+            for value in member {
+                reply.extend_from_slice(&value.to_be_bytes());
+            }
+            reply = with_crc(reply);
+        }
+        reply
+    }
+}
+
+fn with_crc(mut body: std::vec::Vec<u8>) -> std::vec::Vec<u8> {
+    let crc = crc16(&body);
+    body.extend_from_slice(&crc.to_le_bytes());
+    body
+}
+
+fn at(ms: u64) -> Timestamp {
+    Timestamp::from_millis(ms)
+}
+
+fn describe(next: &Option<Next>) -> Then {
+    match next {
+        None => CarryOn,
+        Some(Next::WaitUntil(at)) => WaitUntil(at.as_millis()),
+        Some(Next::Send(request)) => {
+            let frame = &request.frame;
+            Send(frame[0], frame[1], u16::from_be_bytes([frame[2], frame[3]]))
+        }
+    }
+}
+
+fn demand(rpm: i32, excite: bool, setup_requests: u32) -> DriveDemand {
+    DriveDemand {
+        wheels: WheelCommand {
+            rpm: MotorRpm {
+                left: rpm,
+                right: -rpm,
+            },
+            left_accel: 700,
+            right_accel: 700,
+        },
+        excite,
+        setup_requests,
+        cycle_ms: 50,
+        stop_decel: 4_500,
+    }
+}
+
+/// The 32-bit items of a unicast write request (FC 10h).
+fn written_items(request: &Request) -> std::vec::Vec<u32> {
+    let frame = &request.frame;
+    frame[7..frame.len() - 2]
+        .chunks(4)
+        .map(|item| u32::from_be_bytes([item[0], item[1], item[2], item[3]]))
+        .collect()
+}
+
+/// The speeds of a 17h frame: member 1's and member 2's second item.
+fn exchanged_speeds(request: &Request) -> (i32, i32) {
+    let items = &request.frame[11..request.frame.len() - 2];
+    let item = |k: usize| {
+        i32::from_be_bytes([
+            items[4 * k],
+            items[4 * k + 1],
+            items[4 * k + 2],
+            items[4 * k + 3],
+        ])
+    };
+    (item(1), item(6))
+}
+
+const HOLD_LEFT: [Then; 3] = [
+    Send(1, WRITE, reg::DDO_OPERATION_TYPE),
+    Send(1, WRITE, reg::DDO_TRIGGER),
+    Send(1, WRITE, reg::DRIVER_INPUT_COMMAND),
+];
+const HOLD_RIGHT_ZERO: Then = Send(2, WRITE, reg::DDO_OPERATION_TYPE);
+const EXCHANGE: Then = Send(GROUP, READ_WRITE_MULTIPLE, 0);
+
+#[test]
+fn the_first_request_after_boot_is_zero_speed_with_stop_decel_to_the_left_drive() {
+    let (bench, effects) = Bench::boot_at(0, SETTINGS);
+    assert_eq!(describe(&effects.next), HOLD_LEFT[0]);
+    assert!(effects.reports.is_empty());
+    // Operation type, position, speed 0, estop_decel twice (the register default).
+    assert_eq!(written_items(bench.request()), [16, 0, 0, 4_500, 4_500]);
+}
+
+#[test]
+fn a_hold_round_writes_zero_trigger_and_s_off_to_each_drive_then_pauses_before_the_power_up_wait() {
+    let mut bench = Bench::boot();
+    bench.run(&[
+        (5, Answer, HOLD_LEFT[1], &[]),
+        (10, Answer, HOLD_LEFT[2], &[]),
+        (15, Answer, HOLD_RIGHT_ZERO, &[]),
+        (20, Answer, Send(2, WRITE, reg::DDO_TRIGGER), &[]),
+        (25, Answer, Send(2, WRITE, reg::DRIVER_INPUT_COMMAND), &[]),
+        // Both answered, but the drives had no 1000 ms to power up yet.
+        (30, Answer, WaitUntil(230), &[]),
+        (230, Timer, HOLD_LEFT[0], &[]),
+    ]);
+    assert_eq!(written_items(bench.request()), [16, 0, 0, 4_500, 4_500]);
+}
+
+#[test]
+fn a_silent_drive_is_skipped_and_the_answering_one_is_still_held() {
+    let mut bench = Bench::boot();
+    bench.run(&[
+        (5, Silent, HOLD_RIGHT_ZERO, &[]),
+        (10, Answer, Send(2, WRITE, reg::DDO_TRIGGER), &[]),
+        (15, Answer, Send(2, WRITE, reg::DRIVER_INPUT_COMMAND), &[]),
+        (20, Answer, WaitUntil(220), &[]),
+    ]);
+}
+
+#[test]
+fn a_garbled_hold_reply_is_counted_and_the_round_goes_on_with_the_next_drive() {
+    let mut bench = Bench::boot();
+    bench.run(&[
+        (5, Answer, HOLD_LEFT[1], &[]),
+        (10, Garbled, HOLD_RIGHT_ZERO, &[Input::ModbusError]),
+    ]);
+}
+
+#[test]
+fn a_new_demand_ends_the_pause_at_once_and_its_stop_decel_is_used() {
+    let mut bench = Bench::boot();
+    for _ in 0..6 {
+        bench.step(0, Answer);
+    }
+    let mut gentler = demand(0, false, 0);
+    gentler.stop_decel = 2_000;
+    bench.run(&[(40, Line::Demand(gentler), HOLD_LEFT[0], &[])]);
+    assert_eq!(written_items(bench.request()), [16, 0, 0, 2_000, 2_000]);
+}
+
+#[test]
+fn after_the_power_up_wait_both_answering_starts_the_setup_of_the_left_drive() {
+    let mut bench = Bench::boot();
+    for _ in 0..6 {
+        bench.step(0, Answer);
+    }
+    bench.run(&[
+        (1_000, Timer, HOLD_LEFT[0], &[]),
+        (1_000, Answer, HOLD_LEFT[1], &[]),
+        (1_000, Answer, HOLD_LEFT[2], &[]),
+        (1_000, Answer, HOLD_RIGHT_ZERO, &[]),
+        (1_000, Answer, Send(2, WRITE, reg::DDO_TRIGGER), &[]),
+        (
+            1_000,
+            Answer,
+            Send(2, WRITE, reg::DRIVER_INPUT_COMMAND),
+            &[],
+        ),
+        (1_000, Answer, Send(1, WRITE, reg::SHARE_CONTROL), &[]),
+    ]);
+    assert_eq!(written_items(bench.request()), [15, 2, 1]);
+}
+
+#[test]
+fn a_drive_silent_after_the_power_up_wait_is_reported_once_after_n_rounds() {
+    let (mut bench, _) = Bench::boot_at(1_000, SETTINGS);
+    let right_silent_round = |now: u64| -> [(u64, Line, Then, &'static [Input]); 4] {
+        [
+            (now, Answer, HOLD_LEFT[1], &[]),
+            (now, Answer, HOLD_LEFT[2], &[]),
+            (now, Answer, HOLD_RIGHT_ZERO, &[]),
+            (now, Silent, WaitUntil(now + 200), &[]),
+        ]
+    };
+    // The power-up wait ends at 2000 ms.
+    bench.run(&right_silent_round(1_000));
+    bench.run(&[(1_200, Timer, HOLD_LEFT[0], &[])]);
+    bench.run(&right_silent_round(2_000)[..3]);
+    bench.run(&[(2_000, Silent, WaitUntil(2_200), &[])]);
+    bench.run(&[(2_200, Timer, HOLD_LEFT[0], &[])]);
+    bench.run(&right_silent_round(2_200)[..3]);
+    bench.run(&[(2_200, Silent, WaitUntil(2_400), &[])]);
+    bench.run(&[(2_400, Timer, HOLD_LEFT[0], &[])]);
+    bench.run(&right_silent_round(2_400)[..3]);
+    bench.run(&[(
+        2_400,
+        Silent,
+        WaitUntil(2_600),
+        &[Input::DriveSilent(Wheel::Right)],
+    )]);
+    // Reported once, not every round.
+    bench.run(&[(2_600, Timer, HOLD_LEFT[0], &[])]);
+    bench.run(&right_silent_round(2_600)[..3]);
+    bench.run(&[(2_600, Silent, WaitUntil(2_800), &[])]);
+}
+
+#[test]
+fn the_setup_writes_share_control_lists_comm_timeout_checks_the_alarm_and_leaves_s_off() {
+    let mut bench = Bench::boot();
+    for _ in 0..6 {
+        bench.step(0, Answer);
+    }
+    bench.step(1_000, Timer);
+    for _ in 0..6 {
+        bench.step(1_000, Answer);
+    }
+    bench.run(&[
+        (1_001, Answer, Send(1, WRITE, reg::SHARE_LISTS), &[]),
+        (1_002, Answer, Send(1, WRITE, reg::COMM_TIMEOUT), &[]),
+    ]);
+    assert_eq!(written_items(bench.request()), [300]);
+    bench.run(&[
+        (1_003, Answer, Send(1, READ, reg::PRESENT_ALARM), &[]),
+        (
+            1_004,
+            Answer,
+            Send(1, WRITE, reg::DRIVER_INPUT_COMMAND),
+            &[],
+        ),
+    ]);
+    assert_eq!(written_items(bench.request()), [0]);
+    bench.run(&[
+        (1_005, Answer, Send(2, WRITE, reg::SHARE_CONTROL), &[]),
+        (1_006, Answer, Send(2, WRITE, reg::SHARE_LISTS), &[]),
+        (1_007, Answer, Send(2, WRITE, reg::COMM_TIMEOUT), &[]),
+        (1_008, Answer, Send(2, READ, reg::PRESENT_ALARM), &[]),
+        (
+            1_009,
+            Answer,
+            Send(2, WRITE, reg::DRIVER_INPUT_COMMAND),
+            &[],
+        ),
+        (1_010, Answer, Send(GROUP, READ, 0), &[]),
+        // The group answers: ready, and the first exchange goes out at once, at zero.
+        (1_011, Answer, EXCHANGE, &[Input::DrivesReady]),
+    ]);
+    assert_eq!(exchanged_speeds(bench.request()), (0, 0));
+}
+
+#[test]
+fn without_a_comm_timeout_setting_the_drives_keep_their_own() {
+    let settings = DriveSettings {
+        drive_comm_timeout_ms: None,
+        ..SETTINGS
+    };
+    let (mut bench, _) = Bench::boot_at(0, settings);
+    for _ in 0..6 {
+        bench.step(1_000, Answer);
+    }
+    bench.run(&[
+        (1_000, Answer, Send(1, WRITE, reg::SHARE_LISTS), &[]),
+        (1_000, Answer, Send(1, READ, reg::PRESENT_ALARM), &[]),
+    ]);
+}
+
+/// A bench at boot + 1000 ms whose left drive's present-alarm read is out.
+fn at_the_left_alarm_read(alarm: u32, after_reset: u32) -> Bench {
+    let mut bench = Bench::boot();
+    bench.alarm = [alarm, 0];
+    bench.alarm_after_reset = [after_reset, 0];
+    for _ in 0..9 {
+        bench.step(1_000, Answer);
+    }
+    assert_eq!(bench.out(), Send(1, READ, reg::PRESENT_ALARM));
+    bench
+}
+
+#[test]
+fn an_alarm_found_in_the_setup_is_reset_with_a_rising_edge_and_read_again() {
+    let mut bench = at_the_left_alarm_read(0x85, 0);
+    bench.run(&[(1_000, Answer, Send(1, WRITE, reg::ALARM_RESET), &[])]);
+    assert_eq!(written_items(bench.request()), [1]);
+    bench.run(&[(1_000, Answer, Send(1, WRITE, reg::ALARM_RESET), &[])]);
+    assert_eq!(written_items(bench.request()), [0]);
+    bench.reset_alarms();
+    bench.run(&[
+        (1_000, Answer, Send(1, READ, reg::PRESENT_ALARM), &[]),
+        (
+            1_000,
+            Answer,
+            Send(1, WRITE, reg::DRIVER_INPUT_COMMAND),
+            &[],
+        ),
+    ]);
+}
+
+#[test]
+fn an_alarm_that_stays_after_the_reset_is_reported_and_the_setup_waits_a_poll_interval() {
+    let mut bench = at_the_left_alarm_read(0x85, 0x30);
+    bench.step(1_000, Answer);
+    bench.step(1_000, Answer);
+    bench.reset_alarms();
+    bench.run(&[
+        (1_000, Answer, Send(1, READ, reg::PRESENT_ALARM), &[]),
+        // Reported as the alarm it is, not as a line error.
+        (
+            1_000,
+            Answer,
+            WaitUntil(1_200),
+            &[Input::DriveAlarm {
+                wheel: Wheel::Left,
+                code: 0x30,
+            }],
+        ),
+        // And held again before the next try.
+        (1_200, Timer, HOLD_LEFT[0], &[]),
+    ]);
+}
+
+#[test]
+fn a_setup_step_that_fails_on_the_line_is_counted_and_retried_after_a_hold() {
+    for step in 0..5 {
+        let mut bench = Bench::boot();
+        for _ in 0..6 + step {
+            bench.step(1_000, Answer);
+        }
+        assert!(
+            matches!(bench.link.state(), State::SettingUp { .. }),
+            "{:?}",
+            bench.link.state()
+        );
+        bench.run(&[
+            (1_000, Silent, WaitUntil(1_200), &[Input::ModbusError]),
+            (1_200, Timer, HOLD_LEFT[0], &[]),
+        ]);
+        let mut bench = Bench::boot();
+        for _ in 0..6 + step {
+            bench.step(1_000, Answer);
+        }
+        bench.run(&[(1_000, Garbled, WaitUntil(1_200), &[Input::ModbusError])]);
+    }
+}
+
+#[test]
+fn a_group_that_does_not_answer_the_check_fails_the_setup() {
+    let mut bench = Bench::boot();
+    for _ in 0..6 + 10 {
+        bench.step(1_000, Answer);
+    }
+    assert_eq!(bench.link.state(), State::CheckingGroup);
+    bench.run(&[
+        (1_000, Silent, WaitUntil(1_200), &[Input::ModbusError]),
+        (1_200, Timer, HOLD_LEFT[0], &[]),
+    ]);
+}
+
+#[test]
+fn the_cycle_sends_one_exchange_per_loop_end_delay_and_reports_the_feedback() {
+    let mut bench = Bench::cycling();
+    bench.feedback = [
+        [1_000, 30, 0, 0],
+        [(-1_000i32) as u32, (-30i32) as u32, 0, 0],
+    ];
+    let feedback = Input::DriveFeedback {
+        counts: EncoderCounts {
+            left: 1_000,
+            right: -1_000,
+        },
+        rpm: MotorRpm {
+            left: 30,
+            right: -30,
+        },
+    };
+    bench.run(&[
+        (1_002, Answer, WaitUntil(1_050), &[feedback]),
+        (1_050, Timer, EXCHANGE, &[]),
+        // A late reply does not shift the schedule; a late wake does not pile up.
+        (1_060, Answer, WaitUntil(1_100), &[feedback]),
+        (1_100, Timer, EXCHANGE, &[]),
+        (1_180, Answer, WaitUntil(1_180), &[feedback]),
+    ]);
+}
+
+#[test]
+fn a_new_alarm_in_the_cycle_is_reported_once() {
+    let mut bench = Bench::cycling();
+    bench.feedback[1][2] = 0x30;
+    let effects = bench.step(1_002, Answer);
+    assert_eq!(
+        effects.reports[1..],
+        [Input::DriveAlarm {
+            wheel: Wheel::Right,
+            code: 0x30
+        }]
+    );
+    bench.step(1_050, Timer);
+    let effects = bench.step(1_052, Answer);
+    assert_eq!(
+        effects.reports.len(),
+        1,
+        "only the feedback: {:?}",
+        effects.reports
+    );
+}
+
+#[test]
+fn a_new_demand_goes_out_at_once_and_waits_for_the_settle_after_s_on() {
+    let mut bench = Bench::cycling();
+    bench.step(1_002, Answer);
+    bench.run(&[
+        // Excite and drive: S-ON to both first.
+        (
+            1_010,
+            Line::Demand(demand(600, true, 0)),
+            Send(1, WRITE, reg::DRIVER_INPUT_COMMAND),
+            &[],
+        ),
+    ]);
+    assert_eq!(written_items(bench.request()), [reg::S_ON]);
+    bench.run(&[(
+        1_012,
+        Answer,
+        Send(2, WRITE, reg::DRIVER_INPUT_COMMAND),
+        &[],
+    )]);
+    bench.run(&[(1_014, Answer, EXCHANGE, &[])]);
+    // Excited at 1014: zero until 1064, however often the cycle runs.
+    assert_eq!(exchanged_speeds(bench.request()), (0, 0));
+    assert!(bench.link.excited());
+    // The held-back speed goes out at the settle, before the next cycle (1100).
+    let effects = bench.step(1_016, Answer);
+    assert_eq!(describe(&effects.next), WaitUntil(1_064));
+    bench.run(&[(1_064, Timer, EXCHANGE, &[])]);
+    assert_eq!(exchanged_speeds(bench.request()), (600, -600));
+}
+
+#[test]
+fn dropping_the_excitation_writes_s_off_to_both_before_the_exchange() {
+    let mut bench = Bench::cycling();
+    bench.step(1_002, Answer);
+    bench.step(1_010, Line::Demand(demand(0, true, 0)));
+    bench.step(1_010, Answer);
+    bench.step(1_010, Answer);
+    bench.step(1_012, Answer);
+    bench.run(&[(
+        1_020,
+        Line::Demand(demand(0, false, 0)),
+        Send(1, WRITE, reg::DRIVER_INPUT_COMMAND),
+        &[],
+    )]);
+    assert_eq!(written_items(bench.request()), [0]);
+    bench.run(&[
+        (
+            1_022,
+            Answer,
+            Send(2, WRITE, reg::DRIVER_INPUT_COMMAND),
+            &[],
+        ),
+        (1_024, Answer, EXCHANGE, &[]),
+    ]);
+    assert!(!bench.link.excited());
+}
+
+#[test]
+fn a_failed_s_on_write_is_a_failed_cycle_and_the_drives_stay_de_excited() {
+    let mut bench = Bench::cycling();
+    bench.step(1_002, Answer);
+    bench.step(1_010, Line::Demand(demand(600, true, 0)));
+    bench.run(&[
+        (
+            1_012,
+            Answer,
+            Send(2, WRITE, reg::DRIVER_INPUT_COMMAND),
+            &[],
+        ),
+        (1_037, Silent, WaitUntil(1_100), &[Input::ModbusError]),
+        // Next cycle: both again.
+        (1_100, Timer, Send(1, WRITE, reg::DRIVER_INPUT_COMMAND), &[]),
+    ]);
+    assert!(!bench.link.excited());
+}
+
+#[test]
+fn failed_cycles_below_n_are_counted_and_a_good_one_clears_the_count() {
+    let mut bench = Bench::cycling();
+    bench.run(&[
+        (1_025, Silent, WaitUntil(1_050), &[Input::ModbusError]),
+        (1_050, Timer, EXCHANGE, &[]),
+        (1_075, Garbled, WaitUntil(1_100), &[Input::ModbusError]),
+        (1_100, Timer, EXCHANGE, &[]),
+    ]);
+    let effects = bench.step(1_102, Answer);
+    assert_eq!(describe(&effects.next), WaitUntil(1_150));
+    bench.run(&[
+        (1_150, Timer, EXCHANGE, &[]),
+        (1_175, Silent, WaitUntil(1_200), &[Input::ModbusError]),
+        (1_200, Timer, EXCHANGE, &[]),
+        (1_225, Silent, WaitUntil(1_250), &[Input::ModbusError]),
+    ]);
+}
+
+#[test]
+fn the_nth_failed_cycle_holds_both_drives_by_unicast_at_once() {
+    let mut bench = Bench::cycling();
+    bench.step(1_002, Answer);
+    // Driving, excited.
+    bench.step(1_010, Line::Demand(demand(600, true, 0)));
+    bench.step(1_010, Answer);
+    bench.step(1_010, Answer);
+    bench.run(&[
+        // The speed held back for the settle would go out at 1060.
+        (1_035, Garbled, WaitUntil(1_060), &[Input::ModbusError]),
+        (1_060, Timer, EXCHANGE, &[]),
+        (1_085, Garbled, WaitUntil(1_150), &[Input::ModbusError]),
+        (1_150, Timer, EXCHANGE, &[]),
+        (1_175, Garbled, HOLD_LEFT[0], &[Input::ModbusError]),
+    ]);
+    assert_eq!(written_items(bench.request()), [16, 0, 0, 4_500, 4_500]);
+    // Still wanted excited (the supervisor brakes to a stop first): no S-OFF.
+    bench.run(&[
+        (1_136, Answer, HOLD_LEFT[1], &[]),
+        (1_137, Answer, HOLD_RIGHT_ZERO, &[]),
+        (1_138, Answer, Send(2, WRITE, reg::DDO_TRIGGER), &[]),
+        (1_139, Answer, Send(1, READ, reg::SHARE_CONTROL), &[]),
+    ]);
+}
+
+/// A bench whose cycle failed N times; the escalation's hold round is answered and the
+/// left drive's probe is out.
+fn probing() -> Bench {
+    let mut bench = Bench::cycling();
+    bench.step(1_025, Silent);
+    bench.step(1_050, Timer);
+    bench.step(1_075, Silent);
+    bench.step(1_100, Timer);
+    bench.step(1_125, Silent);
+    for _ in 0..6 {
+        bench.step(1_130, Answer);
+    }
+    assert_eq!(
+        bench.link.state(),
+        State::Probing {
+            wheel: Wheel::Left,
+            lost: false
+        }
+    );
+    bench
+}
+
+#[test]
+fn a_probe_that_finds_a_drive_silent_reports_that_drive_and_holds_until_a_setup_request() {
+    let mut bench = probing();
+    bench.run(&[
+        (1_140, Answer, Send(2, READ, reg::SHARE_CONTROL), &[]),
+        (
+            1_165,
+            Silent,
+            HOLD_LEFT[0],
+            &[Input::DriveSilent(Wheel::Right)],
+        ),
+    ]);
+    for _ in 0..5 {
+        bench.step(1_170, Answer);
+    }
+    bench.run(&[
+        (1_170, Answer, WaitUntil(1_370), &[]),
+        (1_370, Timer, HOLD_LEFT[0], &[]),
+    ]);
+}
+
+#[test]
+fn a_probe_that_finds_a_drive_without_its_share_setup_reports_it_lost() {
+    let mut bench = probing();
+    bench.configured[0] = false;
+    bench.run(&[(
+        1_140,
+        Answer,
+        Send(2, READ, reg::SHARE_CONTROL),
+        &[Input::DriveSilent(Wheel::Left)],
+    )]);
+}
+
+#[test]
+fn a_garbled_probe_is_counted_and_the_drive_reported_lost() {
+    let mut bench = probing();
+    bench.run(&[(
+        1_140,
+        Garbled,
+        Send(2, READ, reg::SHARE_CONTROL),
+        &[Input::ModbusError, Input::DriveSilent(Wheel::Left)],
+    )]);
+}
+
+#[test]
+fn both_drives_answering_alone_while_the_group_fails_reports_both() {
+    let mut bench = probing();
+    bench.run(&[
+        (1_140, Answer, Send(2, READ, reg::SHARE_CONTROL), &[]),
+        (
+            1_141,
+            Answer,
+            HOLD_LEFT[0],
+            &[
+                Input::DriveSilent(Wheel::Left),
+                Input::DriveSilent(Wheel::Right),
+            ],
+        ),
+    ]);
+}
+
+#[test]
+fn drives_that_come_back_stay_held_until_the_controller_asks_for_a_setup() {
+    let mut bench = probing();
+    bench.step(1_140, Answer);
+    bench.step(1_141, Answer);
+    for round in 0..3 {
+        let now = 1_141 + 200 * round;
+        for _ in 0..5 {
+            bench.step(now, Answer);
+        }
+        bench.run(&[
+            (now, Answer, WaitUntil(now + 200), &[]),
+            (now + 200, Timer, HOLD_LEFT[0], &[]),
+        ]);
+    }
+    for _ in 0..5 {
+        bench.step(1_741, Answer);
+    }
+    bench.step(1_741, Answer);
+    // The recovery: a setup request ends the pause, and the setup follows the round.
+    bench.run(&[(1_800, Line::Demand(demand(0, false, 1)), HOLD_LEFT[0], &[])]);
+    for _ in 0..5 {
+        bench.step(1_800, Answer);
+    }
+    bench.run(&[(1_800, Answer, Send(1, WRITE, reg::SHARE_CONTROL), &[])]);
+}
+
+#[test]
+fn a_setup_request_while_cycling_ends_the_cycle_with_a_hold_and_a_new_setup() {
+    let mut bench = Bench::cycling();
+    bench.step(1_002, Answer);
+    bench.run(&[(1_010, Line::Demand(demand(0, false, 1)), HOLD_LEFT[0], &[])]);
+    for _ in 0..5 {
+        bench.step(1_010, Answer);
+    }
+    bench.run(&[(1_010, Answer, Send(1, WRITE, reg::SHARE_CONTROL), &[])]);
+    bench.set_up(1_010);
+    // Served: the next cycles go on.
+    let effects = bench.step(1_012, Answer);
+    assert_eq!(describe(&effects.next), WaitUntil(1_060));
+}
+
+#[test]
+fn the_cycle_never_waits_longer_than_a_third_of_the_drives_comm_timeout() {
+    let mut bench = Bench::cycling();
+    let mut slow = demand(0, false, 0);
+    slow.cycle_ms = 500;
+    bench.step(1_002, Answer);
+    bench.step(1_010, Line::Demand(slow));
+    assert_eq!(describe(&bench.step(1_012, Answer).next), WaitUntil(1_150));
+    assert_eq!(cycle_period_ms(500, &SETTINGS), 100);
+    let off = DriveSettings {
+        drive_comm_timeout_ms: None,
+        ..SETTINGS
+    };
+    assert_eq!(cycle_period_ms(500, &off), 500);
+}
+
+#[test]
+fn a_demand_while_a_request_is_out_is_kept_for_the_next_request() {
+    let mut bench = Bench::boot();
+    let mut gentler = demand(0, false, 0);
+    gentler.stop_decel = 2_000;
+    bench.run(&[(1, Line::Demand(gentler), CarryOn, &[])]);
+    bench.run(&[
+        (2, Answer, HOLD_LEFT[1], &[]),
+        (3, Answer, HOLD_LEFT[2], &[]),
+    ]);
+    bench.run(&[(4, Answer, HOLD_RIGHT_ZERO, &[])]);
+    assert_eq!(written_items(bench.request()), [16, 0, 0, 2_000, 2_000]);
+}
+
+#[test]
+fn a_timer_while_a_request_is_out_and_a_reply_while_waiting_change_nothing() {
+    let mut bench = Bench::boot();
+    bench.run(&[(1, Timer, CarryOn, &[])]);
+    for _ in 0..6 {
+        bench.step(2, Answer);
+    }
+    let waiting = bench.link.state();
+    let effects = bench
+        .link
+        .step(at(3), Event::Reply(Ok(&[1, 2, 3])), &SETTINGS);
+    assert_eq!(describe(&effects.next), CarryOn);
+    assert!(effects.reports.is_empty());
+    assert_eq!(bench.link.state(), waiting);
+}
