@@ -101,31 +101,48 @@ impl LoadReport {
 /// Motor power is cut this long after the e-stop button; see the module doc.
 pub const ESTOP_POWER_CUT_MS: u32 = 300;
 
-/// A relation between registers that every accepted state satisfies.
-struct CrossRule {
+/// A relation between registers that every accepted state satisfies: a write that
+/// would break one is refused as [`RegisterError::Inconsistent`]. Public so that PC
+/// tools can say which rule a value breaks before they write it.
+pub struct CrossRule {
     /// The registers the rule reads; restoring them to their defaults satisfies it.
-    registers: [Reg; 2],
-    holds: fn(&Registers) -> bool,
+    pub registers: [Reg; 2],
+    /// The rule as a person reads it.
+    pub text: &'static str,
+    /// Whether the rule holds for the register values `value` gives.
+    pub holds: fn(&dyn Fn(Reg) -> u16) -> bool,
 }
 
-const RULES: [CrossRule; 4] = [
+impl CrossRule {
+    fn holds_for(&self, registers: &Registers) -> bool {
+        (self.holds)(&|reg| registers.get(reg))
+    }
+}
+
+/// Every cross-register rule.
+pub const RULES: [CrossRule; 4] = [
     CrossRule {
         registers: [Reg::BattEmptyMv, Reg::BattFullMv],
-        holds: |r| r.get(Reg::BattEmptyMv) < r.get(Reg::BattFullMv),
+        text: "batt_empty_mv < batt_full_mv",
+        holds: |value| value(Reg::BattEmptyMv) < value(Reg::BattFullMv),
     },
     CrossRule {
         registers: [Reg::StartPc, Reg::ShutdownPc],
-        holds: |r| r.get(Reg::StartPc) < r.get(Reg::ShutdownPc),
+        text: "start_PC < shutdown_PC",
+        holds: |value| value(Reg::StartPc) < value(Reg::ShutdownPc),
     },
     CrossRule {
         registers: [Reg::PsRelMaxVel, Reg::PsAbsMaxVel],
-        holds: |r| r.get(Reg::PsRelMaxVel) <= r.get(Reg::PsAbsMaxVel),
+        text: "PS_rel_max_vel <= PS_abs_max_vel",
+        holds: |value| value(Reg::PsRelMaxVel) <= value(Reg::PsAbsMaxVel),
     },
     CrossRule {
         registers: [Reg::EstopDecel, Reg::MaxMotorVel],
-        holds: |r| {
-            u32::from(r.get(Reg::EstopDecel)) * ESTOP_POWER_CUT_MS
-                >= u32::from(r.get(Reg::MaxMotorVel)) * 1000
+        text: "estop_decel x 0.3 s >= max_motor_vel (the e-stop ramp ends before the \
+               power is cut)",
+        holds: |value| {
+            u32::from(value(Reg::EstopDecel)) * ESTOP_POWER_CUT_MS
+                >= u32::from(value(Reg::MaxMotorVel)) * 1000
         },
     },
 ];
@@ -329,7 +346,7 @@ impl Registers {
         for _ in 0..RULES.len() {
             let mut settled = true;
             for rule in &RULES {
-                if (rule.holds)(&registers) {
+                if rule.holds_for(&registers) {
                     continue;
                 }
                 settled = false;
@@ -362,7 +379,7 @@ impl Registers {
     }
 
     fn is_consistent(&self) -> bool {
-        RULES.iter().all(|rule| (rule.holds)(self))
+        RULES.iter().all(|rule| rule.holds_for(self))
     }
 }
 
