@@ -447,7 +447,7 @@ impl Controller {
                 let offset = self.registers.weight_offset();
                 match self
                     .scale_calibration
-                    .handle(step, self.scale.average(), offset)
+                    .step(step, self.scale.average(), offset)
                 {
                     Ok(Some(ScaleUpdate::Offset(value))) => {
                         let outcome = self.registers.set_weight_offset(value);

@@ -99,7 +99,7 @@ impl ScaleCalibration {
 
     /// Apply one step. `averaged_raw` is the averaged HX711 reading now (`None` if the
     /// load cell gives none); `current_offset` is the full offset (registers 44/45).
-    pub fn handle(
+    pub fn step(
         &mut self,
         cmd: ScaleCalibrationCommand,
         averaged_raw: Option<i32>,
@@ -161,15 +161,15 @@ mod tests {
     #[test]
     fn full_flow_stores_offset_at_tare_and_scale_value_at_known_weight() {
         let mut cal = ScaleCalibration::new();
-        assert_eq!(cal.handle(Cmd::Start, Some(20_000), 20_490), Ok(None));
+        assert_eq!(cal.step(Cmd::Start, Some(20_000), 20_490), Ok(None));
         assert_eq!(
-            cal.handle(Cmd::Tare, Some(20_480), 20_490),
+            cal.step(Cmd::Tare, Some(20_480), 20_490),
             Ok(Some(ScaleUpdate::Offset(20_480)))
         );
         assert_eq!(cal.phase(), ScaleCalibrationPhase::Tared);
         // 500 g of 19.00 counts/g on top of the new offset.
         assert_eq!(
-            cal.handle(Cmd::KnownWeight { grams: 500 }, Some(29_980), 20_480),
+            cal.step(Cmd::KnownWeight { grams: 500 }, Some(29_980), 20_480),
             Ok(Some(ScaleUpdate::ScaleValue(1900)))
         );
         assert_eq!(cal.phase(), ScaleCalibrationPhase::Idle);
@@ -178,18 +178,18 @@ mod tests {
     #[test]
     fn scale_value_is_rounded_to_the_nearest_hundredth_count_per_gram() {
         let mut cal = ScaleCalibration::new();
-        cal.handle(Cmd::Start, None, 0).unwrap();
-        cal.handle(Cmd::Tare, Some(1000), 0).unwrap();
+        cal.step(Cmd::Start, None, 0).unwrap();
+        cal.step(Cmd::Tare, Some(1000), 0).unwrap();
         // 1000 counts over 3 g: 333.33 counts/g → 33333.3 → 33333
         assert_eq!(
-            cal.handle(Cmd::KnownWeight { grams: 3 }, Some(2000), 1000),
+            cal.step(Cmd::KnownWeight { grams: 3 }, Some(2000), 1000),
             Ok(Some(ScaleUpdate::ScaleValue(33_333)))
         );
-        cal.handle(Cmd::Start, None, 0).unwrap();
-        cal.handle(Cmd::Tare, Some(1000), 0).unwrap();
+        cal.step(Cmd::Start, None, 0).unwrap();
+        cal.step(Cmd::Tare, Some(1000), 0).unwrap();
         // 1003 counts over 6 g: 16716.67 → 16717 (rounded up, not truncated)
         assert_eq!(
-            cal.handle(Cmd::KnownWeight { grams: 6 }, Some(2003), 1000),
+            cal.step(Cmd::KnownWeight { grams: 6 }, Some(2003), 1000),
             Ok(Some(ScaleUpdate::ScaleValue(16_717)))
         );
     }
@@ -197,11 +197,11 @@ mod tests {
     #[test]
     fn known_weight_uses_the_offset_in_force() {
         let mut cal = ScaleCalibration::new();
-        cal.handle(Cmd::Start, None, 0).unwrap();
-        cal.handle(Cmd::Tare, Some(20_000), 0).unwrap();
+        cal.step(Cmd::Start, None, 0).unwrap();
+        cal.step(Cmd::Tare, Some(20_000), 0).unwrap();
         // Register 19 was rewritten to 21 000 between the steps.
         assert_eq!(
-            cal.handle(Cmd::KnownWeight { grams: 100 }, Some(22_000), 21_000),
+            cal.step(Cmd::KnownWeight { grams: 100 }, Some(22_000), 21_000),
             Ok(Some(ScaleUpdate::ScaleValue(1000)))
         );
     }
@@ -209,10 +209,10 @@ mod tests {
     #[test]
     fn tare_can_be_repeated_before_the_known_weight() {
         let mut cal = ScaleCalibration::new();
-        cal.handle(Cmd::Start, None, 0).unwrap();
-        cal.handle(Cmd::Tare, Some(20_000), 0).unwrap();
+        cal.step(Cmd::Start, None, 0).unwrap();
+        cal.step(Cmd::Tare, Some(20_000), 0).unwrap();
         assert_eq!(
-            cal.handle(Cmd::Tare, Some(20_100), 20_000),
+            cal.step(Cmd::Tare, Some(20_100), 20_000),
             Ok(Some(ScaleUpdate::Offset(20_100)))
         );
         assert_eq!(cal.phase(), ScaleCalibrationPhase::Tared);
@@ -221,11 +221,11 @@ mod tests {
     #[test]
     fn start_restarts_from_any_phase() {
         let mut cal = ScaleCalibration::new();
-        cal.handle(Cmd::Start, None, 0).unwrap();
-        cal.handle(Cmd::Tare, Some(20_000), 0).unwrap();
-        assert_eq!(cal.handle(Cmd::Start, None, 20_000), Ok(None));
+        cal.step(Cmd::Start, None, 0).unwrap();
+        cal.step(Cmd::Tare, Some(20_000), 0).unwrap();
+        assert_eq!(cal.step(Cmd::Start, None, 20_000), Ok(None));
         assert_eq!(
-            cal.handle(Cmd::KnownWeight { grams: 100 }, Some(22_000), 20_000),
+            cal.step(Cmd::KnownWeight { grams: 100 }, Some(22_000), 20_000),
             Err(E::NotTared)
         );
     }
@@ -233,16 +233,16 @@ mod tests {
     #[test]
     fn tare_before_start_is_rejected() {
         let mut cal = ScaleCalibration::new();
-        assert_eq!(cal.handle(Cmd::Tare, Some(20_000), 0), Err(E::NotStarted));
+        assert_eq!(cal.step(Cmd::Tare, Some(20_000), 0), Err(E::NotStarted));
         assert_eq!(cal.phase(), ScaleCalibrationPhase::Idle);
     }
 
     #[test]
     fn known_weight_before_tare_is_rejected() {
         let mut cal = ScaleCalibration::new();
-        cal.handle(Cmd::Start, None, 0).unwrap();
+        cal.step(Cmd::Start, None, 0).unwrap();
         assert_eq!(
-            cal.handle(Cmd::KnownWeight { grams: 500 }, Some(30_000), 20_000),
+            cal.step(Cmd::KnownWeight { grams: 500 }, Some(30_000), 20_000),
             Err(E::NotTared)
         );
         assert_eq!(cal.phase(), ScaleCalibrationPhase::Started);
@@ -252,7 +252,7 @@ mod tests {
     fn known_weight_before_start_names_the_missing_start() {
         let mut cal = ScaleCalibration::new();
         assert_eq!(
-            cal.handle(Cmd::KnownWeight { grams: 500 }, Some(30_000), 20_000),
+            cal.step(Cmd::KnownWeight { grams: 500 }, Some(30_000), 20_000),
             Err(E::NotStarted)
         );
     }
@@ -260,12 +260,12 @@ mod tests {
     #[test]
     fn known_weight_after_a_completed_calibration_needs_a_new_start() {
         let mut cal = ScaleCalibration::new();
-        cal.handle(Cmd::Start, None, 0).unwrap();
-        cal.handle(Cmd::Tare, Some(20_000), 0).unwrap();
-        cal.handle(Cmd::KnownWeight { grams: 100 }, Some(21_900), 20_000)
+        cal.step(Cmd::Start, None, 0).unwrap();
+        cal.step(Cmd::Tare, Some(20_000), 0).unwrap();
+        cal.step(Cmd::KnownWeight { grams: 100 }, Some(21_900), 20_000)
             .unwrap();
         assert_eq!(
-            cal.handle(Cmd::KnownWeight { grams: 100 }, Some(21_900), 20_000),
+            cal.step(Cmd::KnownWeight { grams: 100 }, Some(21_900), 20_000),
             Err(E::NotStarted)
         );
     }
@@ -273,11 +273,11 @@ mod tests {
     #[test]
     fn tare_without_a_reading_is_rejected_and_can_be_retried() {
         let mut cal = ScaleCalibration::new();
-        cal.handle(Cmd::Start, None, 0).unwrap();
-        assert_eq!(cal.handle(Cmd::Tare, None, 0), Err(E::NoReading));
+        cal.step(Cmd::Start, None, 0).unwrap();
+        assert_eq!(cal.step(Cmd::Tare, None, 0), Err(E::NoReading));
         assert_eq!(cal.phase(), ScaleCalibrationPhase::Started);
         assert_eq!(
-            cal.handle(Cmd::Tare, Some(100), 0),
+            cal.step(Cmd::Tare, Some(100), 0),
             Ok(Some(ScaleUpdate::Offset(100)))
         );
     }
@@ -285,10 +285,10 @@ mod tests {
     #[test]
     fn known_weight_without_a_reading_is_rejected() {
         let mut cal = ScaleCalibration::new();
-        cal.handle(Cmd::Start, None, 0).unwrap();
-        cal.handle(Cmd::Tare, Some(20_000), 0).unwrap();
+        cal.step(Cmd::Start, None, 0).unwrap();
+        cal.step(Cmd::Tare, Some(20_000), 0).unwrap();
         assert_eq!(
-            cal.handle(Cmd::KnownWeight { grams: 500 }, None, 20_000),
+            cal.step(Cmd::KnownWeight { grams: 500 }, None, 20_000),
             Err(E::NoReading)
         );
         assert_eq!(cal.phase(), ScaleCalibrationPhase::Tared);
@@ -300,9 +300,9 @@ mod tests {
             80_000, -15_000, 65_536, -1, 0, 65_535, 8_388_607, -8_388_608,
         ] {
             let mut cal = ScaleCalibration::new();
-            cal.handle(Cmd::Start, None, 0).unwrap();
+            cal.step(Cmd::Start, None, 0).unwrap();
             assert_eq!(
-                cal.handle(Cmd::Tare, Some(raw), 0),
+                cal.step(Cmd::Tare, Some(raw), 0),
                 Ok(Some(ScaleUpdate::Offset(raw))),
                 "raw {raw}"
             );
@@ -310,10 +310,10 @@ mod tests {
         }
         // 500 g of 19 counts/g on an offset of -15 000.
         let mut cal = ScaleCalibration::new();
-        cal.handle(Cmd::Start, None, 0).unwrap();
-        cal.handle(Cmd::Tare, Some(-15_000), 0).unwrap();
+        cal.step(Cmd::Start, None, 0).unwrap();
+        cal.step(Cmd::Tare, Some(-15_000), 0).unwrap();
         assert_eq!(
-            cal.handle(Cmd::KnownWeight { grams: 500 }, Some(-5_500), -15_000),
+            cal.step(Cmd::KnownWeight { grams: 500 }, Some(-5_500), -15_000),
             Ok(Some(ScaleUpdate::ScaleValue(1900)))
         );
     }
@@ -322,9 +322,9 @@ mod tests {
     fn a_reading_beyond_24_bits_is_no_hx711_reading_and_is_refused() {
         for raw in [8_388_608, -8_388_609, i32::MAX, i32::MIN] {
             let mut cal = ScaleCalibration::new();
-            cal.handle(Cmd::Start, None, 0).unwrap();
+            cal.step(Cmd::Start, None, 0).unwrap();
             assert_eq!(
-                cal.handle(Cmd::Tare, Some(raw), 0),
+                cal.step(Cmd::Tare, Some(raw), 0),
                 Err(E::OffsetOutOfRange),
                 "raw {raw}"
             );
@@ -335,10 +335,10 @@ mod tests {
     #[test]
     fn zero_grams_is_rejected() {
         let mut cal = ScaleCalibration::new();
-        cal.handle(Cmd::Start, None, 0).unwrap();
-        cal.handle(Cmd::Tare, Some(20_000), 0).unwrap();
+        cal.step(Cmd::Start, None, 0).unwrap();
+        cal.step(Cmd::Tare, Some(20_000), 0).unwrap();
         assert_eq!(
-            cal.handle(Cmd::KnownWeight { grams: 0 }, Some(30_000), 20_000),
+            cal.step(Cmd::KnownWeight { grams: 0 }, Some(30_000), 20_000),
             Err(E::ZeroWeight)
         );
         assert_eq!(cal.phase(), ScaleCalibrationPhase::Tared);
@@ -360,10 +360,10 @@ mod tests {
         ];
         for (raw, grams) in cases {
             let mut cal = ScaleCalibration::new();
-            cal.handle(Cmd::Start, None, 0).unwrap();
-            cal.handle(Cmd::Tare, Some(20_000), 0).unwrap();
+            cal.step(Cmd::Start, None, 0).unwrap();
+            cal.step(Cmd::Tare, Some(20_000), 0).unwrap();
             assert_eq!(
-                cal.handle(Cmd::KnownWeight { grams }, Some(raw), 20_000),
+                cal.step(Cmd::KnownWeight { grams }, Some(raw), 20_000),
                 Err(E::ScaleValueOutOfRange),
                 "raw {raw}, {grams} g"
             );
@@ -374,10 +374,10 @@ mod tests {
     #[test]
     fn largest_fitting_scale_value_is_accepted() {
         let mut cal = ScaleCalibration::new();
-        cal.handle(Cmd::Start, None, 0).unwrap();
-        cal.handle(Cmd::Tare, Some(20_000), 0).unwrap();
+        cal.step(Cmd::Start, None, 0).unwrap();
+        cal.step(Cmd::Tare, Some(20_000), 0).unwrap();
         assert_eq!(
-            cal.handle(
+            cal.step(
                 Cmd::KnownWeight { grams: 100 },
                 Some(20_000 + 65_535),
                 20_000
