@@ -6,7 +6,8 @@
 //! # One shape for every state machine
 //!
 //! The supervisor, the front button and PC power ([`power`]), the gamepad mapping
-//! ([`remote`]) and the calibrations are written the same way:
+//! ([`remote`]), the drive link ([`drives::link`], whose `Params` are the drives'
+//! settings) and the calibrations are written the same way:
 //!
 //! - The state is an `enum` whose variants carry the data that only they need (a
 //!   timer that runs only while excited lives in `Active`, not beside the enum); what
