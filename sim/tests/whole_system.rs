@@ -4,9 +4,12 @@
 use base_core::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
 use base_core::can::{Command, Mode, Report, id};
 use base_core::drives::reg;
-use embassy_time::Instant;
+use embassy_futures::yield_now;
+use embassy_time::{Duration, Instant};
+use virtual_robot::can::{SimFrame, frame_time};
 use virtual_robot::io::SimLoadCell;
 use virtual_robot::robot::{Pc, VirtualRobot, wait_ms};
+use virtual_robot::runtime::stall;
 
 /// The drives answer 1 s after power-on; their setup takes a few transactions more.
 const BOOT_MS: u64 = 1_500;
@@ -592,6 +595,114 @@ fn an_enable_lapse_stops_within_the_stop_decel_bound_whatever_can_accel_says() {
             "CAN_accel {can_accel}: rolled {mm:.0} mm after the last enable"
         );
     }
+}
+
+/// What the flood in [`flooded_enable_lapse`] measured.
+struct Flood {
+    /// How long after the last enable both drives stood.
+    stood_after: Option<Duration>,
+    reads_sent: usize,
+    reads_answered: usize,
+    /// `can_tx_dropped` after the flood.
+    replies_dropped: Option<u16>,
+    /// Watchdog feeds during the flood, and how long after the last enable it bit,
+    /// if it did by the flood's end.
+    feeds: u32,
+    bitten_after: Option<Duration>,
+}
+
+/// Drives 500 mm/s, sends a last enable, then fills the bus with register reads back
+/// to back (one per frame time at 500 kbit/s) for `flood`, with no enable.
+fn flooded_enable_lapse(flood: Duration) -> Flood {
+    let robot = VirtualRobot::new();
+    robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        pc.drive(500, 0, 2_000).await;
+        pc.enable();
+        pc.velocity(500, 0);
+        let last_enable = Instant::now();
+        let feeds_before = robot.watchdog.feeds();
+        let replies_before = pc.reports(id::REGISTER_READ).len();
+        let read = Command::RegisterRead { address: 11 }.encode();
+        let wire = frame_time(&SimFrame::standard(read.id(), read.data()).expect("a frame"));
+        let mut stood_after = None;
+        let mut reads_sent = 0;
+        while Instant::now() - last_enable < flood {
+            pc.send(read);
+            reads_sent += 1;
+            // A frame arrives before each of the controller's turns, so the executor
+            // never idles and the virtual clock would stand still: the frame's time on
+            // the wire passes here instead.
+            stall(wire);
+            yield_now().await;
+            let stands = [1, 2]
+                .iter()
+                .all(|&slave| robot.drives.drive(slave).speed_rpm == 0.0);
+            if stands && stood_after.is_none() {
+                stood_after = Some(Instant::now() - last_enable);
+            }
+        }
+        let feeds = robot.watchdog.feeds() - feeds_before;
+        let bitten_after = robot.watchdog.bitten_at().map(|at| at - last_enable);
+        // The reads still queued are answered once the bus is quiet.
+        wait_ms(500).await;
+        let reads_answered = pc
+            .reports(id::REGISTER_READ)
+            .into_iter()
+            .skip(replies_before)
+            .filter(|(_, report)| matches!(report, Report::RegisterValue { .. }))
+            .count();
+        Flood {
+            stood_after,
+            reads_sent,
+            reads_answered,
+            replies_dropped: read_register(pc, 43).await,
+            feeds,
+            bitten_after,
+        }
+    })
+}
+
+/// A sustained input backlog starves neither the stops nor the watchdog: with the bus
+/// full of register reads (a new frame before each of the controller's turns) an
+/// enable lapse stops the base within the same bound as on a quiet bus, and every
+/// critical task keeps checking in. Why: the controller checked in only on its 10 ms
+/// tick, and took the tick only when its timer won against an empty queue; each turn
+/// made a new timer, whose first poll always waits, so with a frame before every turn
+/// the tick never came and the watchdog, last fed as the flood began, bit 2 s into it
+/// (the enable lapse still stopped the base, on the drive feedback).
+#[test]
+fn a_bus_full_of_frames_neither_delays_the_enable_stop_nor_starves_the_watchdog() {
+    let flood = Duration::from_secs(3);
+    let measured = flooded_enable_lapse(flood);
+    // Every read reached the controller: answered, or its reply dropped and counted.
+    let dropped = usize::from(measured.replies_dropped.expect("can_tx_dropped reads"));
+    assert!(
+        measured.reads_answered + dropped >= measured.reads_sent,
+        "{} reads sent, {} answered, {dropped} replies dropped",
+        measured.reads_sent,
+        measured.reads_answered
+    );
+    // The same bound as without the flood: the 500 ms enable timeout, then 336 r/min
+    // in 168 ms with stop_decel.
+    let stood_after = measured
+        .stood_after
+        .expect("the base stopped during the flood");
+    assert!(
+        (650..=700).contains(&stood_after.as_millis()),
+        "stood {} ms after the last enable",
+        stood_after.as_millis()
+    );
+    // The liveness task feeds every 500 ms while every critical task checks in.
+    let expected_feeds = (flood.as_millis() / 500 - 1) as u32;
+    assert!(
+        measured.feeds >= expected_feeds && measured.bitten_after.is_none(),
+        "the watchdog was fed {} times in {} ms of backlog, bitten {:?} ms into it: a \
+         critical task stopped checking in",
+        measured.feeds,
+        flood.as_millis(),
+        measured.bitten_after.map(|after| after.as_millis())
+    );
 }
 
 /// Why 1: entering the safety zone at 1.2 m/s ramped down with `CAN_accel` (here the
