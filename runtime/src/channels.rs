@@ -45,7 +45,8 @@ pub struct Channels {
     /// Controller → register store. Coalescing dirty marks, because flash writes are
     /// slow (an erase takes tens of ms) and the controller must never wait for them,
     /// yet no change may be lost: a value written twice is stored once, with its
-    /// latest value.
+    /// latest value. Its at-rest gate also holds back the Bluetooth task's bond writes:
+    /// flash is written only while the base stands.
     pub pending_writes: PendingWrites,
     /// Critical tasks → liveness task: check-in marks behind the watchdog.
     pub liveness: Liveness,
@@ -93,6 +94,7 @@ impl Channels {
         RemoteEnds {
             remote_requests: &self.remote_requests,
             inputs: self.inputs.sender(),
+            flash_gate: &self.pending_writes,
         }
     }
 }

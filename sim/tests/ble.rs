@@ -18,6 +18,7 @@ use std::time::{Duration, Instant};
 
 use base_core::can::{Command, Mode, Status};
 use base_core::registers::{OPEN_PAIRING_WINDOW_KEY, Reg};
+use embassy_futures::select::select;
 use embassy_time::Timer;
 use peer::Peer;
 use virtual_robot::ble::{BOND_FLASH_SIZE, RemoteRobot};
@@ -158,6 +159,55 @@ fn pairing_window_pairs_the_pad_stores_the_bond_and_decodes_its_reports() {
         "the bond is in its flash partition"
     );
     eprintln!("pairing scenario: {:?}", started.elapsed());
+}
+
+#[test]
+fn a_pad_paired_while_the_base_drives_is_stored_only_at_the_next_standstill() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        status(pc, 5_000, "the drives are set up", |s| {
+            s.mode == Mode::Standby
+        })
+        .await;
+        // The PC drives at 300 mm/s while a pad pairs: a flash erase now would stall
+        // the control loop (up to 400 ms on the chip).
+        let driving = async {
+            loop {
+                pc.enable();
+                pc.velocity(300, 0);
+                Timer::after_millis(50).await;
+            }
+        };
+        let pairing = async {
+            wheels(&robot, 3_000, true).await;
+            pair(&mut peer, pc, "pad", PAD_ADDRESS).await;
+            wheels(&robot, 100, true).await;
+            assert!(
+                !bond_stored_for(&robot, PAD_ADDRESS),
+                "the bond was written to flash while the wheels turned"
+            );
+        };
+        select(driving, pairing).await;
+        // The PC stops sending: the enable lapses, the base stops and the brakes close.
+        status(pc, 5_000, "the brakes close at standstill", |s| {
+            s.flags.brakes_applied
+        })
+        .await;
+        let deadline = Instant::now() + Duration::from_secs(2);
+        while !bond_stored_for(&robot, PAD_ADDRESS) {
+            assert!(
+                Instant::now() < deadline,
+                "the bond is stored at the standstill"
+            );
+            Timer::after_millis(10).await;
+        }
+        status(pc, 1_000, "the pad stays connected", |s| {
+            s.flags.remote_bonded && s.flags.remote_connected
+        })
+        .await;
+    });
 }
 
 /// Pulls the left stick forward with the dead-man held: the robot drives.

@@ -29,7 +29,7 @@ use core::ops::Range;
 
 use bt_hci::cmd::le::LeSetScanParams;
 use bt_hci::controller::ControllerCmdSync;
-use embassy_futures::select::{Either, Either4, select, select4};
+use embassy_futures::select::{Either, Either3, Either4, select, select3, select4};
 use embassy_time::{Duration, Timer, with_timeout};
 use embedded_storage_async::nor_flash::NorFlash;
 use heapless::Vec;
@@ -42,6 +42,7 @@ use trouble_host::prelude::*;
 use base_core::controller::Input;
 use base_core::hid::{GamepadLayout, VidPid};
 
+use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::signal::Signal;
 
 use crate::channels::RawMutex;
@@ -177,44 +178,61 @@ where
         request: RemoteRequest::default(),
     };
     let mut backoff = Backoff::default();
-    let never = select(runner.run_with_handler(&finder), async {
+    // A new bond waits here for the next standstill: on the chip a flash erase stalls
+    // everything for up to 400 ms, which must never happen while the wheels turn. The
+    // pad is served meanwhile; the bond lasts in the stack until it is stored.
+    let unsaved_bond: Signal<NoopRawMutex, BondInformation> = Signal::new();
+    let store_bonds_at_rest = async {
         loop {
-            remote.refresh_request();
-            let attempt = if remote.request.pairing_open {
-                match remote.pair_new_pad(&mut central, &finder).await {
-                    Ok((conn, bond)) => {
-                        if let Some(old) = bonded.replace(bond.clone()) {
-                            // The stack holds the new bond already; drop the old pad's,
-                            // unless the same pad paired again.
-                            if old.identity.addr != bond.identity.addr {
-                                let _ = stack.remove_bond_information(old.identity);
-                            }
-                        }
-                        if bonds.store(&bond).await.is_err() {
-                            warn!("remote: the bond could not be stored; it lasts until reboot");
-                        }
-                        report(channels, Input::RemotePaired).await;
-                        remote.serve(&conn).await;
-                        Attempt::Served
-                    }
-                    Err(attempt) => attempt,
-                }
-            } else if let Some(bond) = &bonded {
-                remote.reconnect(&mut central, bond).await
-            } else {
-                remote.wait_for_request().await;
-                Attempt::Idle
-            };
-            match attempt {
-                Attempt::Served => backoff.reset(),
-                Attempt::Idle => {}
-                Attempt::Failed => remote.back_off(backoff.after_failure()).await,
+            let bond = unsaved_bond.wait().await;
+            channels.flash_gate.wait_at_rest().await;
+            // A pad paired meanwhile replaces this one.
+            let bond = unsaved_bond.try_take().unwrap_or(bond);
+            if bonds.store(&bond).await.is_err() {
+                warn!("remote: the bond could not be stored; it lasts until reboot");
             }
         }
-    })
+    };
+    let never = select3(
+        runner.run_with_handler(&finder),
+        store_bonds_at_rest,
+        async {
+            loop {
+                remote.refresh_request();
+                let attempt = if remote.request.pairing_open {
+                    match remote.pair_new_pad(&mut central, &finder).await {
+                        Ok((conn, bond)) => {
+                            if let Some(old) = bonded.replace(bond.clone()) {
+                                // The stack holds the new bond already; drop the old pad's,
+                                // unless the same pad paired again.
+                                if old.identity.addr != bond.identity.addr {
+                                    let _ = stack.remove_bond_information(old.identity);
+                                }
+                            }
+                            unsaved_bond.signal(bond);
+                            report(channels, Input::RemotePaired).await;
+                            remote.serve(&conn).await;
+                            Attempt::Served
+                        }
+                        Err(attempt) => attempt,
+                    }
+                } else if let Some(bond) = &bonded {
+                    remote.reconnect(&mut central, bond).await
+                } else {
+                    remote.wait_for_request().await;
+                    Attempt::Idle
+                };
+                match attempt {
+                    Attempt::Served => backoff.reset(),
+                    Attempt::Idle => {}
+                    Attempt::Failed => remote.back_off(backoff.after_failure()).await,
+                }
+            }
+        },
+    )
     .await;
     match never {
-        Either::First(result) => {
+        Either3::First(result) => {
             // The runner only returns on a controller failure; nothing can be done
             // without it, so keep the remote off and let the rest of the base run.
             let _ = result;
@@ -223,7 +241,7 @@ where
                 core::future::pending::<()>().await;
             }
         }
-        Either::Second(never) => never,
+        Either3::Second(never) | Either3::Third(never) => never,
     }
 }
 

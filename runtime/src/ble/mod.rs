@@ -14,6 +14,7 @@ pub use central::*;
 use embassy_sync::signal::Signal;
 
 use crate::channels::{InputSender, RawMutex};
+use crate::store::PendingWrites;
 
 /// What the controller asks of the Bluetooth remote task.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -31,4 +32,6 @@ pub struct RemoteRequest {
 pub struct RemoteEnds<'a> {
     pub remote_requests: &'a Signal<RawMutex, RemoteRequest>,
     pub inputs: InputSender<'a>,
+    /// The bond is written to flash only at rest ([`PendingWrites::wait_at_rest`]).
+    pub flash_gate: &'a PendingWrites,
 }

@@ -889,10 +889,13 @@ pub async fn run<F: NorFlash>(
     }
 }
 
-/// Register values the store has yet to write.
+/// Register values the store has yet to write, and the gate that lets flash be written
+/// only while the base is at rest (for the Bluetooth bond too: [`Self::wait_at_rest`]).
 pub struct PendingWrites {
     state: Mutex<RawMutex, RefCell<Dirty>>,
     wake: Signal<RawMutex, ()>,
+    /// Wakes the one other flash writer, the Bluetooth task storing a bond.
+    rest_for_bond: Signal<RawMutex, ()>,
 }
 
 /// Whether flash may be written now.
@@ -934,6 +937,7 @@ impl PendingWrites {
                 values: [0; 64],
             })),
             wake: Signal::new(),
+            rest_for_bond: Signal::new(),
         }
     }
 
@@ -972,6 +976,7 @@ impl PendingWrites {
         });
         if changed && at_rest {
             self.wake.signal(());
+            self.rest_for_bond.signal(());
         }
     }
 
@@ -981,6 +986,14 @@ impl PendingWrites {
             let state = state.borrow();
             state.gate.writing || state.restore_defaults || state.marks != 0
         })
+    }
+
+    /// Returns once the base is at rest: for the Bluetooth task, which writes its bond
+    /// to flash only then, like the store its registers. One task may wait at a time.
+    pub async fn wait_at_rest(&self) {
+        while !self.state.lock(|state| state.borrow().gate.at_rest) {
+            self.rest_for_bond.wait().await;
+        }
     }
 
     /// Waits until something is pending and the base is at rest, then takes all of it.
@@ -1183,6 +1196,20 @@ mod pending_tests {
         let mut next = core::pin::pin!(pending.take_at_rest());
         assert!(next.as_mut().poll(&mut cx).is_pending());
         assert!(!pending.persist_pending(), "written");
+    }
+
+    #[test]
+    fn the_bond_writer_waits_for_the_next_standstill() {
+        let pending = PendingWrites::new();
+        let waker = core::task::Waker::noop();
+        let mut cx = core::task::Context::from_waker(waker);
+        pending.set_at_rest(false);
+        let mut wait = core::pin::pin!(pending.wait_at_rest());
+        assert!(wait.as_mut().poll(&mut cx).is_pending(), "moving: no flash");
+        pending.set_at_rest(true);
+        assert!(wait.as_mut().poll(&mut cx).is_ready(), "at rest: flash");
+        let mut at_rest_already = core::pin::pin!(pending.wait_at_rest());
+        assert!(at_rest_already.as_mut().poll(&mut cx).is_ready());
     }
 
     #[test]
