@@ -514,10 +514,11 @@ fn our_supervision_timeout_holds_through_pairing_and_encryption() {
         peer.cmd("advertise pad").await;
         peer.wait_for(mark, &["subscribed", "pad"], 10_000).await;
         // The request during the bonded encryption is answered with ours too, but now
-        // and then it goes unanswered (a known gap: trouble's GATT client set-up seems
-        // to take the event before our handler sees it): the link then keeps the 500 ms
-        // it was made with. Either way the pad's 6 s must never be
-        // granted, which is what stops the base on a dead link.
+        // and then it goes unanswered: trouble-host 0.8 drops a parameter request that
+        // arrives before `Central::connect` has handed the new connection to our task
+        // (its connection is still "connecting", and the event finds no connected
+        // link). The link then keeps the 500 ms it was made with. Either way the pad's
+        // 6 s must never be granted, which is what stops the base on a dead link.
         let answered = Instant::now();
         while peer.events_since(mark, &["central-params"]).is_empty()
             && answered.elapsed() < Duration::from_secs(5)
