@@ -1,6 +1,6 @@
 //! The simulator's console: one command per line on stdin acts on the robot's inputs
 //! (the e-stop, the safety zone, the front button, the battery, the scale, the drives'
-//! power), so a developer or a script can play the world around the controller.
+//! power and line, the controller's reset), so a developer or a script can play the world around the controller.
 
 /// The front button's hold time when `button press` names none: a short press, the
 /// confirm after an e-stop.
@@ -20,6 +20,10 @@ pub const HELP: &str = "\
   drive left|right silent on|off
                          cut one drive from the RS-485 line (on) or reconnect it
                          (off): it keeps running its last command, unheard
+  reboot [watchdog]      reset the controller alone, as its reset button or a
+                         brown-out does (the drives keep running until it stops
+                         them); watchdog: as a watchdog bite or a panic, which the
+                         status frame reports as watchdog_reset
   status                 print everything the simulator knows, on five lines
   help                   this list
   quit                   stop the simulator";
@@ -41,6 +45,10 @@ pub enum ConsoleCommand {
     DriveSilent {
         wheel: Side,
         silent: bool,
+    },
+    /// The controller resets; `by_watchdog`: its reset reason says watchdog.
+    Reboot {
+        by_watchdog: bool,
     },
     Status,
     Help,
@@ -136,6 +144,9 @@ pub fn parse_console_line(line: &str) -> Result<Option<ConsoleCommand>, ConsoleE
             }
         }
         ["drive", ..] => return Err(ConsoleError::Usage("drive left|right silent on|off")),
+        ["reboot"] => ConsoleCommand::Reboot { by_watchdog: false },
+        ["reboot", "watchdog"] => ConsoleCommand::Reboot { by_watchdog: true },
+        ["reboot", ..] => return Err(ConsoleError::Usage("reboot [watchdog]")),
         ["status"] => ConsoleCommand::Status,
         ["help"] => ConsoleCommand::Help,
         ["quit" | "exit"] => ConsoleCommand::Quit,
@@ -195,6 +206,11 @@ mod tests {
                     silent: false,
                 },
             ),
+            ("reboot", ConsoleCommand::Reboot { by_watchdog: false }),
+            (
+                "reboot watchdog",
+                ConsoleCommand::Reboot { by_watchdog: true },
+            ),
             ("status # comments are allowed", ConsoleCommand::Status),
             ("help", ConsoleCommand::Help),
             ("quit", ConsoleCommand::Quit),
@@ -237,6 +253,8 @@ mod tests {
             ("drive middle silent on", "drive left|right silent on|off"),
             ("drive left silent", "drive left|right silent on|off"),
             ("drive left silent maybe", "drive left|right silent on|off"),
+            ("reboot now", "reboot [watchdog]"),
+            ("reboot watchdog twice", "reboot [watchdog]"),
             ("quit now", "status, help and quit take no arguments"),
         ] {
             assert_eq!(
