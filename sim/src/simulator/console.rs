@@ -1,6 +1,7 @@
 //! The simulator's console: one command per line on stdin acts on the robot's inputs
 //! (the e-stop, the safety zone, the front button, the battery, the scale, the drives'
-//! power and line, the controller's reset), so a developer or a script can play the world around the controller.
+//! power and line, the controller's reset), so a developer or a script can play the
+//! world around the controller.
 
 /// The front button's hold time when `button press` names none: a short press, the
 /// confirm after an e-stop.
@@ -10,7 +11,7 @@ pub const MAX_PRESS_MS: u64 = 60_000;
 
 /// The console commands, as `--help` and `help` show them.
 pub const HELP: &str = "\
-  estop on|off           press (on) or release (off) the emergency stop
+\x20 estop on|off           press (on) or release (off) the emergency stop
   zone on|off            someone enters (on) or leaves (off) the safety zone
   button press [MS]      press the front button for MS ms (default 200; hold
                          longer to switch the PC off, see the PC button timings)
@@ -21,9 +22,9 @@ pub const HELP: &str = "\
                          cut one drive from the RS-485 line (on) or reconnect it
                          (off): it keeps running its last command, unheard
   reboot [watchdog]      reset the controller alone, as its reset button or a
-                         brown-out does (the drives keep running until it stops
-                         them); watchdog: as a watchdog bite or a panic, which the
-                         status frame reports as watchdog_reset
+                         brown-out does: the drives run on until the new boot
+                         stops them; watchdog: as a watchdog bite or a panic
+                         (the status frame then shows watchdog_reset)
   status                 print everything the simulator knows, on five lines
   help                   this list
   quit                   stop the simulator";
@@ -218,6 +219,15 @@ mod tests {
         ] {
             assert_eq!(parse_console_line(line), Ok(Some(command)), "{line}");
         }
+    }
+
+    #[test]
+    fn the_help_is_indented_evenly_and_fits_80_columns() {
+        for line in HELP.lines() {
+            assert!(line.starts_with("  "), "{line:?}");
+            assert!(line.len() <= 80, "{} columns: {line:?}", line.len());
+        }
+        assert!(HELP.contains("reboot [watchdog]"));
     }
 
     #[test]
