@@ -179,10 +179,13 @@ async fn controller(
     mut remote: Option<crate::ble::LiveRemote>,
 ) -> ! {
     let robot = view.robot;
-    let mut can = Some(first_can);
+    let mut first_can = Some(first_can);
     let mut reset_by_watchdog = false;
     loop {
-        let (can_rx, can_tx) = can.take().unwrap_or_else(|| view.peer.reset_controller());
+        let (can_rx, can_tx) = match first_can.take() {
+            Some(ports) => ports,
+            None => view.peer.reset_controller(),
+        };
         let hardware = Hardware {
             can_rx,
             can_tx,
