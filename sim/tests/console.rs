@@ -1,7 +1,8 @@
 //! The simulator's fault commands end to end, on the real binary and the wall clock: a
 //! PC on socketcand drives the base while the console resets the controller
 //! (`reboot`) or cuts a drive from the RS-485 line (`drive right silent on`), and the
-//! console's `status` shows what the drives really do.
+//! console's `status` shows what the drives really do. With Bumble installed, a paired
+//! gamepad on `--hci` comes back after a reboot (skipped without it, except in CI).
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
@@ -11,7 +12,14 @@ use std::sync::mpsc::{Receiver, channel};
 use std::thread;
 use std::time::{Duration, Instant};
 
-use base_core::can::{Mode, Report, Status, id};
+use base_core::can::{Command as CanCommand, Mode, Report, Status, id};
+use base_core::registers::{OPEN_PAIRING_WINDOW_KEY, Reg};
+use virtual_robot::runtime::block_on_realtime;
+
+// The Bumble gamepad peer of the BLE scenarios; this file uses part of it.
+#[allow(dead_code)]
+#[path = "ble/peer.rs"]
+mod peer;
 
 /// 500 mm/s on 142 mm wheels behind a 10:1 gear: 336 rpm at the motor.
 const RPM_AT_500_MM_S: i32 = 336;
@@ -52,6 +60,10 @@ struct Simulator {
 
 impl Simulator {
     fn start(name: &str) -> Self {
+        Self::start_with(name, &[])
+    }
+
+    fn start_with(name: &str, extra_args: &[&str]) -> Self {
         let directory =
             std::env::temp_dir().join(format!("sim-console-{name}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&directory);
@@ -62,6 +74,7 @@ impl Simulator {
             .arg("--flash")
             .arg(directory.join("flash.bin"))
             .args(["--socketcand", "127.0.0.1:0"])
+            .args(extra_args)
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
@@ -225,6 +238,11 @@ impl Pc {
             }
         });
         Self { stream, reports }
+    }
+
+    fn command(&mut self, command: CanCommand) {
+        let frame = command.encode();
+        self.send(frame.id(), frame.data());
     }
 
     fn send(&mut self, frame_id: u16, data: &[u8]) {
@@ -488,4 +506,58 @@ fn a_silent_drive_stops_the_base_and_a_confirm_recovers_once_it_answers() {
         .expect("the confirm brings the base back to Standby");
     assert!(!status.faults.right_drive_silent, "{status:?}");
     drive_at_500(&mut simulator, &mut pc);
+}
+
+#[test]
+fn after_a_reboot_the_paired_remote_reconnects_encrypted_with_the_bond_from_flash() {
+    if !peer::bumble_available() {
+        return;
+    }
+    let mut pad = peer::Peer::start();
+    let virtual_robot::ble::HciSpec::Tcp(hci) = pad.hci.clone();
+    let hci = format!("tcp:{hci}");
+    let mut simulator = Simulator::start_with("remote", &["--hci", &hci]);
+    let mut pc = Pc::connect(simulator.port);
+    pc.wait_for_status(Duration::from_secs(5), |_| true)
+        .expect("the controller is up");
+    block_on_realtime(async {
+        pad.cmd("pad pad C1:11:22:33:44:55").await;
+        pad.cmd("advertise pad").await;
+    });
+    pc.command(CanCommand::RegisterWrite {
+        address: Reg::Command as u8,
+        value: OPEN_PAIRING_WINDOW_KEY,
+    });
+    block_on_realtime(async {
+        pad.wait_for(0, &["paired", "pad"], 20_000).await;
+        pad.wait_for(0, &["subscribed", "pad"], 10_000).await;
+    });
+    pc.wait_for_status(Duration::from_secs(5), |status| {
+        status.flags.remote_bonded && status.flags.remote_connected
+    })
+    .expect("the paired pad is connected");
+
+    // The chip resets: its radio goes with it, the pad sees the link drop, and the new
+    // boot's host connects to the HCI transport afresh.
+    let mark = pad.mark();
+    simulator.command("reboot");
+    pc.wait_for_status(Duration::from_secs(3), |status| {
+        status.mode == Mode::Starting
+    })
+    .expect("the rebooted controller reports Starting");
+    block_on_realtime(async {
+        pad.wait_for(mark, &["host-connected", "2"], 5_000).await;
+        pad.wait_for(mark, &["disconnected", "pad"], 5_000).await;
+        pad.cmd("advertise pad").await;
+        pad.wait_for(mark, &["encrypted", "pad", "1"], 10_000).await;
+        pad.wait_for(mark, &["subscribed", "pad"], 10_000).await;
+    });
+    assert!(
+        pad.events_since(mark, &["pairing-started"]).is_empty(),
+        "the bond came back from the flash file: no new pairing"
+    );
+    pc.wait_for_status(Duration::from_secs(3), |status| {
+        status.flags.remote_bonded && status.flags.remote_connected
+    })
+    .expect("the pad is back after the reboot");
 }
