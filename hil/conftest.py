@@ -88,6 +88,10 @@ class SimulatorOperator:
     def confirm(self):
         self.simulator.command("button press 200")
 
+    def reset_controller(self):
+        # The controller alone restarts; the SLCAN port and the drives stay as they are.
+        self.simulator.command("reboot")
+
     def reboot(self):
         self.base.close()
         self.simulator.stop()

@@ -127,3 +127,7 @@ class HumanOperator:
 
     def reboot(self):
         self._ask("Power-cycle the base controller and wait 5 s")
+
+    def reset_controller(self):
+        self._ask("While the wheels turn, press the base controller's reset button "
+                  "(the drives keep their power)")

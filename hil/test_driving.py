@@ -60,3 +60,24 @@ def test_the_base_stops_when_the_enable_lapses_and_stays_still_after_a_new_enabl
     with base.enabled():
         time.sleep(1.0)
         assert base.position().x_mm == stopped.x_mm
+
+
+def test_a_controller_reset_while_driving_stops_the_base_and_it_boots_to_standby(base, operator):
+    with base.enabled():
+        base.wait_for_mode("Standby", timeout=15)
+        base.send(p.reset_odometry())
+        drive(base, 300, 0, 1.5)
+        before = base.position()
+        assert before.x_mm > 200
+        # The controller resets alone; the drives keep their power and their last
+        # speed until the new boot holds them at zero. The enable goes on, as from a PC
+        # that did not notice; the velocity is not sent again.
+        base.flush()
+        operator.reset_controller()
+        base.wait_for_mode("Starting", timeout=5)
+        base.wait_for_mode("Standby", timeout=15)
+        # A fresh pose, and the base stands: nothing brings the old velocity back.
+        stopped = base.position()
+        assert abs(stopped.x_mm) < 100 and abs(stopped.y_mm) < 100, (before, stopped)
+        time.sleep(1.0)
+        assert base.position() == stopped

@@ -324,6 +324,32 @@ impl CanPeer {
         self.bus.borrow_mut().bus_off = true;
     }
 
+    /// The controller's CAN node restarts, as when the chip resets while the bus and
+    /// the PC stay up: its receive queue is emptied (frames it had not read are lost),
+    /// its acceptance filter is gone and it is error-active again (a reset clears the
+    /// error counters). Returns the new boot's two halves on the same bus; the PC's end
+    /// and every clone of it stay connected, and frames the controller sent before the
+    /// reset stay sent.
+    ///
+    /// The previous boot's halves must be dropped first (the firmware that held them
+    /// is gone): they would share the bus with the new ones.
+    pub fn reset_controller(&self) -> (CanRxPort, CanTxPort) {
+        let mut bus = self.bus.borrow_mut();
+        bus.to_firmware.clear();
+        bus.filter = None;
+        bus.bus_off = false;
+        bus.error_passive = false;
+        drop(bus);
+        (
+            CanRxPort {
+                bus: self.bus.clone(),
+            },
+            CanTxPort {
+                bus: self.bus.clone(),
+            },
+        )
+    }
+
     /// Bus-off recoveries the firmware completed.
     pub fn recoveries(&self) -> u32 {
         self.bus.borrow().recoveries

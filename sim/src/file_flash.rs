@@ -28,7 +28,9 @@ impl NorFlashError for FileFlashError {
     }
 }
 
-/// A NOR flash in RAM, saved to `path` after every change.
+/// A NOR flash in RAM, saved to `path` after every change. Clones share the bytes
+/// and the file, as each boot of the controller shares the chip's flash.
+#[derive(Clone)]
 pub struct FileFlash {
     flash: RamFlash,
     path: PathBuf,

@@ -353,3 +353,29 @@ fn a_standard_filter_refuses_ids_wider_than_11_bits() {
     let (mut rx, _tx, _peer) = VirtualCan::new();
     rx.accept_only_standard(&[0x800]);
 }
+
+#[test]
+fn a_controller_reset_clears_its_node_and_keeps_the_pc_on_the_same_bus() {
+    let (mut rx, mut tx, peer) = VirtualCan::new();
+    let pc = peer.clone();
+    rx.accept_only_standard(&[id::HEARTBEAT]);
+    block_on(tx.transmit(&frame(0x0EE, &[1]))).unwrap();
+    // Unread when the chip resets: lost with it.
+    peer.send(id::HEARTBEAT, &[1]);
+    peer.force_bus_off();
+    peer.set_error_passive(true);
+    drop((rx, tx));
+
+    let (mut rx, mut tx) = peer.reset_controller();
+    assert_eq!(tx.state(), BusState::Active);
+    // No filter any more: a frame the old filter refused comes through.
+    pc.send(0x123, &[2]);
+    assert_eq!(block_on(rx.receive()), Ok(frame(0x123, &[2])));
+    block_on(tx.transmit(&frame(0x0EE, &[3]))).unwrap();
+    // The PC's clone gets both boots' frames, in order.
+    block_on(async {
+        assert_eq!(pc.receive().await, frame(0x0EE, &[1]));
+        assert_eq!(pc.receive().await, frame(0x0EE, &[3]));
+    });
+    assert_eq!(pc.sent_with_id(0x0EE).len(), 2);
+}

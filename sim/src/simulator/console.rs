@@ -1,6 +1,7 @@
 //! The simulator's console: one command per line on stdin acts on the robot's inputs
 //! (the e-stop, the safety zone, the front button, the battery, the scale, the drives'
-//! power), so a developer or a script can play the world around the controller.
+//! power and line, the controller's reset), so a developer or a script can play the
+//! world around the controller.
 
 /// The front button's hold time when `button press` names none: a short press, the
 /// confirm after an e-stop.
@@ -10,7 +11,7 @@ pub const MAX_PRESS_MS: u64 = 60_000;
 
 /// The console commands, as `--help` and `help` show them.
 pub const HELP: &str = "\
-  estop on|off           press (on) or release (off) the emergency stop
+\x20 estop on|off           press (on) or release (off) the emergency stop
   zone on|off            someone enters (on) or leaves (off) the safety zone
   button press [MS]      press the front button for MS ms (default 200; hold
                          longer to switch the PC off, see the PC button timings)
@@ -20,6 +21,10 @@ pub const HELP: &str = "\
   drive left|right silent on|off
                          cut one drive from the RS-485 line (on) or reconnect it
                          (off): it keeps running its last command, unheard
+  reboot [watchdog]      reset the controller alone, as its reset button or a
+                         brown-out does: the drives run on until the new boot
+                         stops them; watchdog: as a watchdog bite or a panic
+                         (the status frame then shows watchdog_reset)
   status                 print everything the simulator knows, on five lines
   help                   this list
   quit                   stop the simulator";
@@ -41,6 +46,10 @@ pub enum ConsoleCommand {
     DriveSilent {
         wheel: Side,
         silent: bool,
+    },
+    /// The controller resets; `by_watchdog`: its reset reason says watchdog.
+    Reboot {
+        by_watchdog: bool,
     },
     Status,
     Help,
@@ -136,6 +145,9 @@ pub fn parse_console_line(line: &str) -> Result<Option<ConsoleCommand>, ConsoleE
             }
         }
         ["drive", ..] => return Err(ConsoleError::Usage("drive left|right silent on|off")),
+        ["reboot"] => ConsoleCommand::Reboot { by_watchdog: false },
+        ["reboot", "watchdog"] => ConsoleCommand::Reboot { by_watchdog: true },
+        ["reboot", ..] => return Err(ConsoleError::Usage("reboot [watchdog]")),
         ["status"] => ConsoleCommand::Status,
         ["help"] => ConsoleCommand::Help,
         ["quit" | "exit"] => ConsoleCommand::Quit,
@@ -195,6 +207,11 @@ mod tests {
                     silent: false,
                 },
             ),
+            ("reboot", ConsoleCommand::Reboot { by_watchdog: false }),
+            (
+                "reboot watchdog",
+                ConsoleCommand::Reboot { by_watchdog: true },
+            ),
             ("status # comments are allowed", ConsoleCommand::Status),
             ("help", ConsoleCommand::Help),
             ("quit", ConsoleCommand::Quit),
@@ -202,6 +219,15 @@ mod tests {
         ] {
             assert_eq!(parse_console_line(line), Ok(Some(command)), "{line}");
         }
+    }
+
+    #[test]
+    fn the_help_is_indented_evenly_and_fits_80_columns() {
+        for line in HELP.lines() {
+            assert!(line.starts_with("  "), "{line:?}");
+            assert!(line.len() <= 80, "{} columns: {line:?}", line.len());
+        }
+        assert!(HELP.contains("reboot [watchdog]"));
     }
 
     #[test]
@@ -237,6 +263,8 @@ mod tests {
             ("drive middle silent on", "drive left|right silent on|off"),
             ("drive left silent", "drive left|right silent on|off"),
             ("drive left silent maybe", "drive left|right silent on|off"),
+            ("reboot now", "reboot [watchdog]"),
+            ("reboot watchdog twice", "reboot [watchdog]"),
             ("quit now", "status, help and quit take no arguments"),
         ] {
             assert_eq!(

@@ -18,6 +18,8 @@ use std::path::PathBuf;
 use base_core::can::Mode;
 use base_runtime::{Hardware, channels::Channels};
 use embassy_futures::select::{Either, Either3, Either4, select, select3, select4};
+use embassy_sync::blocking_mutex::raw::NoopRawMutex;
+use embassy_sync::signal::Signal;
 use embassy_time::{Instant, Timer};
 use embedded_hal::digital::PinState;
 
@@ -132,22 +134,6 @@ pub fn run(options: &Options) -> io::Result<()> {
         .transpose()?;
     let console_lines = read_stdin_lines()?;
     let (can_rx, can_tx, peer) = VirtualCan::new();
-    let hardware = Hardware {
-        can_rx,
-        can_tx,
-        drives: robot.drives.port(),
-        flash,
-        flash_range: 0..FLASH_SIZE,
-        estop: robot.estop.clone(),
-        safety_zone: robot.safety_zone.clone(),
-        button: robot.button.clone(),
-        pc_switch: robot.pc_switch.clone(),
-        battery: robot.battery.clone(),
-        load_cell: robot.load_cell.clone(),
-        watchdog: robot.watchdog.clone(),
-        reset_by_watchdog: false,
-    };
-    let channels = Channels::new();
     let view = View {
         robot: &robot,
         peer: &peer,
@@ -155,6 +141,7 @@ pub fn run(options: &Options) -> io::Result<()> {
         slcan: SlcanCounters::default(),
         network: NetworkCounters::default(),
         output,
+        reboot: Signal::new(),
     };
     block_on_realtime(async {
         let ending = select3(
@@ -163,22 +150,88 @@ pub fn run(options: &Options) -> io::Result<()> {
             signals.receive(),
         );
         match select4(
-            embassy_futures::join::join(
-                base_runtime::run(hardware, robot.settings, &channels),
-                crate::ble::run_live_remote(remote, &channels),
-            ),
+            controller(&view, options, flash, (can_rx, can_tx), remote),
             bridge(&port, &network, socketcan.as_ref(), &view),
             show_status(&view),
             ending,
         )
         .await
         {
-            Either4::First((never, ())) | Either4::Second(never) | Either4::Third(never) => never,
+            Either4::First(never) | Either4::Second(never) | Either4::Third(never) => never,
             Either4::Fourth(_) => {}
         }
     });
     view.output.finish_status();
     Ok(())
+}
+
+/// The controller: the firmware's tasks on the robot's hardware, booted again from
+/// scratch at every console `reboot`. A reboot drops the running firmware where it
+/// stands, as a reset does to the chip: the drives, the flash, the inputs and the
+/// sensors stay as they are (the drives keep their last command until the new boot
+/// stops them), and the controller's CAN node restarts on the same bus, so the
+/// simulator's SLCAN port, socketcand clients and SocketCAN interface stay connected.
+async fn controller(
+    view: &View<'_>,
+    options: &Options,
+    flash: FileFlash,
+    first_can: (crate::can::CanRxPort, crate::can::CanTxPort),
+    mut remote: Option<crate::ble::LiveRemote>,
+) -> ! {
+    let robot = view.robot;
+    let mut first_can = Some(first_can);
+    let mut reset_by_watchdog = false;
+    loop {
+        let (can_rx, can_tx) = match first_can.take() {
+            Some(ports) => ports,
+            None => view.peer.reset_controller(),
+        };
+        let hardware = Hardware {
+            can_rx,
+            can_tx,
+            drives: robot.drives.port(),
+            flash: flash.clone(),
+            flash_range: 0..FLASH_SIZE,
+            estop: robot.estop.clone(),
+            safety_zone: robot.safety_zone.clone(),
+            button: robot.button.clone(),
+            pc_switch: robot.pc_switch.clone(),
+            battery: robot.battery.clone(),
+            load_cell: robot.load_cell.clone(),
+            watchdog: robot.watchdog.clone(),
+            reset_by_watchdog,
+        };
+        let channels = Channels::new();
+        let firmware = embassy_futures::join::join(
+            base_runtime::run(hardware, robot.settings, &channels),
+            crate::ble::run_live_remote(remote.take(), &channels),
+        );
+        // The firmware (and its end of the HCI connection) is dropped at the end of
+        // this statement: the chip is reset.
+        reset_by_watchdog = match select(firmware, view.reboot.wait()).await {
+            Either::First((never, ())) => never,
+            Either::Second(by_watchdog) => by_watchdog,
+        };
+        view.output.message(if reset_by_watchdog {
+            "reboot: the controller restarts as after a watchdog reset (the status frame \
+             reports watchdog_reset); the drives keep running until it stops them"
+        } else {
+            "reboot: the controller restarts as after a reset or brown-out; the drives \
+             keep running until it stops them"
+        });
+        // The radio restarts with the chip: a new host on the HCI transport.
+        if let Some(spec) = &options.hci {
+            remote = match crate::ble::LiveRemote::open(spec, &options.flash_path) {
+                Ok(remote) => Some(remote),
+                Err(error) => {
+                    view.output.message(&format!(
+                        "reboot: {error}; the controller runs without the remote"
+                    ));
+                    None
+                }
+            };
+        }
+    }
 }
 
 /// Ctrl-C, SIGTERM and SIGHUP end the simulator as `quit` does, so that its link and
@@ -258,6 +311,8 @@ struct View<'a> {
     slcan: SlcanCounters,
     network: NetworkCounters,
     output: Output,
+    /// The console asked for a reboot: `true` as by the watchdog.
+    reboot: Signal<NoopRawMutex, bool>,
 }
 
 impl View<'_> {
@@ -569,6 +624,7 @@ async fn serve_console(lines: &QueueReceiver<String>, view: &View<'_>) {
             ConsoleCommand::DriveSilent { wheel, silent } => {
                 robot.drives.set_silent(wheel.slave(), silent)
             }
+            ConsoleCommand::Reboot { by_watchdog } => view.reboot.signal(by_watchdog),
             ConsoleCommand::Status => view.output.message(&view.status_report()),
             ConsoleCommand::Help => view.output.message(HELP),
             ConsoleCommand::Quit => return,

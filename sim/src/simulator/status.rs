@@ -152,6 +152,7 @@ pub fn status_report(
     let (x, y) = telemetry.position_mm.unwrap_or_default();
     let heading = telemetry.heading_mrad.unwrap_or_default();
     let [left, right] = motor_rpm(robot);
+    let [turned_left, turned_right] = motor_revolutions(robot);
     let battery = telemetry
         .battery
         .map_or("-".to_owned(), |(percent, millivolts)| {
@@ -169,7 +170,8 @@ pub fn status_report(
     let channel = if slcan.open.get() { "open" } else { "closed" };
     format!(
         "time {:.1} s  mode {mode}  control {}\n\
-         pose x {x} mm  y {y} mm  heading {heading} mrad  motors L {left} R {right} rpm\n\
+         pose x {x} mm  y {y} mm  heading {heading} mrad  motors L {left} R {right} rpm  \
+         turned L {turned_left:.3} R {turned_right:.3} rev\n\
          battery {battery}  load {weight}  e-stop {estop}  zone {zone}  PC {pc_power}\n\
          slcan {channel}: in {} out {} dropped {}\n\
          socketcand: {} clients, in {} out {}, {} dropped for not reading; \
@@ -202,6 +204,14 @@ fn motor_rpm(robot: &VirtualRobot) -> [i32; 2] {
         let drive = robot.drives.drive(slave.address);
         drive.forward_rpm().round() as i32
     })
+}
+
+/// The motors' positions, forward revolutions since the drives were powered: how far
+/// the wheels really travelled, whatever the controller knows of it.
+fn motor_revolutions(robot: &VirtualRobot) -> [f64; 2] {
+    DrivesConfig::default()
+        .slaves
+        .map(|slave| robot.drives.drive(slave.address).forward_revolutions())
 }
 
 /// The inputs are active low: low means pressed (e-stop) or occupied (zone).
