@@ -89,10 +89,20 @@ pub enum Input {
     /// The register store's page erases so far (its wear), for `flash_erases_hi`/`_lo`:
     /// sent at boot and whenever the count changed.
     FlashErases(u32),
-    /// The last reset was caused by the watchdog.
-    WatchdogReset,
     /// Time passed: timeouts and periodic frames are checked.
     Tick,
+}
+
+/// What the shell found while booting, before the controller's first input.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct BootReport {
+    /// The register store was blank or corrupt.
+    pub flash_fault: bool,
+    /// The last reset was the watchdog's (a panic resets as the watchdog does).
+    pub watchdog_reset: bool,
+    /// The register store's page erases so far.
+    pub flash_erases: u32,
 }
 
 /// Register changes the flash task must persist.
@@ -225,6 +235,23 @@ impl Controller {
         }
     }
 
+    /// A controller starting at `now`, with what the shell found while booting: the
+    /// first status frame carries every boot fault at once.
+    pub fn boot(now: Timestamp, registers: Registers, report: &BootReport) -> Self {
+        let mut controller = Self::new(now, registers);
+        controller.faults.flash = report.flash_fault;
+        controller.faults.watchdog_reset = report.watchdog_reset;
+        controller.set_flash_erases(report.flash_erases);
+        controller
+    }
+
+    fn set_flash_erases(&mut self, erases: u32) {
+        self.registers
+            .set_counter(Reg::FlashErasesHi, (erases >> 16) as u16);
+        self.registers
+            .set_counter(Reg::FlashErasesLo, erases as u16);
+    }
+
     /// The runtime's word on whether register values still wait for the flash (it
     /// writes only at standstill), for the status frame.
     pub fn set_persist_pending(&mut self, pending: bool) {
@@ -314,13 +341,7 @@ impl Controller {
             }
             Input::CanBusFault => self.faults.can_bus = true,
             Input::FlashFault => self.faults.flash = true,
-            Input::FlashErases(erases) => {
-                self.registers
-                    .set_counter(Reg::FlashErasesHi, (erases >> 16) as u16);
-                self.registers
-                    .set_counter(Reg::FlashErasesLo, erases as u16);
-            }
-            Input::WatchdogReset => self.faults.watchdog_reset = true,
+            Input::FlashErases(erases) => self.set_flash_erases(erases),
             Input::Tick => {
                 if self.pairing.expire(now) {
                     info!("pairing window closed: time is up");
@@ -935,6 +956,33 @@ mod tests {
 
     fn can(command: Command) -> Input {
         Input::CanFrame(command.encode())
+    }
+
+    #[test]
+    fn the_first_status_frame_after_boot_carries_every_boot_fault() {
+        let report = BootReport {
+            flash_fault: true,
+            watchdog_reset: true,
+            flash_erases: 70_000,
+        };
+        let mut controller = Controller::boot(at(0), Registers::defaults(), &report);
+        let out = controller.handle(at(0), Input::Tick);
+        let frame = out
+            .frames
+            .iter()
+            .find(|frame| frame.id() == crate::can::id::STATUS)
+            .expect("a status frame at boot");
+        let data: [u8; 8] = frame.data().try_into().expect("8 bytes");
+        let status = Status::from_bytes(data).expect("a valid status frame");
+        assert!(status.faults.flash && status.faults.watchdog_reset);
+        let registers = controller.registers();
+        assert_eq!(
+            (
+                registers.get(Reg::FlashErasesHi),
+                registers.get(Reg::FlashErasesLo)
+            ),
+            (1, 4_464)
+        );
     }
 
     /// Drives ready, CAN enabled and driving forward at 500 mm/s since 0 ms.

@@ -307,7 +307,6 @@ fn input() -> impl Strategy<Value = Input> {
         1 => prop_oneof![
             Just(Input::CanBusFault),
             Just(Input::FlashFault),
-            Just(Input::WatchdogReset),
         ],
         8 => Just(Input::Tick),
     ]
@@ -972,8 +971,7 @@ fn never_commands_wheels(input: &Input) -> bool {
         | Input::ScaleMissing
         | Input::BatterySample { .. }
         | Input::CanBusFault
-        | Input::FlashFault
-        | Input::WatchdogReset => true,
+        | Input::FlashFault => true,
         _ => false,
     }
 }

@@ -42,7 +42,6 @@ pub async fn run<S: OutputPin>(
     mut controller: Controller,
     channels: ControlEnds<'_>,
     mut pc_switch: S,
-    boot_inputs: &[Input],
 ) -> ! {
     let registers = controller.registers();
     let demand = DriveDemand::at_rest(
@@ -55,11 +54,6 @@ pub async fn run<S: OutputPin>(
         demand,
         remote: RemoteRequest::default(),
     };
-    for input in boot_inputs {
-        controller.set_can_tx_dropped(channels.can_tx.dropped());
-        let out = controller.handle(core_now(), *input);
-        dispatch(&controller, out, &channels, &mut state, &mut pc_switch);
-    }
     let mut next_tick = Instant::now() + TICK;
     // One input or one tick per iteration, and a due tick before any queued input: a
     // sustained input backlog can neither starve the timeouts (enable, brakes, the

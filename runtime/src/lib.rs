@@ -36,7 +36,7 @@ pub mod store;
 
 use embassy_futures::join::{join, join4, join5};
 
-use base_core::controller::{Controller, Input};
+use base_core::controller::{BootReport, Controller};
 use base_core::drives::DriveSettings;
 
 use crate::channels::Channels;
@@ -114,26 +114,18 @@ where
         "registers: {=u16} stored, {=u16} rejected, {=u16} dropped, blank store: {=bool}",
         report.applied, report.rejected, report.dropped, report.blank
     );
-    let now = control::core_now();
-    let controller = Controller::new(now, registers);
-    let mut boot_inputs = heapless::Vec::<Input, 3>::new();
-    if report.flash_fault() {
-        let _ = boot_inputs.push(Input::FlashFault);
-    }
     if hardware.reset_by_watchdog {
         warn!("the watchdog reset the chip");
-        let _ = boot_inputs.push(Input::WatchdogReset);
     }
-    // After the faults: the first status frame goes out with the first input.
-    let _ = boot_inputs.push(Input::FlashErases(store.erases()));
+    let boot = BootReport {
+        flash_fault: report.flash_fault(),
+        watchdog_reset: hardware.reset_by_watchdog,
+        flash_erases: store.erases(),
+    };
+    let controller = Controller::boot(control::core_now(), registers, &boot);
     let ((never, ..), ..) = join(
         join5(
-            control::run(
-                controller,
-                channels.control_ends(),
-                hardware.pc_switch,
-                &boot_inputs,
-            ),
+            control::run(controller, channels.control_ends(), hardware.pc_switch),
             drive_link::run(hardware.drives, settings.drives, channels.drive_link_ends()),
             can::run_rx(hardware.can_rx, channels.inputs.sender()),
             can::run_tx(hardware.can_tx, &channels.can_tx, channels.inputs.sender()),

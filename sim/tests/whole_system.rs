@@ -396,6 +396,18 @@ fn the_odometry_calibration_over_can_is_persisted() {
 }
 
 #[test]
+fn the_first_status_frame_after_a_watchdog_reset_on_a_blank_flash_reports_both() {
+    let mut robot = VirtualRobot::new();
+    robot.reset_by_watchdog = true;
+    let first = robot.run(async |pc| pc.wait_for_status(100, |_| true).await);
+    let status = first.expect("a status frame right after boot");
+    assert!(
+        status.faults.flash && status.faults.watchdog_reset,
+        "the first status frame names every boot fault: {status:?}"
+    );
+}
+
+#[test]
 fn the_watchdog_is_fed_while_every_task_runs() {
     let robot = VirtualRobot::new();
     robot.run(async |pc| {
