@@ -374,10 +374,17 @@ impl Controller {
         }
     }
 
-    /// The base stands: zero is commanded and the latest feedback measured both wheels
-    /// at rest. Only then are motion registers and restore-defaults accepted.
-    pub fn at_standstill(&self) -> bool {
-        self.in_force.rpm == MotorRpm::ZERO && self.supervisor.at_rest()
+    /// The base stands: zero is commanded, the latest feedback measured both wheels at
+    /// rest, and the commanded ramp has run down since (a measurement from before a
+    /// stop, or from the setup before any feedback, says nothing about now). Only then
+    /// are motion registers and restore-defaults accepted.
+    pub fn at_standstill(&self, now: Timestamp) -> bool {
+        let standing = -AT_REST_RPM..=AT_REST_RPM;
+        let estimate = self.estimated_rpm(now);
+        self.in_force.rpm == MotorRpm::ZERO
+            && self.supervisor.at_rest()
+            && standing.contains(&estimate.left)
+            && standing.contains(&estimate.right)
     }
 
     /// The CAN frames the transmit queue dropped since boot, for `can_tx_dropped`
@@ -523,7 +530,7 @@ impl Controller {
             }
             None => false,
         };
-        if changes_motion && !self.at_standstill() {
+        if changes_motion && !self.at_standstill(now) {
             self.reject_register(address, RegisterError::NotAtRest);
             return;
         }
@@ -648,7 +655,18 @@ impl Controller {
             if zone_brake {
                 accel = accel.max(estop_decel);
             }
-            let command = kinematics::ramp(start, target, accel);
+            let mut command = kinematics::ramp(start, target, accel);
+            if zone_brake {
+                // The ramps share the acceleration to keep the curvature, which would
+                // let the wheel with the smaller change brake gentler: in the zone,
+                // braking in time wins over the curvature for that moment.
+                if wheel_slows_down(start.left, target.left) {
+                    command.left_accel = command.left_accel.max(estop_decel);
+                }
+                if wheel_slows_down(start.right, target.right) {
+                    command.right_accel = command.right_accel.max(estop_decel);
+                }
+            }
             self.speed = self.speed.advanced(now, &self.in_force);
             self.in_force = command;
             out.wheels = Some(command);
@@ -912,16 +930,18 @@ impl SpeedEstimate {
     }
 }
 
-/// Some wheel must slow down to go from `start` to `target`: it is faster than its
-/// target, or must reverse, by more than the measurement noise.
+/// Some wheel must slow down to go from `start` to `target`.
 fn slows_down(start: MotorRpm, target: MotorRpm) -> bool {
-    let slows = |start: i32, target: i32| {
-        let (start, target) = (i64::from(start), i64::from(target));
-        let reverses = start.signum() * target.signum() < 0;
-        let faster = start.abs() > target.abs() + i64::from(AT_REST_RPM);
-        start.abs() > i64::from(AT_REST_RPM) && (reverses || faster)
-    };
-    slows(start.left, target.left) || slows(start.right, target.right)
+    wheel_slows_down(start.left, target.left) || wheel_slows_down(start.right, target.right)
+}
+
+/// A wheel must slow down: it is faster than its target, or must reverse, by more than
+/// the measurement noise.
+fn wheel_slows_down(start: i32, target: i32) -> bool {
+    let (start, target) = (i64::from(start), i64::from(target));
+    let reverses = start.signum() * target.signum() < 0;
+    let faster = start.abs() > target.abs() + i64::from(AT_REST_RPM);
+    start.abs() > i64::from(AT_REST_RPM) && (reverses || faster)
 }
 
 fn power_params(r: &Registers) -> power::Params {
@@ -1036,12 +1056,70 @@ mod tests {
                 rpm: MotorRpm::ZERO,
             },
         );
-        assert!(controller.at_standstill());
+        assert!(controller.at_standstill(at(400)));
         let out = controller.handle(at(410), write(Reg::MaxMotorVel, 100));
         assert_eq!(
             out.persist.changed.as_slice(),
             [(Reg::MaxMotorVel.address(), 100)]
         );
+    }
+
+    /// Found by the safety-zone property: after the setup no drive feedback had come
+    /// yet, so the last measurement still said "at rest" while the wheels ran down
+    /// from 336 r/min; a `max_motor_vel` write then changed the limits under them.
+    #[test]
+    fn a_motion_register_is_refused_while_the_commanded_ramp_still_runs_down() {
+        let mut controller = driving_forward();
+        // The zone stops the base with estop_decel (4500): 336 r/min need 75 ms.
+        let out = controller.handle(at(1_000), Input::SafetyZone(true));
+        assert_eq!(out.wheels.map(|command| command.rpm), Some(MotorRpm::ZERO));
+        controller.handle(at(1_040), write(Reg::MaxMotorVel, 100));
+        assert_eq!(controller.registers().get(Reg::MaxMotorVel), 900);
+        assert_eq!(
+            controller.status(at(1_040)).last_rejection,
+            RegisterError::NotAtRest.code()
+        );
+        // Ramped down (no feedback contradicts it): accepted.
+        controller.handle(at(1_100), write(Reg::MaxMotorVel, 100));
+        assert_eq!(controller.registers().get(Reg::MaxMotorVel), 100);
+    }
+
+    /// Found by the safety-zone property: a turn commanded while the zone's stop still
+    /// ran split the braking between the wheels to keep the curvature, and the wheel
+    /// with the smaller change braked gentler than `estop_decel`.
+    #[test]
+    fn in_the_zone_every_slowing_wheel_brakes_with_estop_decel_whatever_the_curvature() {
+        let mut controller = driving_forward();
+        let keep_driving =
+            |controller: &mut Controller, ms: u64, linear_mm_s: i16, rotation_mrad_s: i16| {
+                controller.handle(at(ms), can(Command::Enable { refresh: true }));
+                controller.handle(
+                    at(ms),
+                    can(Command::Velocity {
+                        linear_mm_s,
+                        rotation_mrad_s,
+                    }),
+                )
+            };
+        keep_driving(&mut controller, 400, 500, 0);
+        controller.handle(at(1_000), Input::SafetyZone(true));
+        let start = controller.estimated_rpm(at(1_030));
+        let out = keep_driving(&mut controller, 1_030, 100, 800);
+        let command = out.wheels.expect("the turn is commanded");
+        let wheels = [
+            (start.left, command.rpm.left, command.left_accel),
+            (start.right, command.rpm.right, command.right_accel),
+        ];
+        let changes = wheels.map(|(from, to, _)| (i64::from(to) - i64::from(from)).abs());
+        assert_ne!(
+            changes[0], changes[1],
+            "a curve: the wheels change unequally"
+        );
+        for (from, to, accel) in wheels {
+            if from.abs() > to.abs() || from.signum() * to.signum() < 0 {
+                assert!(accel >= 4_500, "{from} -> {to} r/min at {accel} (r/min)/s");
+            }
+        }
     }
 
     #[test]
