@@ -5,28 +5,35 @@
 //! passes the [`Effects::reports`] on to the controller.
 //!
 //! ```text
-//!        boot, setup request, failed setup
-//!                 │
-//!                 ▼
-//!   ┌──▶ Holding(ForSetup) ──── power-up wait passed ───▶ SettingUp(left, right)
-//!   │      │   ▲                and both answered           │        │
-//!   │      ▼   │ poll_interval                              │ failed │ done
-//!   │    HoldPause(ForSetup) ◀────── (also after a failed   ◀┘        ▼
-//!   │                                 setup or group check)       CheckingGroup
-//!   │                                                                 │ the group
-//!   │  setup request                                                  │ answers:
-//!   ├────────────────── CycleWait ◀──── Exciting ◀─── cycle start ◀───┘ DrivesReady
-//!   │                   │  ▲    ▲        (S-ON/OFF    ▲    │
-//!   │    next cycle or  │  │    │        changes)     │    ▼
-//!   │    a new demand ──┼──┼────┼─────────────────────┘  Exchanging (one 17h)
-//!   │                   │  └────┴── ok, or < N failures ─────┘
-//!   │                   │
-//!   │                   │        N failed cycles in a row
-//!   │                   ▼
+//!             boot, a setup request, a failed setup
+//!                           │
+//!                           ▼
+//!   ┌──────────────▶ Holding(ForSetup) ◀─── poll_interval or a demand ───┐
+//!   │                  │           │                                     │
+//!   │   round done, the power-up   └── otherwise ──▶ HoldPause(ForSetup) ─┘
+//!   │   wait passed, both answered                          ▲
+//!   │                  ▼                                    │ failed
+//!   │     SettingUp(left, then right) ──────────────────────┤
+//!   │                  │ done                               │ failed
+//!   │                  ▼                                    │
+//!   │            CheckingGroup ─────────────────────────────┘
+//!   │                  │ the group answers: DrivesReady
+//!   │                  ▼
+//!   │   ┌───────▶ cycle start ── S-ON or S-OFF due ──▶ Exciting(left, right)
+//!   │   │              │                                    │ done
+//!   │   │              ▼                                    │
+//!   │   │         Exchanging (one 17h) ◀────────────────────┘
+//!   │   │              │ answered, or fewer than N failed cycles in a row
+//!   │   │              ▼
+//!   │   └──────── CycleWait: the next cycle, or a new demand at once
+//!   │
+//!   ├── a setup request, at cycle start
+//!   │
+//!   │   N failed cycles in a row (a failed S-ON or S-OFF counts as one):
 //!   │   Holding(Escalation) ──▶ Probing(left, right) ──▶ Holding(UntilSetupRequested)
-//!   │                                                          │   ▲
-//!   │                                                          ▼   │ poll_interval
-//!   └────────────────── setup request ──────────── HoldPause(UntilSetupRequested)
+//!   │                                                         │        ▲
+//!   │                                                         ▼        │ poll_interval
+//!   └──────────── a setup request ◀─────────────── HoldPause(UntilSetupRequested)
 //! ```
 //!
 //! Rules that hold in every state:
