@@ -18,6 +18,7 @@ use std::time::{Duration, Instant};
 
 use base_core::can::Command as CanCommand;
 use basectl::bus::{Bus, SocketcandBus};
+use virtual_robot::process::SimulatorProcess;
 
 fn python_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python")
@@ -82,64 +83,16 @@ fn domain_id(test: u32) -> String {
     (100 + (std::process::id() % 30) * 4 + test).to_string()
 }
 
-struct Simulator {
-    child: Child,
-    socketcand: String,
-    _directory: PathBuf,
-}
-
-impl Simulator {
-    fn start(name: &str) -> Self {
-        let directory =
-            std::env::temp_dir().join(format!("base-ros2-{name}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&directory);
-        std::fs::create_dir_all(&directory).unwrap();
-        let mut child = Command::new(simulator_binary())
-            .arg("--no-link")
-            .arg("--flash")
-            .arg(directory.join("flash.bin"))
-            .args(["--socketcand", "127.0.0.1:0"])
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("the simulator starts");
-        let (sender, stdout) = channel();
-        let lines = BufReader::new(child.stdout.take().unwrap()).lines();
-        thread::spawn(move || {
-            for line in lines.map_while(Result::ok) {
-                let _ = sender.send(line);
-            }
-        });
-        let socketcand = loop {
-            let line = stdout
-                .recv_timeout(Duration::from_secs(10))
-                .expect("the simulator names its socketcand address");
-            if let Some(address) = line.strip_prefix("socketcand:") {
-                break address.trim().split(',').next().unwrap().to_owned();
-            }
-        };
-        // Keep reading so that the simulator never blocks on a full pipe.
-        thread::spawn(move || while stdout.recv().is_ok() {});
-        // The drives boot within the first second; let the controller reach standby.
-        thread::sleep(Duration::from_millis(1500));
-        Simulator {
-            child,
-            socketcand,
-            _directory: directory,
-        }
-    }
-
-    fn console(&mut self, line: &str) {
-        writeln!(self.child.stdin.as_mut().unwrap(), "{line}").unwrap();
-    }
-}
-
-impl Drop for Simulator {
-    fn drop(&mut self) {
-        let _ = writeln!(self.child.stdin.as_mut().unwrap(), "quit");
-        let _ = self.child.wait();
-    }
+/// The simulator (without an SLCAN link: the node uses socketcand), once the
+/// controller has reached standby.
+fn start_simulator() -> SimulatorProcess {
+    let simulator = SimulatorProcess::launch(simulator_binary())
+        .no_link()
+        .start()
+        .expect("the simulator starts");
+    // The drives boot within the first second; let the controller reach standby.
+    thread::sleep(Duration::from_millis(1500));
+    simulator
 }
 
 /// The bridge as a child process; its stderr is collected for failure messages.
@@ -258,10 +211,10 @@ fn a_ros2_peer_on_cyclone_dds_drives_the_simulated_base_and_reads_odom_tf_batter
         return;
     }
     let started = Instant::now();
-    let mut simulator = Simulator::start("scenarios");
-    let mut listener = Listener::start(&simulator.socketcand);
+    let mut simulator = start_simulator();
+    let mut listener = Listener::start(&simulator.socketcand().to_string());
     let domain = domain_id(0);
-    let bridge = Bridge::start(&simulator.socketcand, &domain);
+    let bridge = Bridge::start(&simulator.socketcand().to_string(), &domain);
     let mut peer = Command::new("python3")
         .arg(python_dir().join("ros_peer.py"))
         .arg("scenarios")
@@ -280,7 +233,7 @@ fn a_ros2_peer_on_cyclone_dds_drives_the_simulated_base_and_reads_odom_tf_batter
         match lines.recv_timeout(deadline.saturating_duration_since(Instant::now())) {
             Ok(line) => {
                 if line == "ESTOP?" {
-                    simulator.console("estop on");
+                    simulator.console("estop on").unwrap();
                     writeln!(peer.stdin.as_mut().unwrap()).unwrap();
                 }
                 let done = line == "DONE";
@@ -369,9 +322,9 @@ fn with_stamped_the_node_drives_on_twist_stamped() {
     if !cyclonedds_available() {
         return;
     }
-    let simulator = Simulator::start("stamped");
+    let simulator = start_simulator();
     let domain = domain_id(1);
-    let bridge = Bridge::with_args(&simulator.socketcand, &domain, &["--stamped"]);
+    let bridge = Bridge::with_args(&simulator.socketcand().to_string(), &domain, &["--stamped"]);
     let output = Command::new("python3")
         .arg(python_dir().join("ros_peer.py"))
         .arg("stamped")
@@ -422,13 +375,14 @@ fn without_a_bus_the_node_exits_with_a_message_and_a_bad_option_is_refused() {
 #[ignore = "a measurement for the docs, ~30 s"]
 fn cmd_vel_latency() {
     assert!(cyclonedds_available(), "the measurement needs cyclonedds");
-    let simulator = Simulator::start("latency");
+    let simulator = start_simulator();
     let domain = domain_id(3);
-    let bridge = Bridge::start(&simulator.socketcand, &domain);
-    let (host, port) = simulator.socketcand.split_once(':').unwrap();
+    let bridge = Bridge::start(&simulator.socketcand().to_string(), &domain);
+    let socketcand = simulator.socketcand();
+    let (host, port) = (socketcand.ip().to_string(), socketcand.port().to_string());
     let output = Command::new("python3")
         .arg(python_dir().join("ros_peer.py"))
-        .args(["latency", "1000", host, port])
+        .args(["latency", "1000", &host, &port])
         .current_dir(python_dir())
         .env("ROS_DOMAIN_ID", &domain)
         .env("CYCLONEDDS_URI", CYCLONEDDS_LOOPBACK)

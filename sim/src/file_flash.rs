@@ -135,18 +135,17 @@ mod tests {
     use super::*;
     use crate::runtime::block_on;
 
-    fn scratch_path(name: &str) -> PathBuf {
-        let directory = std::env::temp_dir().join(format!(
-            "virtual-robot-file-flash-{}-{name}",
-            std::process::id()
-        ));
-        let _ = std::fs::remove_dir_all(&directory);
-        directory.join("flash.bin")
+    /// A flash file path in a scratch directory (removed when dropped), under a
+    /// folder that is not there yet, as the default one in the cache directory may not.
+    fn scratch_path() -> (tempfile::TempDir, PathBuf) {
+        let directory = tempfile::tempdir().unwrap();
+        let path = directory.path().join("new").join("flash.bin");
+        (directory, path)
     }
 
     #[test]
     fn written_bytes_are_there_after_reopening() {
-        let path = scratch_path("reopen");
+        let (_directory, path) = scratch_path();
         let mut flash = FileFlash::open(&path, ERASE_SIZE).unwrap();
         block_on(flash.write(8, &[1, 2, 3, 4])).unwrap();
         drop(flash);
@@ -160,7 +159,7 @@ mod tests {
 
     #[test]
     fn a_file_of_another_size_is_refused_and_left_alone() {
-        let path = scratch_path("size");
+        let (_directory, path) = scratch_path();
         std::fs::create_dir_all(path.parent().unwrap()).unwrap();
         std::fs::write(&path, [0u8; 100]).unwrap();
         let error = FileFlash::open(&path, ERASE_SIZE).err().unwrap();

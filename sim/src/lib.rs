@@ -12,6 +12,7 @@ pub mod drives;
 pub mod file_flash;
 pub mod flash;
 pub mod io;
+pub mod process;
 pub mod robot;
 pub mod runtime;
 pub mod simulator;

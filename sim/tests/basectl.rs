@@ -4,70 +4,29 @@
 //! name the simulator binary (`CARGO_BIN_EXE_virtual-base-controller`); it calls
 //! basectl's library functions, the same ones its `main` dispatches to.
 
-use std::io::{BufRead, BufReader, Write};
-use std::path::PathBuf;
-use std::process::{Child, ChildStdin, Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use basectl::base::{Base, Error};
 use basectl::bus::SlcanPort;
 use basectl::calibrate::{self, Driving, OdometryPlan, Person, ScalePlan};
 use basectl::monitor::{self, Until};
 use basectl::registers;
+use virtual_robot::process::SimulatorProcess;
 
-struct Simulator {
-    child: Child,
-    link: PathBuf,
+/// The simulator with its SLCAN port linked (the link exists once it has started).
+fn start() -> SimulatorProcess {
+    SimulatorProcess::start(env!("CARGO_BIN_EXE_virtual-base-controller"))
+        .expect("the simulator starts")
 }
 
-impl Simulator {
-    fn start(name: &str) -> Self {
-        let directory = std::env::temp_dir().join(format!("basectl-{name}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&directory);
-        std::fs::create_dir_all(&directory).unwrap();
-        let link = directory.join("slcan");
-        let mut child = Command::new(env!("CARGO_BIN_EXE_virtual-base-controller"))
-            .arg("--link")
-            .arg(&link)
-            .arg("--flash")
-            .arg(directory.join("flash.bin"))
-            // A free port: tests run side by side.
-            .args(["--socketcand", "127.0.0.1:0"])
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("the simulator starts");
-        let stdout = child.stdout.take().unwrap();
-        std::thread::spawn(move || for _ in BufReader::new(stdout).lines() {});
-        let deadline = Instant::now() + Duration::from_secs(10);
-        while std::fs::read_link(&link).is_err() {
-            assert!(Instant::now() < deadline, "no serial port link appeared");
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        Self { child, link }
-    }
-
-    fn port(&self) -> SlcanPort {
-        SlcanPort::open(self.link.to_str().unwrap(), 500_000).expect("the SLCAN channel opens")
-    }
-
-    fn console(&mut self) -> &mut ChildStdin {
-        self.child.stdin.as_mut().unwrap()
-    }
-}
-
-impl Drop for Simulator {
-    fn drop(&mut self) {
-        let _ = writeln!(self.console(), "quit");
-        let _ = self.child.wait();
-    }
+fn port(simulator: &SimulatorProcess) -> SlcanPort {
+    SlcanPort::open(simulator.link().to_str().unwrap(), 500_000).expect("the SLCAN channel opens")
 }
 
 /// The person at the robot, played through the simulator's console: putting the
 /// weight on the scale is `weight G` on its stdin.
 struct ScriptedPerson<'a> {
-    console: &'a mut ChildStdin,
+    simulator: &'a mut SimulatorProcess,
     known_g: u16,
 }
 
@@ -78,7 +37,7 @@ impl Person for ScriptedPerson<'_> {
         } else {
             self.known_g
         };
-        writeln!(self.console, "weight {grams}")?;
+        self.simulator.console(&format!("weight {grams}"))?;
         // The controller filters the load cell's readings: let them settle on the new load.
         std::thread::sleep(Duration::from_secs(3));
         Ok(())
@@ -104,8 +63,8 @@ impl Person for Nobody {
 
 #[test]
 fn a_register_written_with_basectl_reads_back_and_a_bad_value_is_refused_with_its_reason() {
-    let simulator = Simulator::start("reg");
-    let mut port = simulator.port();
+    let simulator = start();
+    let mut port = port(&simulator);
     let mut base = Base::new(&mut port, Duration::from_millis(500));
     let loop_end_delay = registers::lookup("loop_end_delay").unwrap();
     let mut out = Vec::new();
@@ -131,8 +90,8 @@ fn a_register_written_with_basectl_reads_back_and_a_bad_value_is_refused_with_it
 
 #[test]
 fn the_odometry_wizard_runs_end_to_end_and_stores_new_factors() {
-    let simulator = Simulator::start("odometry");
-    let mut port = simulator.port();
+    let simulator = start();
+    let mut port = port(&simulator);
     let mut base = Base::new(&mut port, Duration::from_millis(500));
     let plan = OdometryPlan {
         driving: Driving::Automatic {
@@ -170,11 +129,11 @@ fn the_odometry_wizard_runs_end_to_end_and_stores_new_factors() {
 
 #[test]
 fn the_scale_wizard_runs_end_to_end_and_the_scale_then_reads_the_known_weight() {
-    let mut simulator = Simulator::start("scale");
-    let mut port = simulator.port();
+    let mut simulator = start();
+    let mut port = port(&simulator);
     let mut base = Base::new(&mut port, Duration::from_millis(500));
     let mut person = ScriptedPerson {
-        console: simulator.child.stdin.as_mut().unwrap(),
+        simulator: &mut simulator,
         known_g: 2000,
     };
     let mut out = Vec::new();
@@ -205,8 +164,8 @@ fn the_scale_wizard_runs_end_to_end_and_the_scale_then_reads_the_known_weight() 
 
 #[test]
 fn monitor_stops_after_count_frames_and_decodes_each() {
-    let simulator = Simulator::start("monitor");
-    let mut port = simulator.port();
+    let simulator = start();
+    let mut port = port(&simulator);
     let mut base = Base::new(&mut port, Duration::from_millis(500));
     let mut out = Vec::new();
     monitor::monitor(

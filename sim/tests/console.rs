@@ -6,14 +6,13 @@
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
-use std::path::PathBuf;
-use std::process::{Child, ChildStdin, Command, Stdio};
 use std::sync::mpsc::{Receiver, channel};
 use std::thread;
 use std::time::{Duration, Instant};
 
 use base_core::can::{Command as CanCommand, Mode, Report, Status, id};
 use base_core::registers::{OPEN_PAIRING_WINDOW_KEY, Reg};
+use virtual_robot::process::SimulatorProcess;
 use virtual_robot::runtime::block_on_realtime;
 
 // The Bumble gamepad peer of the BLE scenarios; this file uses part of it.
@@ -51,78 +50,31 @@ struct Received {
 /// The simulator with its socketcand server on a free port, its console on stdin and
 /// its stdout lines collected.
 struct Simulator {
-    child: Child,
-    console: ChildStdin,
-    stdout: Receiver<String>,
+    process: SimulatorProcess,
     port: u16,
-    _directory: PathBuf,
 }
 
 impl Simulator {
-    fn start(name: &str) -> Self {
-        Self::start_with(name, &[])
+    fn start() -> Self {
+        Self::start_with(&[])
     }
 
-    fn start_with(name: &str, extra_args: &[&str]) -> Self {
-        let directory =
-            std::env::temp_dir().join(format!("sim-console-{name}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&directory);
-        std::fs::create_dir_all(&directory).unwrap();
-        let mut child = Command::new(env!("CARGO_BIN_EXE_virtual-base-controller"))
-            .arg("--link")
-            .arg(directory.join("slcan"))
-            .arg("--flash")
-            .arg(directory.join("flash.bin"))
-            .args(["--socketcand", "127.0.0.1:0"])
+    fn start_with(extra_args: &[&str]) -> Self {
+        let process = SimulatorProcess::launch(env!("CARGO_BIN_EXE_virtual-base-controller"))
             .args(extra_args)
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
+            .start()
             .expect("the simulator starts");
-        let console = child.stdin.take().unwrap();
-        let (sender, stdout) = channel();
-        let lines = BufReader::new(child.stdout.take().unwrap()).lines();
-        thread::spawn(move || {
-            for line in lines.map_while(Result::ok) {
-                let _ = sender.send(line);
-            }
-        });
-        let port = loop {
-            let line = stdout
-                .recv_timeout(Duration::from_secs(10))
-                .expect("the simulator names its socketcand address");
-            if let Some(address) = line.strip_prefix("socketcand:") {
-                let address = address.trim().split(',').next().unwrap();
-                break address.rsplit(':').next().unwrap().parse().unwrap();
-            }
-        };
-        Self {
-            child,
-            console,
-            stdout,
-            port,
-            _directory: directory,
-        }
+        let port = process.socketcand().port();
+        Self { process, port }
     }
 
     fn command(&mut self, line: &str) {
-        writeln!(self.console, "{line}").unwrap();
-        self.console.flush().unwrap();
+        self.process.console(line).unwrap();
     }
 
     /// Waits for a stdout line containing `text`.
     fn wait_for_line(&self, text: &str, timeout: Duration) -> Option<String> {
-        let deadline = Instant::now() + timeout;
-        loop {
-            let line = self
-                .stdout
-                .recv_timeout(deadline.saturating_duration_since(Instant::now()))
-                .ok()?;
-            if line.contains(text) {
-                return Some(line);
-            }
-        }
+        self.process.wait_for_line(text, timeout)
     }
 
     /// The motors' speeds in rpm (left, right), as the simulated drives turn them now:
@@ -164,14 +116,6 @@ impl Simulator {
             thread::sleep(Duration::from_millis(10));
         }
         None
-    }
-}
-
-impl Drop for Simulator {
-    fn drop(&mut self) {
-        let _ = writeln!(self.console, "quit");
-        let _ = self.console.flush();
-        let _ = self.child.wait();
     }
 }
 
@@ -337,7 +281,7 @@ fn keep_driving(pc: &mut Pc, linear_mm_s: i16, time: Duration) -> i32 {
 
 #[test]
 fn a_reboot_while_driving_stops_the_wheels_at_once_and_the_controller_answers_again() {
-    let mut simulator = Simulator::start("reboot");
+    let mut simulator = Simulator::start();
     let mut pc = Pc::connect(simulator.port);
     drive_at_500(&mut simulator, &mut pc);
     let x_before = keep_driving(&mut pc, 500, Duration::from_secs(1));
@@ -442,7 +386,7 @@ fn a_reboot_while_driving_stops_the_wheels_at_once_and_the_controller_answers_ag
 
 #[test]
 fn a_silent_drive_stops_the_base_and_a_confirm_recovers_once_it_answers() {
-    let mut simulator = Simulator::start("silent");
+    let mut simulator = Simulator::start();
     let mut pc = Pc::connect(simulator.port);
     drive_at_500(&mut simulator, &mut pc);
 
@@ -516,7 +460,7 @@ fn after_a_reboot_the_paired_remote_reconnects_encrypted_with_the_bond_from_flas
     let mut pad = peer::Peer::start();
     let virtual_robot::ble::HciSpec::Tcp(hci) = pad.hci.clone();
     let hci = format!("tcp:{hci}");
-    let mut simulator = Simulator::start_with("remote", &["--hci", &hci]);
+    let mut simulator = Simulator::start_with(&["--hci", &hci]);
     let mut pc = Pc::connect(simulator.port);
     pc.wait_for_status(Duration::from_secs(5), |_| true)
         .expect("the controller is up");

@@ -8,13 +8,13 @@
 //! itself (see [`basectl_child`]), the same function `basectl`'s `main.rs` calls.
 
 use std::io::{BufRead, BufReader, Write};
-use std::path::PathBuf;
 use std::process::{Child, Command, Output, Stdio};
 use std::sync::mpsc::{Receiver, channel};
 use std::thread;
 use std::time::{Duration, Instant};
 
 use base_core::registers::REGMAP_VERSION;
+use virtual_robot::process::SimulatorProcess;
 
 const CHILD_ARGS: &str = "BASECTL_TEST_CHILD_ARGS";
 
@@ -73,79 +73,18 @@ fn printed(output: &[u8]) -> String {
         .join("\n")
 }
 
-struct Simulator {
-    child: Child,
-    link: PathBuf,
-    socketcand: String,
-    stdout: Receiver<String>,
+/// The simulator, once the controller has reached standby.
+fn start_simulator() -> SimulatorProcess {
+    let simulator = SimulatorProcess::start(env!("CARGO_BIN_EXE_virtual-base-controller"))
+        .expect("the simulator starts");
+    // The drives boot within the first second; let the controller reach standby.
+    thread::sleep(Duration::from_millis(1500));
+    simulator
 }
 
-impl Simulator {
-    fn start(name: &str) -> Self {
-        let directory =
-            std::env::temp_dir().join(format!("pc-tools-{name}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&directory);
-        std::fs::create_dir_all(&directory).unwrap();
-        let link = directory.join("slcan");
-        let mut child = Command::new(env!("CARGO_BIN_EXE_virtual-base-controller"))
-            .arg("--link")
-            .arg(&link)
-            .arg("--flash")
-            .arg(directory.join("flash.bin"))
-            .args(["--socketcand", "127.0.0.1:0"])
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("the simulator starts");
-        let (sender, stdout) = channel();
-        let lines = BufReader::new(child.stdout.take().unwrap()).lines();
-        thread::spawn(move || {
-            for line in lines.map_while(Result::ok) {
-                let _ = sender.send(line);
-            }
-        });
-        let socketcand = loop {
-            let line = stdout
-                .recv_timeout(Duration::from_secs(10))
-                .expect("the simulator names its socketcand address");
-            if let Some(address) = line.strip_prefix("socketcand:") {
-                break address.trim().split(',').next().unwrap().to_owned();
-            }
-        };
-        // The drives boot within the first second; let the controller reach standby.
-        thread::sleep(Duration::from_millis(1500));
-        Self {
-            child,
-            link,
-            socketcand,
-            stdout,
-        }
-    }
-
-    fn link(&self) -> &str {
-        self.link.to_str().unwrap()
-    }
-
-    fn wait_for_line(&self, text: &str, timeout: Duration) -> Option<String> {
-        let deadline = Instant::now() + timeout;
-        loop {
-            let line = self
-                .stdout
-                .recv_timeout(deadline.saturating_duration_since(Instant::now()))
-                .ok()?;
-            if line.contains(text) {
-                return Some(line);
-            }
-        }
-    }
-}
-
-impl Drop for Simulator {
-    fn drop(&mut self) {
-        let _ = writeln!(self.child.stdin.as_mut().unwrap(), "quit");
-        let _ = self.child.wait();
-    }
+/// The SLCAN port's link, as basectl's `--channel` takes it.
+fn link(simulator: &SimulatorProcess) -> &str {
+    simulator.link().to_str().unwrap()
 }
 
 fn finished(child: Child, what: &str) -> Output {
@@ -162,10 +101,10 @@ fn finished(child: Child, what: &str) -> Output {
 
 #[test]
 fn writing_the_restore_key_to_command_succeeds_and_says_what_it_did() {
-    let simulator = Simulator::start("command");
+    let simulator = start_simulator();
     let output = basectl(&[
         "--channel",
-        &simulator.socketcand,
+        &simulator.socketcand().to_string(),
         "reg",
         "set",
         "command",
@@ -187,13 +126,13 @@ fn writing_the_restore_key_to_command_succeeds_and_says_what_it_did() {
 
 #[test]
 fn a_second_program_on_the_slcan_port_is_told_it_is_busy() {
-    let simulator = Simulator::start("busy");
-    let first = basectl::bus::SlcanPort::open(simulator.link(), 500_000).unwrap();
+    let simulator = start_simulator();
+    let first = basectl::bus::SlcanPort::open(link(&simulator), 500_000).unwrap();
     let output = basectl(&[
         "--interface",
         "slcan",
         "--channel",
-        simulator.link(),
+        link(&simulator),
         "reg",
         "get",
         "fw_version",
@@ -212,7 +151,7 @@ fn a_second_program_on_the_slcan_port_is_told_it_is_busy() {
         "--interface",
         "slcan",
         "--channel",
-        simulator.link(),
+        link(&simulator),
         "reg",
         "get",
         "fw_version",
@@ -230,12 +169,12 @@ fn a_second_program_on_the_slcan_port_is_told_it_is_busy() {
 fn ctrl_c_closes_basectls_slcan_channel_and_frees_the_port() {
     use nix::sys::signal::{Signal, kill};
     use nix::unistd::Pid;
-    let simulator = Simulator::start("ctrl-c");
+    let simulator = start_simulator();
     let monitor = basectl(&[
         "--interface",
         "slcan",
         "--channel",
-        simulator.link(),
+        link(&simulator),
         "monitor",
     ])
     .stdout(Stdio::piped())
@@ -256,13 +195,13 @@ fn ctrl_c_closes_basectls_slcan_channel_and_frees_the_port() {
     simulator
         .wait_for_line("slcan: channel closed", Duration::from_secs(5))
         .expect("Ctrl-C closed the channel");
-    basectl::bus::SlcanPort::open(simulator.link(), 500_000).expect("the port is free again");
+    basectl::bus::SlcanPort::open(link(&simulator), 500_000).expect("the port is free again");
 }
 
 #[test]
 fn monitor_a_python_logger_register_commands_and_a_calibration_run_at_once() {
-    let simulator = Simulator::start("together");
-    let address = simulator.socketcand.clone();
+    let simulator = start_simulator();
+    let address = simulator.socketcand().to_string();
     let (host, port) = address.rsplit_once(':').unwrap();
     let started = Instant::now();
     let monitor = basectl(&[
@@ -367,8 +306,8 @@ fn run_ok(args: &[impl AsRef<str>]) -> String {
 
 #[test]
 fn config_save_then_factory_reset_then_config_load_restores_every_register() {
-    let simulator = Simulator::start("config");
-    let socketcand = simulator.socketcand.clone();
+    let simulator = start_simulator();
+    let socketcand = simulator.socketcand().to_string();
     let with = |args: &[&str]| -> Vec<String> {
         ["--channel", socketcand.as_str()]
             .iter()
@@ -388,7 +327,8 @@ fn config_save_then_factory_reset_then_config_load_restores_every_register() {
         run_ok(&with(&["reg", "set", register, value]));
     }
     let before = run_ok(&with(&["--json", "reg", "dump"]));
-    let file = std::env::temp_dir().join(format!("pc-tools-config-{}.json", std::process::id()));
+    // In the simulator's scratch directory: removed with it.
+    let file = simulator.directory().join("config.json");
     let file = file.to_str().unwrap();
     let saved = run_ok(&with(&["config", "save", file]));
     assert!(saved.contains("saved"), "{saved}");
@@ -425,13 +365,12 @@ fn config_save_then_factory_reset_then_config_load_restores_every_register() {
         "{error}"
     );
     assert_eq!(run_ok(&with(&["--json", "reg", "dump"])), before);
-    let _ = std::fs::remove_file(file);
 }
 
 #[test]
 fn info_tells_versions_mode_faults_and_counters_in_one_shot_also_as_json() {
-    let simulator = Simulator::start("info");
-    let text = run_ok(&["--channel", &simulator.socketcand, "info"]);
+    let simulator = start_simulator();
+    let text = run_ok(&["--channel", &simulator.socketcand().to_string(), "info"]);
     let register_map = format!("register map    {REGMAP_VERSION}");
     for part in [
         "firmware",
@@ -443,7 +382,12 @@ fn info_tells_versions_mode_faults_and_counters_in_one_shot_also_as_json() {
     ] {
         assert!(text.contains(part), "{part:?} in\n{text}");
     }
-    let json = run_ok(&["--channel", &simulator.socketcand, "--json", "info"]);
+    let json = run_ok(&[
+        "--channel",
+        &simulator.socketcand().to_string(),
+        "--json",
+        "info",
+    ]);
     let value: serde_json::Value = serde_json::from_str(&json).unwrap();
     assert_eq!(value["regmap_version"], REGMAP_VERSION);
     assert_eq!(value["mode"], "Standby");
@@ -509,12 +453,12 @@ fn hold_key(terminal: &mut std::fs::File, key: &[u8], duration: Duration) -> (In
 #[test]
 fn drive_moves_only_while_a_key_is_held_and_never_resumes_after_an_estop_by_itself() {
     use nix::pty::openpty;
-    let mut simulator = Simulator::start("drive");
-    let velocities = velocity_recorder(&simulator.socketcand);
+    let mut simulator = start_simulator();
+    let velocities = velocity_recorder(&simulator.socketcand().to_string());
     let pty = openpty(None, None).unwrap();
     let slave = std::fs::File::from(pty.slave);
     let mut terminal = std::fs::File::from(pty.master);
-    let mut drive = basectl(&["--channel", &simulator.socketcand, "drive"])
+    let mut drive = basectl(&["--channel", &simulator.socketcand().to_string(), "drive"])
         .stdin(slave.try_clone().unwrap())
         .stdout(slave)
         .stderr(Stdio::piped())
@@ -553,7 +497,6 @@ fn drive_moves_only_while_a_key_is_held_and_never_resumes_after_an_estop_by_itse
     );
 
     // Hold w again; e-stop in the middle; release and confirm while w is still held.
-    let console = simulator.child.stdin.as_mut().unwrap();
     let start = Instant::now();
     let mut estop_at = None;
     let mut confirmed_at = None;
@@ -561,12 +504,12 @@ fn drive_moves_only_while_a_key_is_held_and_never_resumes_after_an_estop_by_itse
         terminal.write_all(b"w").unwrap();
         let elapsed = start.elapsed();
         if elapsed > Duration::from_millis(1000) && estop_at.is_none() {
-            writeln!(console, "estop on").unwrap();
+            simulator.console("estop on").unwrap();
             estop_at = Some(Instant::now());
         }
         if elapsed > Duration::from_millis(2500) && confirmed_at.is_none() {
-            writeln!(console, "estop off").unwrap();
-            writeln!(console, "button press 200").unwrap();
+            simulator.console("estop off").unwrap();
+            simulator.console("button press 200").unwrap();
             confirmed_at = Some(Instant::now());
         }
         thread::sleep(Duration::from_millis(40));
@@ -620,12 +563,11 @@ fn drive_moves_only_while_a_key_is_held_and_never_resumes_after_an_estop_by_itse
 
 #[test]
 fn log_writes_candump_logs_python_can_reads_and_csv_with_a_time_column() {
-    let simulator = Simulator::start("log");
-    let directory = std::env::temp_dir().join(format!("pc-tools-log-{}", std::process::id()));
-    std::fs::create_dir_all(&directory).unwrap();
-    let candump = directory.join("bus.log");
-    let csv = directory.join("bus.csv");
-    let channel = simulator.socketcand.clone();
+    let simulator = start_simulator();
+    // In the simulator's scratch directory: removed with it.
+    let candump = simulator.directory().join("bus.log");
+    let csv = simulator.directory().join("bus.csv");
+    let channel = simulator.socketcand().to_string();
     let csv_run = {
         let csv = csv.clone();
         thread::spawn(move || {
@@ -641,7 +583,7 @@ fn log_writes_candump_logs_python_can_reads_and_csv_with_a_time_column() {
     };
     run_ok(&[
         "--channel",
-        &simulator.socketcand,
+        &simulator.socketcand().to_string(),
         "log",
         candump.to_str().unwrap(),
         "--seconds",
@@ -693,5 +635,4 @@ fn log_writes_candump_logs_python_can_reads_and_csv_with_a_time_column() {
         times.windows(2).all(|pair| pair[0] <= pair[1]),
         "time runs forward"
     );
-    let _ = std::fs::remove_dir_all(&directory);
 }

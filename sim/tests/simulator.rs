@@ -2,89 +2,66 @@
 //! over it and reads the odometry back; registers written over CAN survive a restart.
 
 use std::fs::File;
-use std::io::{BufRead, BufReader, Read, Write};
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::io::{Read, Write};
+use std::path::Path;
+use std::process::{Command, Stdio};
 use std::sync::mpsc::{Receiver, channel};
 use std::thread;
 use std::time::{Duration, Instant};
 
 use nix::sys::termios::{SetArg, cfmakeraw, tcgetattr, tcsetattr};
+use virtual_robot::process::SimulatorProcess;
 
-struct Simulator {
-    child: Child,
-    link: PathBuf,
+const SIMULATOR: &str = env!("CARGO_BIN_EXE_virtual-base-controller");
+
+/// The simulator in a scratch directory of its own.
+fn start() -> SimulatorProcess {
+    SimulatorProcess::start(SIMULATOR).expect("the simulator starts")
 }
 
-impl Simulator {
-    fn start(directory: &Path) -> Self {
-        let link = directory.join("slcan");
-        let mut child = Command::new(env!("CARGO_BIN_EXE_virtual-base-controller"))
-            .arg("--link")
-            .arg(&link)
-            .arg("--flash")
-            .arg(directory.join("flash.bin"))
-            // A free port: tests run side by side.
-            .args(["--socketcand", "127.0.0.1:0"])
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("the simulator starts");
-        // Drain stdout so the simulator never blocks on a full pipe.
-        let stdout = child.stdout.take().unwrap();
-        thread::spawn(move || for _ in BufReader::new(stdout).lines() {});
-        let deadline = Instant::now() + Duration::from_secs(10);
-        while std::fs::read_link(&link).is_err() {
-            assert!(Instant::now() < deadline, "no serial port link appeared");
-            thread::sleep(Duration::from_millis(20));
-        }
-        Self { child, link }
-    }
+/// The simulator with its flash and link in `directory`, which outlives it.
+fn start_in(directory: &Path) -> SimulatorProcess {
+    SimulatorProcess::launch(SIMULATOR)
+        .in_directory(directory)
+        .start()
+        .expect("the simulator starts")
+}
 
-    /// Opens the port as a PC program does (raw mode) and starts reading its lines.
-    fn connect(&self) -> (File, Receiver<String>) {
-        let port = File::options()
-            .read(true)
-            .write(true)
-            .open(&self.link)
-            .expect("the serial port opens");
-        let mut termios = tcgetattr(&port).unwrap();
-        cfmakeraw(&mut termios);
-        tcsetattr(&port, SetArg::TCSANOW, &termios).unwrap();
-        let mut reader = port.try_clone().unwrap();
-        let (sender, lines) = channel();
-        thread::spawn(move || {
-            let mut line = String::new();
-            let mut byte = [0];
-            while reader.read_exact(&mut byte).is_ok() {
-                match byte[0] {
-                    b'\r' | b'\x07' => {
-                        line.push(char::from(byte[0]));
-                        if sender.send(std::mem::take(&mut line)).is_err() {
-                            return;
-                        }
+/// Ends the simulator with `quit`; it ends cleanly.
+fn quit(simulator: SimulatorProcess) {
+    let status = simulator.quit().unwrap();
+    assert!(status.success(), "{status}");
+}
+
+/// Opens the simulator's port as a PC program does (raw mode) and starts reading its
+/// lines.
+fn connect(simulator: &SimulatorProcess) -> (File, Receiver<String>) {
+    let port = File::options()
+        .read(true)
+        .write(true)
+        .open(simulator.link())
+        .expect("the serial port opens");
+    let mut termios = tcgetattr(&port).unwrap();
+    cfmakeraw(&mut termios);
+    tcsetattr(&port, SetArg::TCSANOW, &termios).unwrap();
+    let mut reader = port.try_clone().unwrap();
+    let (sender, lines) = channel();
+    thread::spawn(move || {
+        let mut line = String::new();
+        let mut byte = [0];
+        while reader.read_exact(&mut byte).is_ok() {
+            match byte[0] {
+                b'\r' | b'\x07' => {
+                    line.push(char::from(byte[0]));
+                    if sender.send(std::mem::take(&mut line)).is_err() {
+                        return;
                     }
-                    other => line.push(char::from(other)),
                 }
+                other => line.push(char::from(other)),
             }
-        });
-        (port, lines)
-    }
-
-    fn quit(mut self) {
-        writeln!(self.child.stdin.as_mut().unwrap(), "quit").unwrap();
-        let status = self.child.wait().unwrap();
-        assert!(status.success(), "{status}");
-    }
-}
-
-fn scratch_directory(name: &str) -> PathBuf {
-    let directory =
-        std::env::temp_dir().join(format!("virtual-robot-sim-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&directory);
-    std::fs::create_dir_all(&directory).unwrap();
-    directory
+        }
+    });
+    (port, lines)
 }
 
 /// Sends SLCAN lines, each with its CR.
@@ -105,8 +82,8 @@ fn position_x(line: &str) -> Option<i32> {
 
 #[test]
 fn a_pc_on_the_slcan_port_drives_the_robot_and_sees_the_position_grow() {
-    let simulator = Simulator::start(&scratch_directory("drive"));
-    let (mut port, lines) = simulator.connect();
+    let simulator = start();
+    let (mut port, lines) = connect(&simulator);
     send(&mut port, &["C", "S6", "O"]);
     let opened: Vec<String> = (0..3)
         .map(|_| lines.recv_timeout(Duration::from_secs(5)).unwrap())
@@ -124,36 +101,36 @@ fn a_pc_on_the_slcan_port_drives_the_robot_and_sees_the_position_grow() {
     let last_x = *positions.last().expect("position frames arrive");
     assert!(positions.len() > 20, "{} position frames", positions.len());
     assert!(last_x > 150, "x = {last_x} mm after driving at 300 mm/s");
-    simulator.quit();
+    quit(simulator);
 }
 
 #[test]
 fn a_closed_channel_refuses_frames_and_malformed_lines_get_bel() {
-    let simulator = Simulator::start(&scratch_directory("refuse"));
-    let (mut port, lines) = simulator.connect();
+    let simulator = start();
+    let (mut port, lines) = connect(&simulator);
     send(&mut port, &["t0050", "t0EC9", "S6", "O", "t0050"]);
     let replies: Vec<String> = (0..5)
         .map(|_| lines.recv_timeout(Duration::from_secs(5)).unwrap())
         .collect();
     assert_eq!(replies, ["\x07", "\x07", "\r", "\r", "z\r"]);
-    simulator.quit();
+    quit(simulator);
 }
 
 #[test]
 fn a_register_written_over_slcan_is_still_there_after_a_restart() {
-    let directory = scratch_directory("registers");
-    let simulator = Simulator::start(&directory);
-    let (mut port, lines) = simulator.connect();
+    let directory = tempfile::tempdir().unwrap();
+    let simulator = start_in(directory.path());
+    let (mut port, lines) = connect(&simulator);
     // Register 9, sec_lin_vel, to 321 mm/s (0x0141).
     send(&mut port, &["O", "t0033090141"]);
     // The store writes the flash within a moment; give it a second.
     thread::sleep(Duration::from_secs(1));
     drop(lines);
     drop(port);
-    simulator.quit();
+    quit(simulator);
 
-    let simulator = Simulator::start(&directory);
-    let (mut port, lines) = simulator.connect();
+    let simulator = start_in(directory.path());
+    let (mut port, lines) = connect(&simulator);
     send(&mut port, &["O", "t00420109"]);
     let deadline = Instant::now() + Duration::from_secs(5);
     let reply = loop {
@@ -165,13 +142,13 @@ fn a_register_written_over_slcan_is_still_there_after_a_restart() {
         }
     };
     assert_eq!(reply, "t0043000141\r");
-    simulator.quit();
+    quit(simulator);
 }
 
 #[test]
 fn a_pc_that_leaves_without_closing_the_channel_leaves_nothing_queued_for_the_next() {
-    let simulator = Simulator::start(&scratch_directory("leave"));
-    let (mut port, lines) = simulator.connect();
+    let simulator = start();
+    let (mut port, lines) = connect(&simulator);
     send(&mut port, &["C", "S6", "O"]);
     // The channel is open and the controller's frames flow; then the program dies
     // without sending C.
@@ -187,7 +164,7 @@ fn a_pc_that_leaves_without_closing_the_channel_leaves_nothing_queued_for_the_ne
     drop(lines);
     // Long enough for the controller to send dozens of frames.
     thread::sleep(Duration::from_secs(2));
-    let (mut port, lines) = simulator.connect();
+    let (mut port, lines) = connect(&simulator);
     send(&mut port, &["V"]);
     assert_eq!(
         lines.recv_timeout(Duration::from_secs(2)).unwrap(),
@@ -195,18 +172,17 @@ fn a_pc_that_leaves_without_closing_the_channel_leaves_nothing_queued_for_the_ne
         "the next program's first line is the answer to its own command"
     );
     assert!(lines.recv_timeout(Duration::from_millis(500)).is_err());
-    simulator.quit();
+    quit(simulator);
 }
 
 #[test]
 fn a_second_simulator_on_the_same_link_is_refused_and_names_the_first() {
-    let directory = scratch_directory("twice");
-    let first = Simulator::start(&directory);
-    let second = Command::new(env!("CARGO_BIN_EXE_virtual-base-controller"))
+    let first = start();
+    let second = Command::new(SIMULATOR)
         .arg("--link")
-        .arg(&first.link)
+        .arg(first.link())
         .arg("--flash")
-        .arg(directory.join("flash2.bin"))
+        .arg(first.directory().join("flash2.bin"))
         .args(["--no-socketcand"])
         .stdin(Stdio::null())
         .output()
@@ -214,16 +190,16 @@ fn a_second_simulator_on_the_same_link_is_refused_and_names_the_first() {
     assert!(!second.status.success());
     let error = String::from_utf8_lossy(&second.stderr);
     assert!(
-        error.contains(&format!("another simulator (pid {})", first.child.id())),
+        error.contains(&format!("another simulator (pid {})", first.pid())),
         "{error}"
     );
     // The first one's link still points at its port.
     assert!(
-        std::fs::read_link(&first.link)
+        std::fs::read_link(first.link())
             .unwrap()
             .starts_with("/dev/pts")
     );
-    first.quit();
+    quit(first);
 }
 
 #[test]
@@ -231,15 +207,14 @@ fn sigterm_and_ctrl_c_remove_the_link_and_its_lock() {
     use nix::sys::signal::{Signal, kill};
     use nix::unistd::Pid;
     for signal in [Signal::SIGTERM, Signal::SIGINT] {
-        let directory = scratch_directory(&format!("signal-{signal}"));
-        let mut simulator = Simulator::start(&directory);
-        let lock = directory.join("slcan.lock");
+        let mut simulator = start();
+        let lock = simulator.directory().join("slcan.lock");
         assert!(lock.exists());
-        kill(Pid::from_raw(simulator.child.id() as i32), signal).unwrap();
-        let status = simulator.child.wait().unwrap();
+        kill(Pid::from_raw(simulator.pid() as i32), signal).unwrap();
+        let status = simulator.wait_for_exit(Duration::from_secs(10)).unwrap();
         assert!(status.success(), "{signal}: {status}");
         assert!(
-            std::fs::symlink_metadata(&simulator.link).is_err(),
+            std::fs::symlink_metadata(simulator.link()).is_err(),
             "{signal}: the link is gone"
         );
         assert!(!lock.exists(), "{signal}: the lock file is gone");

@@ -2,20 +2,22 @@
 //! trip needs a kernel with CAN sockets and a `vcan0` that is up; where either is
 //! missing that test says so and skips. The refusal test runs everywhere.
 
-use std::io::{BufRead, BufReader, Write};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use embedded_can::Frame as _;
 use socketcan::{CanFrame, CanSocket, Socket, StandardId};
+use virtual_robot::process::SimulatorProcess;
 use virtual_robot::simulator::socketcan::kernel_has_can;
 
 #[test]
 fn an_interface_that_cannot_be_joined_is_refused_with_the_reason() {
+    // The simulator creates its flash file before it joins the interface.
+    let directory = tempfile::tempdir().unwrap();
     let output = Command::new(env!("CARGO_BIN_EXE_virtual-base-controller"))
         .args(["--no-link", "--no-socketcand", "--socketcan", "nosuchcan9"])
         .arg("--flash")
-        .arg(std::env::temp_dir().join(format!("socketcan-refused-{}.bin", std::process::id())))
+        .arg(directory.path().join("flash.bin"))
         .stdin(Stdio::null())
         .output()
         .unwrap();
@@ -42,18 +44,20 @@ fn a_program_on_vcan0_reads_a_register_of_the_simulated_controller() {
         );
         return;
     };
-    let mut simulator = Command::new(env!("CARGO_BIN_EXE_virtual-base-controller"))
-        .args(["--no-link", "--no-socketcand", "--socketcan", "vcan0"])
-        .arg("--flash")
-        .arg(std::env::temp_dir().join(format!("socketcan-vcan0-{}.bin", std::process::id())))
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut lines = BufReader::new(simulator.stdout.take().unwrap()).lines();
-    assert!(lines.any(|line| line.is_ok_and(|line| line.starts_with("SocketCAN:"))));
-    std::thread::spawn(move || for _ in lines {});
+    let simulator = SimulatorProcess::launch(env!("CARGO_BIN_EXE_virtual-base-controller"))
+        .no_link()
+        .no_socketcand()
+        .args(["--socketcan", "vcan0"])
+        .start()
+        .expect("the simulator starts on vcan0");
+    assert!(
+        simulator
+            .startup_lines()
+            .iter()
+            .any(|line| line.starts_with("SocketCAN:")),
+        "{:?}",
+        simulator.startup_lines()
+    );
     let request = CanFrame::new(StandardId::new(0x004).unwrap(), &[0x01, 15]).unwrap();
     socket.write_frame(&request).unwrap();
     let deadline = Instant::now() + Duration::from_secs(5);
@@ -69,6 +73,5 @@ fn a_program_on_vcan0_reads_a_register_of_the_simulated_controller() {
         }
     };
     assert_eq!(reply.data(), [0x00, 0x00, 50], "loop_end_delay is 50 ms");
-    let _ = writeln!(simulator.stdin.as_mut().unwrap(), "quit");
-    let _ = simulator.wait();
+    drop(simulator);
 }

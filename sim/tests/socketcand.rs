@@ -5,82 +5,17 @@
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
 use std::os::fd::AsFd;
-use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
-use std::sync::mpsc::{Receiver, channel};
+use std::process::Command;
 use std::thread;
 use std::time::{Duration, Instant};
 
+use virtual_robot::process::SimulatorProcess;
+
 /// The simulator with its socketcand server on a free port; its stdout lines are
 /// collected for the tests to look at.
-struct Simulator {
-    child: Child,
-    port: u16,
-    stdout: Receiver<String>,
-    _directory: PathBuf,
-}
-
-impl Simulator {
-    fn start(name: &str) -> Self {
-        let directory =
-            std::env::temp_dir().join(format!("socketcand-{name}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&directory);
-        std::fs::create_dir_all(&directory).unwrap();
-        let mut child = Command::new(env!("CARGO_BIN_EXE_virtual-base-controller"))
-            .arg("--link")
-            .arg(directory.join("slcan"))
-            .arg("--flash")
-            .arg(directory.join("flash.bin"))
-            .args(["--socketcand", "127.0.0.1:0"])
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("the simulator starts");
-        let (sender, stdout) = channel();
-        let lines = BufReader::new(child.stdout.take().unwrap()).lines();
-        thread::spawn(move || {
-            for line in lines.map_while(Result::ok) {
-                let _ = sender.send(line);
-            }
-        });
-        let port = loop {
-            let line = stdout
-                .recv_timeout(Duration::from_secs(10))
-                .expect("the simulator names its socketcand address");
-            if let Some(address) = line.strip_prefix("socketcand:") {
-                let address = address.trim().split(',').next().unwrap();
-                break address.rsplit(':').next().unwrap().parse().unwrap();
-            }
-        };
-        Self {
-            child,
-            port,
-            stdout,
-            _directory: directory,
-        }
-    }
-
-    /// Waits for a stdout line containing `text`.
-    fn wait_for_line(&self, text: &str, timeout: Duration) -> Option<String> {
-        let deadline = Instant::now() + timeout;
-        loop {
-            let line = self
-                .stdout
-                .recv_timeout(deadline.saturating_duration_since(Instant::now()))
-                .ok()?;
-            if line.contains(text) {
-                return Some(line);
-            }
-        }
-    }
-}
-
-impl Drop for Simulator {
-    fn drop(&mut self) {
-        let _ = writeln!(self.child.stdin.as_mut().unwrap(), "quit");
-        let _ = self.child.wait();
-    }
+fn start() -> SimulatorProcess {
+    SimulatorProcess::start(env!("CARGO_BIN_EXE_virtual-base-controller"))
+        .expect("the simulator starts")
 }
 
 /// A socketcand client by hand: connects and goes through the handshake.
@@ -105,14 +40,14 @@ fn connect(port: u16) -> TcpStream {
 
 #[test]
 fn python_can_programs_share_the_bus_and_none_loses_a_frame_or_a_reply() {
-    let simulator = Simulator::start("python");
+    let simulator = start();
     let script = concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/tests/python/socketcand_clients.py"
     );
     let output = Command::new("python3")
         .arg(script)
-        .args(["127.0.0.1", &simulator.port.to_string(), "4"])
+        .args(["127.0.0.1", &simulator.socketcand().port().to_string(), "4"])
         .output()
         .expect("python3 runs (CI installs python-can, see .ci/run)");
     let text = String::from_utf8_lossy(&output.stdout);
@@ -126,13 +61,13 @@ fn python_can_programs_share_the_bus_and_none_loses_a_frame_or_a_reply() {
 
 #[test]
 fn a_client_that_stops_reading_is_dropped_and_the_others_get_every_frame() {
-    let simulator = Simulator::start("slow");
+    let simulator = start();
     // The slow client reads nothing after its handshake, through a small receive
     // buffer so that its backlog reaches the server's queue soon.
-    let slow = connect(simulator.port);
+    let slow = connect(simulator.socketcand().port());
     nix::sys::socket::setsockopt(&slow.as_fd(), nix::sys::socket::sockopt::RcvBuf, &2048).unwrap();
-    let mut sender = connect(simulator.port);
-    let mut listener = connect(simulator.port);
+    let mut sender = connect(simulator.socketcand().port());
+    let mut listener = connect(simulator.socketcand().port());
     // Frames start flowing a moment after the handshake.
     thread::sleep(Duration::from_millis(200));
 

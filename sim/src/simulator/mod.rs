@@ -78,6 +78,11 @@ pub fn default_flash_path() -> PathBuf {
 /// The default symbolic link to the serial port.
 pub const DEFAULT_LINK: &str = "/tmp/virtual-base-controller";
 
+/// The last line the simulator prints at start-up, once the flash file, the serial
+/// port and its link, the SocketCAN interface and the socketcand server are all set
+/// up. [`crate::process::SimulatorProcess`] waits for it.
+pub const STARTED: &str = "type help for the console commands";
+
 /// Runs the simulator until `quit` (or the end of the demo). Fails only at start-up:
 /// the flash file or the serial port could not be set up.
 pub fn run(options: &Options) -> io::Result<()> {
@@ -127,7 +132,7 @@ pub fn run(options: &Options) -> io::Result<()> {
         "registers kept in: {}",
         options.flash_path.display()
     ));
-    output.message("type help for the console commands");
+    output.message(STARTED);
 
     let remote = (options.hci.as_ref())
         .map(|spec| crate::ble::LiveRemote::open(spec, &options.flash_path))
