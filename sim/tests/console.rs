@@ -207,38 +207,38 @@ impl Pc {
         self.reports.try_iter().collect()
     }
 
-    /// Waits for a status frame that satisfies `check`; the ones before are dropped.
+    /// Waits for the first report that `pick` takes; the ones before are dropped.
+    fn wait_for<T>(&self, timeout: Duration, pick: impl Fn(Received) -> Option<T>) -> Option<T> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            let received = self
+                .reports
+                .recv_timeout(deadline.saturating_duration_since(Instant::now()))
+                .ok()?;
+            if let Some(found) = pick(received) {
+                return Some(found);
+            }
+        }
+    }
+
+    /// Waits for a status frame that satisfies `check`.
     fn wait_for_status(
         &self,
         timeout: Duration,
         check: impl Fn(&Status) -> bool,
     ) -> Option<(Instant, Status)> {
-        let deadline = Instant::now() + timeout;
-        loop {
-            let received = self
-                .reports
-                .recv_timeout(deadline.saturating_duration_since(Instant::now()))
-                .ok()?;
-            if let Report::Status(status) = received.report
-                && check(&status)
-            {
-                return Some((received.at, status));
-            }
-        }
+        self.wait_for(timeout, |received| match received.report {
+            Report::Status(status) if check(&status) => Some((received.at, status)),
+            _ => None,
+        })
     }
 
     /// Waits for the next position report.
     fn next_position(&self, timeout: Duration) -> Option<(i32, i32)> {
-        let deadline = Instant::now() + timeout;
-        loop {
-            let received = self
-                .reports
-                .recv_timeout(deadline.saturating_duration_since(Instant::now()))
-                .ok()?;
-            if let Report::Position { x_mm, y_mm } = received.report {
-                return Some((x_mm, y_mm));
-            }
-        }
+        self.wait_for(timeout, |received| match received.report {
+            Report::Position { x_mm, y_mm } => Some((x_mm, y_mm)),
+            _ => None,
+        })
     }
 }
 
