@@ -5,7 +5,8 @@ use embassy_time::{Duration, Ticker};
 
 use crate::hw::InputPin;
 use base_core::controller::Input;
-use base_core::debounce::Debouncer;
+use base_core::debounce::{Debouncer, SafetyDebouncer};
+use base_core::time::Timestamp;
 
 use crate::channels::InputSender;
 use crate::control::core_now;
@@ -22,12 +23,21 @@ pub enum ActiveLevel {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct InputSettings {
-    pub sample_period_ms: u32,
-    /// Short, because it adds to the stop latency; two agreeing samples still ignore a
-    /// spike on the wire.
-    pub estop_debounce_ms: u32,
-    pub safety_zone_debounce_ms: u32,
-    /// Contact bounce of a push button lasts up to ~20 ms.
+    /// Every input is sampled this often. Short enough that a chattering e-stop or
+    /// zone contact cannot hide between samples: any active phase of at least this
+    /// long is seen, whatever its phase against the sampling.
+    pub sample_period_us: u32,
+    /// The e-stop and the safety zone are active from their first active sample on
+    /// (see [`SafetyDebouncer`]) and released only after this long without one. The
+    /// e-stop is left only with the confirm press anyway; the release time keeps a
+    /// chattering button from offering that confirm between two bounces.
+    pub estop_release_ms: u32,
+    /// The zone limit holds whenever the zone input was active within this window:
+    /// long enough to bridge a scanner output chattering at 50/50 ms, short enough
+    /// that the base is back at full speed a moment after someone left the zone.
+    pub safety_zone_release_ms: u32,
+    /// Contact bounce of a push button lasts up to ~20 ms. The button is no safety
+    /// input: both directions are debounced alike.
     pub button_debounce_ms: u32,
     /// E-stop loops are normally closed to 3.3 V: an open loop or a broken wire reads
     /// low through the board's pull-down, which counts as pressed.
@@ -38,9 +48,9 @@ pub struct InputSettings {
 
 impl InputSettings {
     pub const DEFAULT: InputSettings = InputSettings {
-        sample_period_ms: 1,
-        estop_debounce_ms: 1,
-        safety_zone_debounce_ms: 10,
+        sample_period_us: 200,
+        estop_release_ms: 50,
+        safety_zone_release_ms: 100,
         button_debounce_ms: 20,
         estop_active: ActiveLevel::Low,
         safety_zone_active: ActiveLevel::Low,
@@ -54,33 +64,73 @@ pub struct InputPins<E, Z, B> {
     pub button: B,
 }
 
+/// How one input's raw samples become its stable level.
+enum Debounce {
+    /// Towards the safe side: the e-stop and the safety zone.
+    Safety(SafetyDebouncer),
+    /// Both directions alike: the front button.
+    Symmetric(Debouncer),
+}
+
+impl Debounce {
+    fn update(&mut self, now: Timestamp, raw: bool) -> Option<bool> {
+        match self {
+            Debounce::Safety(debouncer) => debouncer.update(now, raw),
+            Debounce::Symmetric(debouncer) => debouncer.update(now, raw),
+        }
+    }
+
+    fn level(&self) -> bool {
+        match self {
+            Debounce::Safety(debouncer) => debouncer.level(),
+            Debounce::Symmetric(debouncer) => debouncer.level(),
+        }
+    }
+}
+
 struct DebouncedInput<P> {
     pin: P,
     active: ActiveLevel,
-    debouncer: Debouncer,
+    debounce: Debounce,
     report: fn(bool) -> Input,
 }
 
 impl<P: InputPin> DebouncedInput<P> {
-    /// Starts from the level the pin shows now. A pin that cannot be read counts as
-    /// active: the safe reading for the e-stop and the zone.
-    fn new(mut pin: P, active: ActiveLevel, debounce_ms: u32, report: fn(bool) -> Input) -> Self {
+    /// A safety input, starting from the level the pin shows now. A pin that cannot
+    /// be read counts as active: the safe reading for the e-stop and the zone.
+    fn safety(mut pin: P, active: ActiveLevel, release_ms: u32, report: fn(bool) -> Input) -> Self {
         let initial = read(&mut pin, active);
         Self {
             pin,
             active,
-            debouncer: Debouncer::new(initial, debounce_ms),
+            debounce: Debounce::Safety(SafetyDebouncer::new(initial, release_ms)),
+            report,
+        }
+    }
+
+    /// An input debounced alike in both directions, starting from its level now.
+    fn symmetric(
+        mut pin: P,
+        active: ActiveLevel,
+        debounce_ms: u32,
+        report: fn(bool) -> Input,
+    ) -> Self {
+        let initial = read(&mut pin, active);
+        Self {
+            pin,
+            active,
+            debounce: Debounce::Symmetric(Debouncer::new(initial, debounce_ms)),
             report,
         }
     }
 
     fn sample(&mut self) -> Option<Input> {
         let raw = read(&mut self.pin, self.active);
-        self.debouncer.update(core_now(), raw).map(self.report)
+        self.debounce.update(core_now(), raw).map(self.report)
     }
 
     fn current(&self) -> Input {
-        (self.report)(self.debouncer.level())
+        (self.report)(self.debounce.level())
     }
 }
 
@@ -97,19 +147,19 @@ pub async fn run<E: InputPin, Z: InputPin, B: InputPin>(
     inputs: InputSender<'_>,
     liveness: &Liveness,
 ) -> ! {
-    let mut estop = DebouncedInput::new(
+    let mut estop = DebouncedInput::safety(
         pins.estop,
         settings.estop_active,
-        settings.estop_debounce_ms,
+        settings.estop_release_ms,
         Input::Estop,
     );
-    let mut zone = DebouncedInput::new(
+    let mut zone = DebouncedInput::safety(
         pins.safety_zone,
         settings.safety_zone_active,
-        settings.safety_zone_debounce_ms,
+        settings.safety_zone_release_ms,
         Input::SafetyZone,
     );
-    let mut button = DebouncedInput::new(
+    let mut button = DebouncedInput::symmetric(
         pins.button,
         settings.button_active,
         settings.button_debounce_ms,
@@ -118,8 +168,8 @@ pub async fn run<E: InputPin, Z: InputPin, B: InputPin>(
     // The controller starts knowing nothing: tell it the levels at boot.
     inputs.send(estop.current()).await;
     inputs.send(zone.current()).await;
-    let mut ticker = Ticker::every(Duration::from_millis(u64::from(
-        settings.sample_period_ms.max(1),
+    let mut ticker = Ticker::every(Duration::from_micros(u64::from(
+        settings.sample_period_us.max(1),
     )));
     loop {
         ticker.next().await;

@@ -29,6 +29,34 @@ pub struct Pulse {
 struct PinInner {
     level: PinState,
     changes: Vec<LevelChange>,
+    /// While set, the outside world chatters the pin instead of holding `level`.
+    chatter: Option<Chatter>,
+}
+
+/// A contact that chatters: `level` for `on` of every `period`, the other level for
+/// the rest, starting at `start`. Read from the virtual clock whenever the firmware
+/// samples the pin, so the pattern is exact to the tick whatever the sampling period.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Chatter {
+    pub level: PinState,
+    pub period: Duration,
+    pub on: Duration,
+    pub start: Instant,
+}
+
+impl Chatter {
+    fn level_at(&self, now: Instant) -> PinState {
+        let period = self.period.as_ticks().max(1);
+        let into_period = now.saturating_duration_since(self.start).as_ticks() % period;
+        if into_period < self.on.as_ticks() {
+            self.level
+        } else {
+            match self.level {
+                PinState::High => PinState::Low,
+                PinState::Low => PinState::High,
+            }
+        }
+    }
 }
 
 /// A digital pin with one level shared by all clones: an input the test drives (a
@@ -44,18 +72,37 @@ impl SimPin {
             inner: Rc::new(RefCell::new(PinInner {
                 level,
                 changes: Vec::new(),
+                chatter: None,
             })),
         }
     }
 
     /// The outside world drives the pin (a button pressed, a line pulled). Not
     /// logged: the log is what the firmware did.
+    /// Ends a chatter started with [`Self::chatter`].
     pub fn set_level(&self, level: PinState) {
-        self.inner.borrow_mut().level = level;
+        let mut inner = self.inner.borrow_mut();
+        inner.level = level;
+        inner.chatter = None;
+    }
+
+    /// The outside world chatters the pin from now on: `level` for `on` of every
+    /// `period`, starting with `level`, until the next [`Self::set_level`].
+    pub fn chatter(&self, level: PinState, period: Duration, on: Duration) {
+        self.inner.borrow_mut().chatter = Some(Chatter {
+            level,
+            period,
+            on,
+            start: Instant::now(),
+        });
     }
 
     pub fn level(&self) -> PinState {
-        self.inner.borrow().level
+        let inner = self.inner.borrow();
+        match inner.chatter {
+            Some(chatter) => chatter.level_at(Instant::now()),
+            None => inner.level,
+        }
     }
 
     /// Every change of level the firmware made through `OutputPin`, oldest first.
