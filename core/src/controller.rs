@@ -519,12 +519,14 @@ impl Controller {
     /// at the moment it is used, and a supervisor step applies it to the running command.
     /// A new value for a motion register, and restore-defaults, are refused with
     /// `NotAtRest` unless the base stands: a geometry, direction or limit that changes
-    /// under a moving base turns a straight drive into a spin.
+    /// under a moving base turns a straight drive into a spin. So is a new value for a
+    /// register that shapes the stop ([`Reg::shapes_stop`]): a stop must not be
+    /// stretched by a write while the base moves.
     fn write_register(&mut self, now: Timestamp, address: u8, value: u16, out: &mut Output) {
         let changes_motion = match Reg::from_address(address) {
             Some(Reg::Command) => value == RESTORE_DEFAULTS_KEY,
             Some(reg) => {
-                reg.changes_motion()
+                reg.needs_standstill()
                     && reg.info().accepts(value)
                     && self.registers.get(reg) != value
             }

@@ -2140,3 +2140,41 @@ fn after_a_remote_link_loss_can_drives_only_after_standstill_with_a_fresh_frame(
         ],
     );
 }
+
+/// Issue 21: a register that shapes a stop (`estop_decel` 3000 here) written while
+/// moving is refused like a motion register, so the e-stop right after it still brakes
+/// with 4500; once the base stands the value is accepted.
+#[test]
+fn a_stop_shaping_register_is_refused_while_moving_and_accepted_at_rest() {
+    run(
+        defaults(),
+        &[
+            (0, enable(), &[]),
+            (0, velocity(500, 0), &[FORWARD_500]),
+            (40, moving(336), &[]),
+            (
+                50,
+                raw(id::REGISTER_WRITE, &[26, 0x0B, 0xB8]),
+                &[
+                    NothingPersisted,
+                    Register(Reg::EstopDecel, 4_500),
+                    Rejected {
+                        code: 0x14,
+                        subject: 26,
+                    },
+                ],
+            ),
+            (60, Input::Estop(true), &[Stop { accel: 4_500 }]),
+            (300, moving(0), &[]),
+            (320, moving(0), &[]),
+            (
+                330,
+                raw(id::REGISTER_WRITE, &[26, 0x0B, 0xB8]),
+                &[
+                    Persists(Reg::EstopDecel, 3_000),
+                    Register(Reg::EstopDecel, 3_000),
+                ],
+            ),
+        ],
+    );
+}

@@ -114,7 +114,7 @@ impl Rejection {
                 "the value would break a cross-register rule (docs/registers.md)"
             }
             Rejection::Register(RegisterError::NotAtRest) => {
-                "a motion register or restore-defaults while the base moves: stop first"
+                "a motion or stop-shaping register, or restore-defaults, while the base moves: stop first"
             }
             Rejection::OdometryCalibration(Odometry::EndWithoutStart) => {
                 "an end step without its own start step running"

@@ -40,8 +40,8 @@ pub enum RegisterError {
     OutOfRange = 0x12,
     /// The value is in range but would break a cross-register rule.
     Inconsistent = 0x13,
-    /// A motion register ([`Reg::changes_motion`]) or the restore-defaults key, written
-    /// while the base is not standing: refused, nothing changed. The controller
+    /// A motion or stop-shaping register ([`Reg::needs_standstill`]) or the
+    /// restore-defaults key, written while the base is not standing: refused, nothing changed. The controller
     /// decides this; [`Registers::write`] itself never returns it.
     NotAtRest = 0x14,
 }

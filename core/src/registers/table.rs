@@ -206,6 +206,29 @@ impl Reg {
                 | Reg::SecMotorVel
         )
     }
+
+    /// Whether the register shapes how a stop happens: when the base must stop
+    /// (`enable_timeout`, `cmd_timeout`) and how hard it brakes (`estop_decel`,
+    /// `stop_decel`, `Contr_acc_high`). Like the motion registers, a new value is
+    /// accepted only while the base stands: a stop that is already under way, or due,
+    /// keeps the rules it started with, so no write can stretch it (an `estop_decel`
+    /// of 100 written at 500 mm/s would make the next e-stop roll 3.4 s).
+    pub const fn shapes_stop(self) -> bool {
+        matches!(
+            self,
+            Reg::EnableTimeout
+                | Reg::CmdTimeout
+                | Reg::EstopDecel
+                | Reg::StopDecel
+                | Reg::ContrAccHigh
+        )
+    }
+
+    /// Whether a new value is accepted only while the base stands
+    /// ([`Self::changes_motion`] or [`Self::shapes_stop`]).
+    pub const fn needs_standstill(self) -> bool {
+        self.changes_motion() || self.shapes_stop()
+    }
 }
 
 /// The highest address whose name, default and meaning the manual fixes. Records of
