@@ -14,6 +14,7 @@ use crate::feedback::{FeedbackPeriods, FeedbackSchedule};
 use crate::gamepad::GamepadState;
 use crate::kinematics::{self, KinematicsParams, MotorRpm, SafetyLimits, Twist, WheelCommand};
 use crate::odometry::{EncoderCounts, Odometry, OdometryParams};
+use crate::plausibility::{self, FeedbackCheck};
 use crate::power::{self, PowerControl, SwitchLevel};
 use crate::registers::{
     MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, RESTORE_DEFAULTS_KEY, Reg, RegisterError,
@@ -200,6 +201,8 @@ pub struct Controller {
     modbus_errors: u8,
     /// When the last drive feedback arrived, for the odometry's plausibility check.
     last_feedback_at: Option<Timestamp>,
+    /// Whether each drive's position counter and reported speed agree.
+    feedback_check: FeedbackCheck,
     /// Register values wait for the flash (the runtime's store says so).
     persist_pending: bool,
 }
@@ -231,6 +234,7 @@ impl Controller {
             pairing: PairingWindow::Closed,
             modbus_errors: 0,
             last_feedback_at: None,
+            feedback_check: FeedbackCheck::new(),
             persist_pending: false,
         }
     }
@@ -318,6 +322,7 @@ impl Controller {
                 // for it), the drives stand and were told nothing yet; one that comes
                 // unasked changes nothing about what the wheels do.
                 self.odometry.rebaseline();
+                self.feedback_check.restart();
                 if matches!(self.supervisor.mode(), Mode::Starting | Mode::Recovering) {
                     self.in_force = STANDING;
                     self.speed = SpeedEstimate::standing(now);
@@ -616,17 +621,48 @@ impl Controller {
             self.rejections
                 .record(Rejection::OdometryDiscontinuity.code(), jumped);
             self.odometry.rebaseline();
+            self.feedback_check.restart();
         }
         if let Some(motion) = self.odometry.update(&params, counts) {
             self.odometry_calibration
                 .observe(motion.distance_mm, motion.rotation_mrad);
         }
         self.speed = SpeedEstimate::measured(now, rpm);
-        // A range, not `abs()`: i32::MIN from a drive would overflow (and, wrapped, read
-        // as standing).
-        let standing = -AT_REST_RPM..=AT_REST_RPM;
-        let at_rest = standing.contains(&rpm.left) && standing.contains(&rpm.right);
+        let verdict = self
+            .feedback_check
+            .sample(now, counts, rpm, params.counts_per_motor_rev);
+        self.feedback_plausibility(now, &verdict, out);
+        // Standing by the reported speed and by the counters: a stale speed register
+        // must not let the brakes, the flash or a motion register through while the
+        // shaft still turns.
+        let at_rest = plausibility::speed_standing(rpm.left)
+            && plausibility::speed_standing(rpm.right)
+            && verdict.position_standing;
         self.supervise(now, supervisor::Event::AtRest(at_rest), out);
+    }
+
+    /// A drive whose counter and speed disagree latches a drive fault (zero with
+    /// `estop_decel`, see the supervisor); the status frame shows why as a rejection
+    /// (0x41 position stuck, 0x42 speed stale; subject 1 left, 2 right).
+    fn feedback_plausibility(
+        &mut self,
+        now: Timestamp,
+        verdict: &plausibility::Verdict,
+        out: &mut Output,
+    ) {
+        for (wheel, finding) in verdict.findings() {
+            let subject = match wheel {
+                Wheel::Left => 1,
+                Wheel::Right => 2,
+            };
+            warn!(
+                "drive feedback implausible (wheel {=u8}): the base stops",
+                subject
+            );
+            self.rejections
+                .record(Rejection::Feedback(finding).code(), subject);
+            self.supervise(now, supervisor::Event::FeedbackImplausible(wheel), out);
+        }
     }
 
     fn supervise(&mut self, now: Timestamp, event: supervisor::Event, out: &mut Output) {

@@ -45,6 +45,7 @@ pub mod hid;
 pub mod kinematics;
 pub mod modbus;
 pub mod odometry;
+pub mod plausibility;
 pub mod power;
 pub mod registers;
 pub mod remote;

@@ -9,8 +9,8 @@
 //!      │                          │   at rest for disable_time      │
 //!      │                          │   (de-excite: brakes close)     │
 //!      │                          │                                 │
-//!      │                          │ DrivesReady      drive lost /   │
-//!      │                       Recovering ◀──────┐   alarm          ▼
+//!      │                          │ DrivesReady   drive lost, alarm │
+//!      │                       Recovering ◀──────┐ or implausible   ▼
 //!      │                          ▲              └──── confirm ── Fault (brakes close
 //!      │                          │                                 at rest)
 //!      │                          │ confirm
@@ -73,6 +73,9 @@ pub enum Event {
     DriveSilent(Wheel),
     /// A drive reported an alarm (non-zero code).
     DriveAlarm { wheel: Wheel, code: u8 },
+    /// A drive's position counter and reported speed disagree
+    /// ([`crate::plausibility`]): its feedback cannot be trusted.
+    FeedbackImplausible(Wheel),
     /// Whether both wheels are measured at rest, from the latest drive feedback.
     AtRest(bool),
     /// Time passed; timeouts are checked.
@@ -126,28 +129,53 @@ pub struct DriveFaults {
     pub left_alarm: bool,
     pub right_silent: bool,
     pub right_alarm: bool,
+    /// The drive's position counter and speed disagreed: its feedback lies.
+    pub left_implausible: bool,
+    pub right_implausible: bool,
     /// The latest non-zero alarm code either drive reported (stays after recovery, for the log).
     pub last_alarm_code: u8,
 }
 
+/// Why a drive faulted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+enum DriveFault {
+    Silent,
+    Alarm(u8),
+    Implausible,
+}
+
 impl DriveFaults {
     fn any(&self) -> bool {
-        self.left_silent || self.left_alarm || self.right_silent || self.right_alarm
+        self.left_silent
+            || self.left_alarm
+            || self.right_silent
+            || self.right_alarm
+            || self.left_implausible
+            || self.right_implausible
     }
 
-    /// Sets the wheel's bit: silent without an alarm code, alarm with one.
-    fn record(&mut self, wheel: Wheel, alarm: Option<u8>) {
-        match (wheel, alarm) {
-            (Wheel::Left, None) => self.left_silent = true,
-            (Wheel::Left, Some(code)) => {
-                self.left_alarm = true;
-                self.last_alarm_code = code;
-            }
-            (Wheel::Right, None) => self.right_silent = true,
-            (Wheel::Right, Some(code)) => {
-                self.right_alarm = true;
-                self.last_alarm_code = code;
-            }
+    /// Sets the wheel's bit for the fault; an alarm also keeps its code.
+    fn record(&mut self, wheel: Wheel, fault: DriveFault) {
+        if let DriveFault::Alarm(code) = fault {
+            self.last_alarm_code = code;
+        }
+        let (silent, alarm, implausible) = match wheel {
+            Wheel::Left => (
+                &mut self.left_silent,
+                &mut self.left_alarm,
+                &mut self.left_implausible,
+            ),
+            Wheel::Right => (
+                &mut self.right_silent,
+                &mut self.right_alarm,
+                &mut self.right_implausible,
+            ),
+        };
+        match fault {
+            DriveFault::Silent => *silent = true,
+            DriveFault::Alarm(_) => *alarm = true,
+            DriveFault::Implausible => *implausible = true,
         }
     }
 }
@@ -286,6 +314,8 @@ impl Supervisor {
                 left_alarm: false,
                 right_silent: false,
                 right_alarm: false,
+                left_implausible: false,
+                right_implausible: false,
                 last_alarm_code: 0,
             },
         }
@@ -360,9 +390,14 @@ impl Supervisor {
                     };
                 }
             }
-            Event::DriveSilent(wheel) => self.drive_fault(now, wheel, None, params, &mut effects),
+            Event::DriveSilent(wheel) => {
+                self.drive_fault(now, wheel, DriveFault::Silent, params, &mut effects)
+            }
             Event::DriveAlarm { wheel, code } => {
-                self.drive_fault(now, wheel, Some(code), params, &mut effects)
+                self.drive_fault(now, wheel, DriveFault::Alarm(code), params, &mut effects)
+            }
+            Event::FeedbackImplausible(wheel) => {
+                self.drive_fault(now, wheel, DriveFault::Implausible, params, &mut effects)
             }
             Event::AtRest(at_rest) => {
                 self.inputs.at_rest = at_rest;
@@ -534,7 +569,7 @@ impl Supervisor {
         &mut self,
         now: Timestamp,
         wheel: Wheel,
-        alarm: Option<u8>,
+        fault: DriveFault,
         params: &Params,
         effects: &mut Effects,
     ) {
@@ -542,12 +577,12 @@ impl Supervisor {
         // alarm is no reason to stop; but the PC must see why the base does not get
         // ready, so the fault bit is set and the drives' readiness clears it.
         if matches!(self.state, State::Starting | State::Recovering) {
-            self.faults.record(wheel, alarm);
+            self.faults.record(wheel, fault);
             return;
         }
         // Every fault latches, the second one too (both drives off: both reported).
         if matches!(self.state, State::Fault { .. }) {
-            self.faults.record(wheel, alarm);
+            self.faults.record(wheel, fault);
             return;
         }
         // In an emergency the drives lose power by design (and often raise an
@@ -555,7 +590,7 @@ impl Supervisor {
         if !self.may_drive() {
             return;
         }
-        self.faults.record(wheel, alarm);
+        self.faults.record(wheel, fault);
         debug_assert!(self.faults.any());
         self.state = State::Fault {
             excited: matches!(self.state, State::Active { .. }),
@@ -960,6 +995,28 @@ mod tests {
             }
         );
         assert_eq!(supervisor.mode(), Mode::Standby);
+    }
+
+    #[test]
+    fn implausible_feedback_while_driving_stops_with_estop_decel_and_latches_until_recovery() {
+        let mut supervisor = ready();
+        supervisor.step(at(0), Event::CanEnable { refresh: true }, &PARAMS);
+        supervisor.step(at(0), Event::CanVelocity(FORWARD), &PARAMS);
+        supervisor.step(at(10), Event::AtRest(false), &PARAMS);
+        let effects = supervisor.step(at(20), Event::FeedbackImplausible(Wheel::Left), &PARAMS);
+        assert_eq!(effects.setpoint, setpoint(Twist::ZERO, 4500));
+        assert_eq!(supervisor.mode(), Mode::Fault);
+        assert!(supervisor.faults().left_implausible);
+        assert!(!supervisor.faults().right_implausible);
+        // The PC keeps asking: nothing drives.
+        supervisor.step(at(30), Event::CanEnable { refresh: true }, &PARAMS);
+        let effects = supervisor.step(at(30), Event::CanVelocity(FORWARD), &PARAMS);
+        assert_eq!(effects.setpoint, None);
+        assert_eq!(supervisor.mode(), Mode::Fault);
+        supervisor.step(at(1_000), Event::ConfirmPressed, &PARAMS);
+        supervisor.step(at(1_500), Event::DrivesReady, &PARAMS);
+        assert_eq!(supervisor.mode(), Mode::Standby);
+        assert!(!supervisor.faults().left_implausible);
     }
 
     #[test]

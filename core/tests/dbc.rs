@@ -10,8 +10,10 @@ use base_core::calibration::odometry::OdometryCalibrationError;
 use base_core::calibration::scale::ScaleCalibrationError;
 use base_core::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
 use base_core::can::{
-    Command, ControlSource, Faults, FrameError, Mode, RawFrame, Report, Status, StatusFlags, id,
+    Command, ControlSource, Faults, FrameError, Mode, RawFrame, Rejection, Report, Status,
+    StatusFlags, id,
 };
+use base_core::plausibility::Finding;
 use base_core::registers::{self, Reg, RegisterError, TABLE};
 use can_dbc::{
     AttributeValue, ByteOrder, Dbc, Message, MessageId, MultiplexIndicator, Signal, ValueType,
@@ -199,6 +201,14 @@ const SCALE_CALIBRATION_ERRORS: [ScaleCalibrationError; 6] = [
     ScaleCalibrationError::ScaleValueOutOfRange,
 ];
 
+/// Reasons that are no refused command but are shown the same way: the drive
+/// feedback's (0x40..).
+const FEEDBACK_REASONS: [Rejection; 3] = [
+    Rejection::OdometryDiscontinuity,
+    Rejection::Feedback(Finding::PositionStuck),
+    Rejection::Feedback(Finding::SpeedStale),
+];
+
 /// Status byte 4 before anything was rejected.
 const NO_REJECTION: u8 = 0;
 
@@ -211,7 +221,15 @@ fn rejection_reasons() -> Vec<(u8, String)> {
         .iter()
         .map(|e| reason(e.code(), e));
     let scale = SCALE_CALIBRATION_ERRORS.iter().map(|e| reason(e.code(), e));
-    frame.chain(register).chain(odometry).chain(scale).collect()
+    let feedback = FEEDBACK_REASONS
+        .iter()
+        .map(|r| (r.code(), r.name().to_string()));
+    frame
+        .chain(register)
+        .chain(odometry)
+        .chain(scale)
+        .chain(feedback)
+        .collect()
 }
 
 fn rejection_reason(code: u8) -> Expect {

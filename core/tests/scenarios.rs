@@ -145,9 +145,13 @@ fn level_press(up: bool) -> Input {
 }
 
 /// Drive feedback with both wheels turning at `rpm` (as measured, any sign).
+///
+/// The counters are an honest drive's: [`run`] replaces [`HONEST_COUNTERS`] with the
+/// position the speeds reported so far add up to, so the feedback plausibility check
+/// sees drives whose counters and speeds agree.
 fn moving(rpm: i32) -> Input {
     Input::DriveFeedback {
-        counts: EncoderCounts { left: 0, right: 0 },
+        counts: HONEST_COUNTERS,
         rpm: MotorRpm {
             left: rpm,
             right: -rpm,
@@ -293,12 +297,62 @@ fn check(controller: &Controller, now: Timestamp, out: &Output, check: Check, ro
 }
 
 /// Runs the rows in order on a controller whose drives became ready at t = 0.
+/// Stands for the counters of drives that report their speeds honestly (see
+/// [`moving`]); never a value a row means literally.
+const HONEST_COUNTERS: EncoderCounts = EncoderCounts {
+    left: i32::MIN,
+    right: i32::MIN,
+};
+
+/// The counters of honest drives: the trapezoid of the reported speeds over time.
+#[derive(Default)]
+struct HonestDrives {
+    counts: [f64; 2],
+    last: Option<(u64, [i32; 2])>,
+}
+
+impl HonestDrives {
+    /// Replaces [`HONEST_COUNTERS`] in a feedback row; every feedback row moves the
+    /// counters along its speeds, and a setup from scratch restarts them at zero.
+    fn feed(&mut self, ms: u64, input: Input) -> Input {
+        match input {
+            Input::DriveFeedback { counts, rpm } => {
+                let speeds = [rpm.left, rpm.right];
+                if let Some((last_ms, last)) = self.last {
+                    for (count, (from, to)) in
+                        self.counts.iter_mut().zip(last.into_iter().zip(speeds))
+                    {
+                        let mean_rpm = (f64::from(from) + f64::from(to)) / 2.0;
+                        *count += mean_rpm * (ms - last_ms) as f64 * 36_000.0 / 60_000.0;
+                    }
+                }
+                self.last = Some((ms, speeds));
+                let counts = if counts == HONEST_COUNTERS {
+                    EncoderCounts {
+                        left: self.counts[0].round() as i32,
+                        right: self.counts[1].round() as i32,
+                    }
+                } else {
+                    counts
+                };
+                Input::DriveFeedback { counts, rpm }
+            }
+            Input::DrivesReady => {
+                *self = HonestDrives::default();
+                input
+            }
+            _ => input,
+        }
+    }
+}
+
 fn run(registers: Registers, rows: &[Row]) -> Controller {
     let mut controller = Controller::new(Timestamp::BOOT, registers);
     controller.handle(Timestamp::BOOT, Input::DrivesReady);
+    let mut drives = HonestDrives::default();
     for (index, (ms, input, checks)) in rows.iter().enumerate() {
         let now = Timestamp::from_millis(*ms);
-        let out = controller.handle(now, *input);
+        let out = controller.handle(now, drives.feed(*ms, *input));
         for check in checks.iter() {
             self::check(&controller, now, &out, *check, index);
         }
@@ -360,9 +414,11 @@ fn enable_lapse_brakes_and_closes_the_brakes_after_disable_time() {
             ),
             (600, moving(150), &[NoExcite]),
             (980, moving(0), &[NoExcite, Mode(Mode::Active)]),
-            // disable_time is 300 ms from the measured standstill.
-            (1279, Input::Tick, &[NoExcite]),
-            (1280, Input::Tick, &[Excite(false), Mode(Mode::Standby)]),
+            // Measured standstill: the speed reads 0 and the counters stood since the
+            // previous sample. disable_time is 300 ms from there.
+            (1000, moving(0), &[NoExcite, Mode(Mode::Active)]),
+            (1299, Input::Tick, &[NoExcite]),
+            (1300, Input::Tick, &[Excite(false), Mode(Mode::Standby)]),
         ],
     );
 }
@@ -671,10 +727,12 @@ fn dead_man_drives_with_contr_acc_norm_and_its_release_brakes_then_closes_the_br
                     NoExcite,
                 ],
             ),
-            // disable_time (300 ms) from the measured standstill, as under CAN.
+            // disable_time (300 ms) from the measured standstill, as under CAN: the
+            // speed reads 0 at 60 ms, the counters stood between 60 and 70 ms.
             (60, moving(0), &[NoExcite]),
-            (359, Input::Tick, &[NoExcite]),
-            (360, Input::Tick, &[Excite(false), Mode(Mode::Standby)]),
+            (70, moving(0), &[NoExcite]),
+            (369, Input::Tick, &[NoExcite]),
+            (370, Input::Tick, &[Excite(false), Mode(Mode::Standby)]),
         ],
     );
 }
@@ -1860,8 +1918,10 @@ fn after_a_dead_man_release_can_drives_only_after_standstill_with_a_fresh_frame(
             (110, moving(60), &[NoWheels]),
             (150, enable(), &[NoWheels]),
             (150, velocity(500, 0), &[NoWheels]),
-            // Both wheels measured at rest: nothing resumes by itself ...
+            // Both wheels measured at rest (the speed reads 0, then the counters stood
+            // between two samples): nothing resumes by itself ...
             (160, moving(0), &[NoWheels, Control(ControlSource::None)]),
+            (170, moving(0), &[NoWheels, Control(ControlSource::None)]),
             (200, enable(), &[NoWheels]),
             // ... the next frame drives.
             (
@@ -2026,6 +2086,7 @@ fn motion_registers_are_refused_while_moving_and_accepted_at_rest() {
             ),
             (300, enable(), &[]),
             (300, moving(0), &[]),
+            (305, moving(0), &[]),
             (
                 310,
                 raw(id::REGISTER_WRITE, &[28, 0x00, 0x00]),
@@ -2131,12 +2192,92 @@ fn after_a_remote_link_loss_can_drives_only_after_standstill_with_a_fresh_frame(
             (160, enable(), &[]),
             (160, velocity(500, 0), &[NoWheels]),
             (200, moving(1), &[NoWheels]),
+            // The counters stood since the previous sample too: at rest.
+            (205, moving(0), &[NoWheels]),
             (210, enable(), &[]),
             (
                 210,
                 velocity(500, 0),
                 &[FORWARD_500, Control(ControlSource::Can)],
             ),
+        ],
+    );
+}
+
+/// Issue 21, case 5: the left encoder sticks at 500 mm/s (its counter stands while its
+/// speed reads 336 r/min). Two 100 ms windows disagree, then the base stops with
+/// `estop_decel` and the mode is Fault, the reason PositionStuck (0x41) on wheel 1.
+#[test]
+fn a_stuck_encoder_latches_a_drive_fault_and_stops_with_estop_decel() {
+    let stuck = |ms: i32| Input::DriveFeedback {
+        counts: EncoderCounts {
+            left: 0,
+            right: -(336 * 36_000 / 60_000 * ms),
+        },
+        rpm: MotorRpm {
+            left: 336,
+            right: -336,
+        },
+    };
+    run(
+        defaults(),
+        &[
+            (0, enable(), &[]),
+            (0, velocity(500, 0), &[FORWARD_500]),
+            (100, stuck(0), &[NoWheels, Mode(Mode::Active)]),
+            (150, stuck(50), &[NoWheels]),
+            (200, stuck(100), &[NoWheels, Mode(Mode::Active)]),
+            (250, stuck(150), &[NoWheels]),
+            (
+                300,
+                stuck(200),
+                &[
+                    Stop { accel: 4_500 },
+                    Mode(Mode::Fault),
+                    Rejected {
+                        code: 0x41,
+                        subject: 1,
+                    },
+                ],
+            ),
+            (310, enable(), &[]),
+            (310, velocity(500, 0), &[NoWheels, Mode(Mode::Fault)]),
+        ],
+    );
+}
+
+/// Issue 21, case 5: both speed registers read 0 while the wheels still turn down
+/// from 336 r/min. The counters run, so the base is not at rest: a motion register is
+/// refused and the brakes stay released.
+#[test]
+fn counters_that_run_while_the_speeds_read_zero_are_no_standstill() {
+    let rolling = |left: i32| Input::DriveFeedback {
+        counts: EncoderCounts { left, right: -left },
+        rpm: MotorRpm::ZERO,
+    };
+    run(
+        defaults(),
+        &[
+            (0, enable(), &[]),
+            (0, velocity(500, 0), &[FORWARD_500]),
+            (100, moving(336), &[]),
+            (100, velocity(0, 0), &[Stop { accel: 700 }]),
+            // 336 → 0 r/min at 700 (1/min)/s takes 480 ms; 20 ms later the counters
+            // have run about 4000 counts while the speeds already read 0.
+            (120, rolling(4_000), &[NoWheels]),
+            (140, rolling(8_000), &[NoWheels]),
+            (
+                150,
+                raw(id::REGISTER_WRITE, &[1, 0x00, 0x64]),
+                &[
+                    Register(Reg::RadL, 142),
+                    Rejected {
+                        code: 0x14,
+                        subject: 1,
+                    },
+                ],
+            ),
+            (450, Input::Tick, &[NoExcite]),
         ],
     );
 }

@@ -8,7 +8,8 @@
 //! - the periods of the feedback frames while driving, and their jitter;
 //! - the Modbus bytes of a control cycle and how busy they keep the RS-485 line, at
 //!   115200 and at 230400 baud;
-//! - CAN frames per second by ID and the bus load, in standby and while driving.
+//! - CAN frames per second by ID and the bus load, in standby and while driving;
+//! - the fail-safe figures: reset run-on, a failing group frame, a stuck encoder.
 //!
 //! Run with `cargo run -p virtual-robot --example figures`.
 
@@ -19,7 +20,7 @@ use base_core::registers::Reg;
 use embassy_futures::join::join;
 use embassy_time::{Duration, Instant, Timer};
 use virtual_robot::can::{BITRATE_BPS, SentFrame};
-use virtual_robot::drives::{DrivesConfig, FrameRecord};
+use virtual_robot::drives::{DrivesConfig, FeedbackFault, FrameRecord};
 use virtual_robot::robot::{Pc, VirtualRobot, wait_ms};
 
 /// Phases spread over one 50 ms control cycle.
@@ -51,6 +52,7 @@ fn main() {
 
     println!();
     report_fail_safe();
+    report_stuck_encoder();
 
     let recording = record_buses(&VirtualRobot::new());
     println!();
@@ -216,6 +218,43 @@ fn report_fail_safe() {
         "control latency while a 400 ms flash erase is pending: max {:.0} ms (without register writes: max {:.0} ms; the time between two control cycles while driving)",
         ms(control_gap(true)),
         ms(control_gap(false))
+    );
+}
+
+/// The left encoder sticks at 500 mm/s (its counter stands, its speed stays true) at
+/// ten moments 5 ms apart across a 50 ms feedback cycle, while the PC keeps asking for
+/// 500 mm/s: how far the farther wheel rolls from the fault until both stand.
+fn report_stuck_encoder() {
+    let wheel_mm = |revolutions: f64| revolutions / 10.0 * 2.0 * std::f64::consts::PI * 142.0;
+    let rolled: Vec<f64> = (0..10u64)
+        .map(|k| {
+            let robot = VirtualRobot::new();
+            robot.run(async |pc| {
+                wait_ms(BOOT_MS).await;
+                pc.drive(500, 0, 2_000 + k * 5).await;
+                let before = [1, 2].map(|slave| robot.drives.drive(slave).forward_revolutions());
+                robot
+                    .drives
+                    .set_feedback_fault(1, Some(FeedbackFault::StuckPosition));
+                pc.drive(500, 0, 2_000).await;
+                let stood = [1, 2]
+                    .iter()
+                    .all(|&slave| robot.drives.drive(slave).forward_rpm().abs() < 0.5);
+                assert!(stood, "both wheels stopped");
+                [1, 2]
+                    .into_iter()
+                    .zip(before)
+                    .map(|(slave, before)| {
+                        wheel_mm(robot.drives.drive(slave).forward_revolutions() - before).abs()
+                    })
+                    .fold(0.0, f64::max)
+            })
+        })
+        .collect();
+    let worst = rolled.iter().copied().fold(0.0, f64::max);
+    let best = rolled.iter().copied().fold(f64::INFINITY, f64::min);
+    println!(
+        "stuck encoder -> both wheels stopped: {worst:.0} mm (worst of 10 moments; best {best:.0} mm)"
     );
 }
 

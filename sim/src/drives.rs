@@ -1129,6 +1129,8 @@ struct Drive {
     last_traffic: Instant,
     requests_handled: usize,
     malformed_requests: usize,
+    /// What its feedback lies about, if anything (see "Encoder faults" below).
+    feedback_lie: Option<FeedbackLie>,
 }
 
 impl Drive {
@@ -1154,6 +1156,7 @@ impl Drive {
             last_traffic: now,
             requests_handled: 0,
             malformed_requests: 0,
+            feedback_lie: None,
         }
     }
 
@@ -1320,8 +1323,8 @@ impl Drive {
             net_id::DRIVER_INPUT_COMMAND => self.ram.input_command,
             net_id::PRESENT_ALARM => self.alarm,
             net_id::COMMUNICATION_ERROR => self.communication_error,
-            net_id::DETECTED_POSITION => self.position_counts() as u32,
-            net_id::DETECTED_SPEED => self.motor.speed_rpm.round() as i32 as u32,
+            net_id::DETECTED_POSITION => self.reported_position_counts() as u32,
+            net_id::DETECTED_SPEED => self.reported_speed_rpm() as u32,
             net_id::ALARM_RESET => self.ram.alarm_reset,
             net_id::SHARE_GLOBAL_ID => self.share.global_id,
             net_id::SHARE_NUMBER => self.share.number,
@@ -1566,5 +1569,83 @@ impl Drive {
             }
         };
         self.execute(&mine, list_item(read_list), list_item(write_list), at)
+    }
+}
+
+// ---------------------------------------------------------------------------------
+// Encoder faults: feedback that lies while the motor does what it is told.
+// ---------------------------------------------------------------------------------
+
+/// A lie in a drive's feedback: the motor still follows its commands, but what the
+/// drive reports about its shaft is wrong.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FeedbackFault {
+    /// The position counter (NET-ID 102) stops where it is now: a stuck encoder
+    /// channel or a frozen register. The reported speed stays true.
+    StuckPosition,
+    /// The reported speed (NET-ID 103) reads this many r/min, whatever the shaft
+    /// does: a stale register, e.g. 0 while the wheel still turns. The position stays
+    /// true.
+    SpeedReads(i32),
+}
+
+/// A [`FeedbackFault`] with the value it froze.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum FeedbackLie {
+    PositionAt(i32),
+    SpeedAt(i32),
+}
+
+impl Drive {
+    /// The counter as the drive reports it.
+    fn reported_position_counts(&self) -> i32 {
+        match self.feedback_lie {
+            Some(FeedbackLie::PositionAt(counts)) => counts,
+            _ => self.position_counts(),
+        }
+    }
+
+    /// The speed as the drive reports it, whole r/min.
+    fn reported_speed_rpm(&self) -> i32 {
+        match self.feedback_lie {
+            Some(FeedbackLie::SpeedAt(rpm)) => rpm,
+            _ => self.motor.speed_rpm.round() as i32,
+        }
+    }
+}
+
+impl DrivesHandle {
+    /// Makes a drive's feedback lie from now on (`None` heals it); the lie survives
+    /// power cycles, as a broken encoder would.
+    ///
+    /// # Panics
+    /// If no drive has the address `slave`.
+    pub fn set_feedback_fault(&self, slave: u8, fault: Option<FeedbackFault>) {
+        self.change(|bus, _| {
+            let drive = &mut bus.drives[bus.index_of(slave)];
+            drive.feedback_lie = fault.map(|fault| match fault {
+                FeedbackFault::StuckPosition => FeedbackLie::PositionAt(drive.position_counts()),
+                FeedbackFault::SpeedReads(rpm) => FeedbackLie::SpeedAt(rpm),
+            });
+        });
+    }
+}
+
+impl DrivesConfig {
+    /// The drives' address switches swapped: address 1 sits on the right wheel
+    /// (mirrored), address 2 on the left. The controller, which takes address 1 for
+    /// the left wheel, drives the base backwards when told forwards.
+    pub fn with_swapped_addresses(mut self) -> Self {
+        self.slaves = [
+            SlaveConfig {
+                address: 2,
+                mounting: Mounting::Forward,
+            },
+            SlaveConfig {
+                address: 1,
+                mounting: Mounting::Mirrored,
+            },
+        ];
+        self
     }
 }

@@ -5,6 +5,7 @@
 
 use crate::calibration::odometry::OdometryCalibrationError;
 use crate::calibration::scale::ScaleCalibrationError;
+use crate::plausibility::Finding;
 use crate::registers::RegisterError;
 
 use super::FrameError;
@@ -21,11 +22,14 @@ pub enum Rejection {
     /// motor can turn in the time since the previous sample, and the odometry took
     /// that sample as a new baseline. Counted and shown the same way.
     OdometryDiscontinuity,
+    /// Not a refused command: a drive's position counter and reported speed disagreed
+    /// for two windows in a row, and the base stopped with a latched drive fault.
+    Feedback(Finding),
 }
 
 impl Rejection {
     /// Every reason this firmware reports, in code order.
-    pub const ALL: [Rejection; 19] = [
+    pub const ALL: [Rejection; 21] = [
         Rejection::Frame(FrameError::WrongLength),
         Rejection::Frame(FrameError::BadVelocityMarker),
         Rejection::Frame(FrameError::UnknownSubcommand),
@@ -45,6 +49,8 @@ impl Rejection {
         Rejection::ScaleCalibration(ScaleCalibrationError::ZeroWeight),
         Rejection::ScaleCalibration(ScaleCalibrationError::ScaleValueOutOfRange),
         Rejection::OdometryDiscontinuity,
+        Rejection::Feedback(Finding::PositionStuck),
+        Rejection::Feedback(Finding::SpeedStale),
     ];
 
     /// `None` for 0 (nothing rejected) and for codes this firmware does not define (a
@@ -61,6 +67,8 @@ impl Rejection {
             Rejection::OdometryCalibration(error) => error.code(),
             Rejection::ScaleCalibration(error) => error.code(),
             Rejection::OdometryDiscontinuity => 0x40,
+            Rejection::Feedback(Finding::PositionStuck) => 0x41,
+            Rejection::Feedback(Finding::SpeedStale) => 0x42,
         }
     }
 
@@ -88,6 +96,8 @@ impl Rejection {
             Rejection::ScaleCalibration(Scale::ZeroWeight) => "ZeroWeight",
             Rejection::ScaleCalibration(Scale::ScaleValueOutOfRange) => "ScaleValueOutOfRange",
             Rejection::OdometryDiscontinuity => "OdometryDiscontinuity",
+            Rejection::Feedback(Finding::PositionStuck) => "PositionStuck",
+            Rejection::Feedback(Finding::SpeedStale) => "SpeedStale",
         }
     }
 
@@ -142,6 +152,12 @@ impl Rejection {
             }
             Rejection::OdometryDiscontinuity => {
                 "a drive's position counter jumped further than the motor can turn; the odometry took it as a new baseline"
+            }
+            Rejection::Feedback(Finding::PositionStuck) => {
+                "a drive's position counter stood or lagged while its speed said the shaft turned (stuck encoder): drive fault"
+            }
+            Rejection::Feedback(Finding::SpeedStale) => {
+                "a drive's position counter ran while its reported speed stood or lagged (stale speed): drive fault"
             }
         }
     }

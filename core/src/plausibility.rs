@@ -1,0 +1,443 @@
+//! Plausibility of the drives' feedback: each drive reports two things about its
+//! shaft, the position counter and the speed, and they must agree. The position that
+//! the reported speeds predict over a window (the trapezoid integral of the samples)
+//! is compared with the position change the counter shows:
+//!
+//! - the counter stands or lags while the speed says the shaft turns: a stuck encoder
+//!   or a frozen position register ([`Finding::PositionStuck`]);
+//! - the counter runs while the speed says it stands or runs slower: a stale (frozen)
+//!   speed register ([`Finding::SpeedStale`]).
+//!
+//! Either lie breaks something the base relies on: the odometry (the pose drifts
+//! without bound), or the standstill that gates the brakes, the flash and the motion
+//! registers. So a mismatch latches a drive fault that stops the base.
+//!
+//! Each sample also says whether the counter moved since the previous one, so that
+//! standstill is judged from the position as well as from the reported speed
+//! ([`Verdict::position_standing`]).
+//!
+//! What the drives' feedback cannot show: a shaft that turns as commanded but drives
+//! its wheel the wrong way (swapped drive addresses, a wrong `motor_dir`). Position,
+//! speed and command all agree in the drive's own frame; only the mapping from shaft
+//! to wheel is wrong, and nothing on the base measures the wheels independently. The
+//! commissioning check (`basectl commission wheels`) covers that, with a person
+//! watching the wheels.
+
+use crate::controller::AT_REST_RPM;
+use crate::kinematics::MotorRpm;
+use crate::odometry::EncoderCounts;
+use crate::supervisor::Wheel;
+use crate::time::Timestamp;
+
+/// A window is judged once it spans at least this long.
+pub const WINDOW_MS: u64 = 100;
+/// Two windows in a row must disagree before the fault latches: one odd window (a
+/// reading taken mid-update) is no reason to stop the base.
+pub const BAD_WINDOWS_TO_LATCH: u8 = 2;
+/// Below this average speed, in r/min of the motor shaft, position and speed are not
+/// compared: the difference between them is then within what a drive's speed filter
+/// and the sampling moments explain. 40 r/min is 59 mm/s at the wheel (radius 142 mm,
+/// gear 10:1).
+pub const MIN_COMPARED_RPM: f64 = 40.0;
+/// How far the counter may differ from the speeds' prediction, as a share of the
+/// larger of the two: a drive's speed monitor is filtered and may lag a ramp.
+pub const TOLERANCE: f64 = 0.3;
+/// Counter change between two samples that still counts as standing: 0.36° of the
+/// motor shaft, 0.04° at the wheel. A held (excited) shaft may jitter by a few counts.
+pub const STANDING_COUNTS: u32 = 36;
+
+/// What a window showed about one wheel.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Finding {
+    /// The reported speed says the shaft turns; the counter lags far behind or stands.
+    PositionStuck,
+    /// The counter runs; the reported speed lags far behind or says it stands.
+    SpeedStale,
+}
+
+/// What one sample showed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Verdict {
+    /// A latched finding per wheel, reported once when it latches.
+    pub left: Option<Finding>,
+    pub right: Option<Finding>,
+    /// Neither counter moved since the previous sample. The first sample after a
+    /// (re)start shows no motion yet, so it reads `true` and standstill rests on the
+    /// reported speed alone for that one sample: a restart comes with drives set up
+    /// from scratch (standing, de-excited) or with a counter that jumped, where the
+    /// counter says nothing either way.
+    pub position_standing: bool,
+}
+
+impl Verdict {
+    /// The wheels with a finding that latched with this sample.
+    pub fn findings(&self) -> impl Iterator<Item = (Wheel, Finding)> {
+        [(Wheel::Left, self.left), (Wheel::Right, self.right)]
+            .into_iter()
+            .filter_map(|(wheel, finding)| finding.map(|finding| (wheel, finding)))
+    }
+}
+
+/// One drive's samples since the window started.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+struct WheelWindow {
+    /// The counter at the window's start.
+    start_counts: i32,
+    /// The previous sample's counter and speed.
+    last_counts: i32,
+    last_rpm: i32,
+    /// The position the reported speeds predict since the window's start, in
+    /// revolution-milliseconds per minute (r/min × ms): divide by 60 000 for turns.
+    predicted_rpm_ms: f64,
+    /// Windows in a row that disagreed, and how.
+    bad_windows: u8,
+    latched: bool,
+}
+
+impl WheelWindow {
+    fn start(counts: i32, rpm: i32) -> Self {
+        Self {
+            start_counts: counts,
+            last_counts: counts,
+            last_rpm: rpm,
+            predicted_rpm_ms: 0.0,
+            bad_windows: 0,
+            latched: false,
+        }
+    }
+
+    /// Adds one sample `elapsed_ms` after the previous; whether the counter stood.
+    fn add(&mut self, elapsed_ms: u64, counts: i32, rpm: i32) -> bool {
+        let mean_rpm = (f64::from(self.last_rpm) + f64::from(rpm)) / 2.0;
+        self.predicted_rpm_ms += mean_rpm * elapsed_ms as f64;
+        let standing = counts.wrapping_sub(self.last_counts).unsigned_abs() <= STANDING_COUNTS;
+        self.last_counts = counts;
+        self.last_rpm = rpm;
+        standing
+    }
+
+    /// Judges the window that spans `span_ms` and starts the next one at the last
+    /// sample. Returns a finding once it latches.
+    fn judge(&mut self, span_ms: u64, counts_per_rev: f64) -> Option<Finding> {
+        let counted = f64::from(self.last_counts.wrapping_sub(self.start_counts));
+        let counted_rpm = counted / counts_per_rev * 60_000.0 / span_ms as f64;
+        let predicted_rpm = self.predicted_rpm_ms / span_ms as f64;
+        self.start_counts = self.last_counts;
+        self.predicted_rpm_ms = 0.0;
+        let larger = counted_rpm.abs().max(predicted_rpm.abs());
+        let disagree =
+            larger >= MIN_COMPARED_RPM && (counted_rpm - predicted_rpm).abs() > TOLERANCE * larger;
+        if !disagree {
+            self.bad_windows = 0;
+            return None;
+        }
+        self.bad_windows = self.bad_windows.saturating_add(1);
+        if self.latched || self.bad_windows < BAD_WINDOWS_TO_LATCH {
+            return None;
+        }
+        self.latched = true;
+        Some(if counted_rpm.abs() < predicted_rpm.abs() {
+            Finding::PositionStuck
+        } else {
+            Finding::SpeedStale
+        })
+    }
+}
+
+/// The check over both drives. Restart it whenever the counters restart (drives set
+/// up again, a counter discontinuity): the next sample is a new start.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct FeedbackCheck {
+    /// `None` until the first sample after a (re)start.
+    window: Option<Window>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+struct Window {
+    started: Timestamp,
+    last_sample: Timestamp,
+    left: WheelWindow,
+    right: WheelWindow,
+}
+
+impl FeedbackCheck {
+    pub const fn new() -> Self {
+        Self { window: None }
+    }
+
+    /// Forgets every sample: the next one starts afresh. Latched findings are the
+    /// supervisor's to keep; this only stops comparing across a counter restart.
+    pub fn restart(&mut self) {
+        self.window = None;
+    }
+
+    /// One feedback sample at `now`: raw counters and reported speeds, as read.
+    pub fn sample(
+        &mut self,
+        now: Timestamp,
+        counts: EncoderCounts,
+        rpm: MotorRpm,
+        counts_per_rev: f64,
+    ) -> Verdict {
+        let Some(window) = &mut self.window else {
+            self.window = Some(Window {
+                started: now,
+                last_sample: now,
+                left: WheelWindow::start(counts.left, rpm.left),
+                right: WheelWindow::start(counts.right, rpm.right),
+            });
+            return Verdict {
+                position_standing: true,
+                ..Verdict::default()
+            };
+        };
+        let elapsed_ms = now.millis_since(window.last_sample);
+        window.last_sample = now;
+        let left_standing = window.left.add(elapsed_ms, counts.left, rpm.left);
+        let right_standing = window.right.add(elapsed_ms, counts.right, rpm.right);
+        let mut verdict = Verdict {
+            left: None,
+            right: None,
+            position_standing: left_standing && right_standing,
+        };
+        let span_ms = now.millis_since(window.started);
+        if span_ms >= WINDOW_MS {
+            verdict.left = window.left.judge(span_ms, counts_per_rev);
+            verdict.right = window.right.judge(span_ms, counts_per_rev);
+            window.started = now;
+        }
+        verdict
+    }
+}
+
+/// Whether a reported speed counts as standing.
+pub fn speed_standing(rpm: i32) -> bool {
+    // A range, not `abs()`: i32::MIN from a drive would overflow.
+    (-AT_REST_RPM..=AT_REST_RPM).contains(&rpm)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const COUNTS_PER_REV: f64 = 36_000.0;
+    /// Counts per millisecond at 1 r/min.
+    const COUNTS_PER_RPM_MS: f64 = COUNTS_PER_REV / 60_000.0;
+
+    /// A drive over time: its true shaft speed, and what it reports.
+    #[derive(Clone, Copy)]
+    enum Report {
+        /// Position and speed both true.
+        Honest,
+        /// The counter froze at the moment the fault began.
+        StuckCounter,
+        /// The speed register reads this, whatever the shaft does.
+        FrozenSpeed(i32),
+    }
+
+    /// Runs the check over `ms` with a sample every `period_ms`: the left shaft at
+    /// `rpm(t)`, reported as `left`; the right shaft honest at the same speed. Returns
+    /// the first finding per wheel with its time.
+    fn run(
+        ms: u64,
+        period_ms: u64,
+        rpm: impl Fn(u64) -> f64,
+        left: Report,
+    ) -> (Option<(u64, Finding)>, Option<(u64, Finding)>) {
+        let mut check = FeedbackCheck::new();
+        let mut position = 0.0f64;
+        let mut frozen_at: Option<i32> = None;
+        let (mut left_found, mut right_found) = (None, None);
+        for t in (0..=ms).step_by(period_ms as usize) {
+            if t > 0 {
+                // Trapezoid over the period: exact for ramps.
+                let mean = (rpm(t - period_ms) + rpm(t)) / 2.0;
+                position += mean * period_ms as f64 * COUNTS_PER_RPM_MS;
+            }
+            let true_counts = position.round() as i32;
+            let true_rpm = rpm(t).round() as i32;
+            let (left_counts, left_rpm) = match left {
+                Report::Honest => (true_counts, true_rpm),
+                Report::StuckCounter => (*frozen_at.get_or_insert(true_counts), true_rpm),
+                Report::FrozenSpeed(reads) => (true_counts, reads),
+            };
+            let verdict = check.sample(
+                Timestamp::from_millis(t),
+                EncoderCounts {
+                    left: left_counts,
+                    right: true_counts,
+                },
+                MotorRpm {
+                    left: left_rpm,
+                    right: true_rpm,
+                },
+                COUNTS_PER_REV,
+            );
+            left_found = left_found.or(verdict.left.map(|finding| (t, finding)));
+            right_found = right_found.or(verdict.right.map(|finding| (t, finding)));
+        }
+        (left_found, right_found)
+    }
+
+    /// 0 → 900 r/min at `accel`, then back down to 0 at `decel`: the hardest honest
+    /// profiles the registers allow, at every sampling period the link may run.
+    #[test]
+    fn honest_drives_never_raise_a_finding_through_any_ramp() {
+        for period_ms in [5, 10, 20, 37, 50] {
+            for (accel, decel) in [(700.0, 700.0), (30_000.0, 30_000.0), (1.0, 4_500.0)] {
+                let up_ms = (900.0 / accel * 1000.0) as u64;
+                let down_ms = (900.0 / decel * 1000.0) as u64;
+                let total = up_ms.min(10_000) + 1_000 + down_ms + 500;
+                let rpm = |t: u64| {
+                    let up = (accel * t as f64 / 1000.0).min(900.0);
+                    let down_from = up_ms.min(10_000) + 1_000;
+                    if t < down_from {
+                        up
+                    } else {
+                        let peak = (accel * down_from as f64 / 1000.0).min(900.0);
+                        (peak - decel * (t - down_from) as f64 / 1000.0).max(0.0)
+                    }
+                };
+                let found = run(total, period_ms, rpm, Report::Honest);
+                assert_eq!(found, (None, None), "{period_ms} ms, {accel}/{decel}");
+            }
+        }
+    }
+
+    /// The cases of the fault-injection review, each at 336 r/min (500 mm/s): found
+    /// within two windows plus the one the fault began in, and only on the left.
+    #[test]
+    fn a_lying_drive_is_found_within_three_windows() {
+        let cases = [
+            (Report::StuckCounter, Finding::PositionStuck),
+            (Report::FrozenSpeed(0), Finding::SpeedStale),
+            (Report::FrozenSpeed(100), Finding::SpeedStale),
+            (Report::FrozenSpeed(-336), Finding::SpeedStale),
+        ];
+        for period_ms in [10, 20, 50] {
+            for (report, expected) in cases {
+                let (left, right) = run(2_000, period_ms, |_| 336.0, report);
+                let (at, finding) = left.expect("found");
+                assert_eq!(finding, expected);
+                assert!(at <= 3 * WINDOW_MS + period_ms, "found at {at} ms");
+                assert_eq!(right, None);
+            }
+        }
+    }
+
+    #[test]
+    fn a_stuck_counter_at_standstill_is_no_finding() {
+        let (left, _) = run(2_000, 20, |_| 0.0, Report::StuckCounter);
+        assert_eq!(left, None);
+    }
+
+    #[test]
+    fn slow_creeping_below_the_compared_speed_is_not_judged() {
+        let (left, _) = run(2_000, 20, |_| 30.0, Report::StuckCounter);
+        assert_eq!(left, None);
+    }
+
+    #[test]
+    fn a_finding_is_reported_once() {
+        let mut check = FeedbackCheck::new();
+        let mut found = 0;
+        for t in (0..3_000u64).step_by(20) {
+            let verdict = check.sample(
+                Timestamp::from_millis(t),
+                EncoderCounts { left: 0, right: 0 },
+                MotorRpm {
+                    left: 336,
+                    right: 0,
+                },
+                COUNTS_PER_REV,
+            );
+            found += verdict.findings().count();
+        }
+        assert_eq!(found, 1);
+    }
+
+    #[test]
+    fn the_position_decides_standing_as_well_as_the_speed() {
+        let mut check = FeedbackCheck::new();
+        let at = Timestamp::from_millis;
+        let rpm = MotorRpm::ZERO;
+        let first = check.sample(
+            at(0),
+            EncoderCounts { left: 0, right: 0 },
+            rpm,
+            COUNTS_PER_REV,
+        );
+        assert!(first.position_standing, "one sample shows no motion");
+        let still = check.sample(
+            at(20),
+            EncoderCounts {
+                left: 30,
+                right: -36,
+            },
+            rpm,
+            COUNTS_PER_REV,
+        );
+        assert!(still.position_standing, "jitter within 36 counts");
+        let rolling = check.sample(
+            at(40),
+            EncoderCounts {
+                left: 30,
+                right: 2_000,
+            },
+            rpm,
+            COUNTS_PER_REV,
+        );
+        assert!(!rolling.position_standing, "the right counter ran");
+        // Across the counters' wrap, a small step is a small step.
+        let mut check = FeedbackCheck::new();
+        check.sample(
+            at(0),
+            EncoderCounts {
+                left: i32::MAX,
+                right: 0,
+            },
+            rpm,
+            COUNTS_PER_REV,
+        );
+        let wrapped = check.sample(
+            at(20),
+            EncoderCounts {
+                left: i32::MIN,
+                right: 0,
+            },
+            rpm,
+            COUNTS_PER_REV,
+        );
+        assert!(wrapped.position_standing);
+    }
+
+    #[test]
+    fn a_restart_takes_the_next_sample_as_a_new_start() {
+        let mut check = FeedbackCheck::new();
+        let rpm = MotorRpm::ZERO;
+        check.sample(
+            Timestamp::from_millis(0),
+            EncoderCounts {
+                left: 5_000_000,
+                right: 0,
+            },
+            rpm,
+            COUNTS_PER_REV,
+        );
+        check.restart();
+        // The drives restarted at zero: no motion, no finding, just a new start.
+        let verdict = check.sample(
+            Timestamp::from_millis(200),
+            EncoderCounts::default(),
+            rpm,
+            COUNTS_PER_REV,
+        );
+        assert_eq!(verdict.findings().count(), 0);
+        assert!(verdict.position_standing);
+    }
+}
