@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand};
 use crate::base::{Base, Error};
 use crate::bus::{self, Interface};
 use crate::calibrate::{self, Driving, OdometryPlan, ScalePlan, Terminal};
+use crate::commission::{self, WheelsPlan};
 use crate::drive::{self, Speeds};
 use crate::heartbeat;
 use crate::monitor::{self, Until};
@@ -104,6 +105,9 @@ pub enum CliCommand {
     /// The guided calibration wizards.
     #[command(subcommand)]
     Calibrate(CalibrateCommand),
+    /// Commissioning checks with a person at the base.
+    #[command(subcommand)]
+    Commission(CommissionCommand),
     /// Send the PC heartbeat (006#01) every second.
     PcHeartbeat {
         /// Stop after this many seconds (default: until Ctrl-C).
@@ -174,6 +178,20 @@ pub enum CalibrateCommand {
         /// The known weight, g (asked if not given).
         #[arg(long, value_parser = clap::value_parser!(u16).range(1..))]
         grams: Option<u16>,
+    },
+}
+
+#[derive(Debug, Subcommand)]
+pub enum CommissionCommand {
+    /// Turns each wheel alone, slowly forward, and asks which wheel turned and which
+    /// way: finds swapped drive addresses and a wrong motor_dir.
+    Wheels {
+        /// The turning wheel's speed, mm/s.
+        #[arg(long, default_value_t = 60, value_parser = clap::value_parser!(i16).range(2..=300))]
+        speed_mm_s: i16,
+        /// How long each wheel turns, s.
+        #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u64).range(1..=10))]
+        seconds: u64,
     },
 }
 
@@ -325,6 +343,18 @@ pub fn run(cli: Cli, out: &mut dyn Write) -> Result<(), Error> {
         CliCommand::Calibrate(CalibrateCommand::Scale { grams }) => {
             calibrate::scale(base, ScalePlan { known_g: grams }, &mut Terminal, out)
         }
+        CliCommand::Commission(CommissionCommand::Wheels {
+            speed_mm_s,
+            seconds,
+        }) => commission::wheels(
+            base,
+            WheelsPlan {
+                speed_mm_s,
+                duration: Duration::from_secs(seconds),
+            },
+            &mut Terminal,
+            out,
+        ),
         CliCommand::PcHeartbeat { seconds } => heartbeat::pc_heartbeat(base, seconds, out),
     }
 }

@@ -7,6 +7,7 @@ pub mod base;
 pub mod bus;
 pub mod calibrate;
 pub mod cli;
+pub mod commission;
 pub mod config;
 pub mod drive;
 pub mod heartbeat;

@@ -15,6 +15,7 @@ server for the robot PC's software.
 usage: virtual-base-controller [--link PATH | --no-link]
          [--socketcand ADDR:PORT | --no-socketcand] [--socketcan IF]
          [--flash PATH] [--hci tcp:HOST:PORT] [--demo [--stay]]
+         [--swap-drive-addresses]
 
   --link PATH      symbolic link to the serial port (default
                    {DEFAULT_LINK});
@@ -36,6 +37,9 @@ usage: virtual-base-controller [--link PATH | --no-link]
                    file + .bond (docs/remote.md: pairing and driving)
   --demo           drive a short path by itself, show the odometry, then quit
   --stay           with --demo: keep running afterwards
+  --swap-drive-addresses
+                   the drives' address switches swapped (slave 1 on the
+                   right wheel), for `basectl commission wheels` to find
   --help           this text
 
 Connect (any number at once through socketcand, one at a time through SLCAN):
@@ -68,6 +72,7 @@ fn parse_options(mut args: impl Iterator<Item = String>) -> Result<Option<Option
         socketcan: None,
         demo: Demo::Off,
         hci: None,
+        swap_drive_addresses: false,
     };
     let mut stay = false;
     while let Some(arg) = args.next() {
@@ -89,6 +94,7 @@ fn parse_options(mut args: impl Iterator<Item = String>) -> Result<Option<Option
             "--flash" => options.flash_path = args.next().ok_or("--flash needs a path")?.into(),
             "--demo" => options.demo = Demo::ThenQuit,
             "--stay" => stay = true,
+            "--swap-drive-addresses" => options.swap_drive_addresses = true,
             "--hci" => {
                 let spec = args.next().ok_or("--hci needs tcp:HOST:PORT")?;
                 options.hci = Some(HciSpec::parse(&spec)?);

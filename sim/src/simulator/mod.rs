@@ -24,6 +24,7 @@ use embassy_time::{Instant, Timer};
 use embedded_hal::digital::PinState;
 
 use crate::can::{BITRATE_BPS, CanPeer, VirtualCan};
+use crate::drives::DrivesConfig;
 use crate::file_flash::FileFlash;
 use crate::robot::{FLASH_SIZE, Pc, VirtualRobot, wait_ms};
 use crate::runtime::{QueueReceiver, block_on_realtime, cross_thread_queue, now};
@@ -50,6 +51,9 @@ pub struct Options {
     pub demo: Demo,
     /// The Bluetooth controller for the remote (`--hci`), if any.
     pub hci: Option<crate::ble::HciSpec>,
+    /// The drives' address switches swapped (`--swap-drive-addresses`): slave 1 on the
+    /// right wheel, for the wheel commissioning check.
+    pub swap_drive_addresses: bool,
 }
 
 /// Whether the simulator drives a path by itself.
@@ -86,7 +90,12 @@ pub const STARTED: &str = "type help for the console commands";
 /// Runs the simulator until `quit` (or the end of the demo). Fails only at start-up:
 /// the flash file or the serial port could not be set up.
 pub fn run(options: &Options) -> io::Result<()> {
-    let robot = VirtualRobot::new();
+    let drives = if options.swap_drive_addresses {
+        DrivesConfig::default().with_swapped_addresses()
+    } else {
+        DrivesConfig::default()
+    };
+    let robot = VirtualRobot::with_drives(drives);
     let flash = FileFlash::open(&options.flash_path, FLASH_SIZE as usize)?;
     let port = SerialPort::open()?;
     let link = options

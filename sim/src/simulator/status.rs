@@ -8,7 +8,7 @@ use embassy_time::Instant;
 use embedded_hal::digital::PinState;
 
 use crate::can::SentFrame;
-use crate::drives::DrivesConfig;
+use crate::drives::{DriveView, DrivesConfig, Mounting};
 use crate::robot::VirtualRobot;
 
 /// The newest of each report the controller sent.
@@ -197,21 +197,28 @@ fn control(telemetry: &Telemetry) -> &'static str {
     }
 }
 
-/// The motors' speeds, rpm: the simulator builds its robot on the default drives,
-/// slave 1 left, 2 right.
-fn motor_rpm(robot: &VirtualRobot) -> [i32; 2] {
-    DrivesConfig::default().slaves.map(|slave| {
-        let drive = robot.drives.drive(slave.address);
-        drive.forward_rpm().round() as i32
-    })
+/// The drives on the left and on the right wheel, as mounted: the mirrored motor is
+/// the right one, whatever its address switch says.
+fn drives_by_side(robot: &VirtualRobot) -> [DriveView; 2] {
+    let [first, second] = DrivesConfig::default()
+        .slaves
+        .map(|slave| robot.drives.drive(slave.address));
+    if first.mounting == Mounting::Mirrored {
+        [second, first]
+    } else {
+        [first, second]
+    }
 }
 
-/// The motors' positions, forward revolutions since the drives were powered: how far
-/// the wheels really travelled, whatever the controller knows of it.
+/// The motors' speeds, rpm, left and right wheel.
+fn motor_rpm(robot: &VirtualRobot) -> [i32; 2] {
+    drives_by_side(robot).map(|drive| drive.forward_rpm().round() as i32)
+}
+
+/// The motors' positions, forward revolutions since the drives were powered, left and
+/// right wheel: how far the wheels really travelled, whatever the controller knows of it.
 fn motor_revolutions(robot: &VirtualRobot) -> [f64; 2] {
-    DrivesConfig::default()
-        .slaves
-        .map(|slave| robot.drives.drive(slave.address).forward_revolutions())
+    drives_by_side(robot).map(|drive| drive.forward_revolutions())
 }
 
 /// The inputs are active low: low means pressed (e-stop) or occupied (zone).
