@@ -240,6 +240,9 @@ mod tests {
         FrozenSpeed(i32),
     }
 
+    /// A finding and when (ms) it latched.
+    type FoundAt = (u64, Finding);
+
     /// Runs the check over `ms` with a sample every `period_ms`: the left shaft at
     /// `rpm(t)`, reported as `left`; the right shaft honest at the same speed. Returns
     /// the first finding per wheel with its time.
@@ -248,7 +251,7 @@ mod tests {
         period_ms: u64,
         rpm: impl Fn(u64) -> f64,
         left: Report,
-    ) -> (Option<(u64, Finding)>, Option<(u64, Finding)>) {
+    ) -> [Option<FoundAt>; 2] {
         let mut check = FeedbackCheck::new();
         let mut position = 0.0f64;
         let mut frozen_at: Option<i32> = None;
@@ -281,7 +284,7 @@ mod tests {
             left_found = left_found.or(verdict.left.map(|finding| (t, finding)));
             right_found = right_found.or(verdict.right.map(|finding| (t, finding)));
         }
-        (left_found, right_found)
+        [left_found, right_found]
     }
 
     /// 0 → 900 r/min at `accel`, then back down to 0 at `decel`: the hardest honest
@@ -304,7 +307,7 @@ mod tests {
                     }
                 };
                 let found = run(total, period_ms, rpm, Report::Honest);
-                assert_eq!(found, (None, None), "{period_ms} ms, {accel}/{decel}");
+                assert_eq!(found, [None, None], "{period_ms} ms, {accel}/{decel}");
             }
         }
     }
@@ -321,7 +324,7 @@ mod tests {
         ];
         for period_ms in [10, 20, 50] {
             for (report, expected) in cases {
-                let (left, right) = run(2_000, period_ms, |_| 336.0, report);
+                let [left, right] = run(2_000, period_ms, |_| 336.0, report);
                 let (at, finding) = left.expect("found");
                 assert_eq!(finding, expected);
                 assert!(at <= 3 * WINDOW_MS + period_ms, "found at {at} ms");
@@ -332,13 +335,13 @@ mod tests {
 
     #[test]
     fn a_stuck_counter_at_standstill_is_no_finding() {
-        let (left, _) = run(2_000, 20, |_| 0.0, Report::StuckCounter);
+        let [left, _] = run(2_000, 20, |_| 0.0, Report::StuckCounter);
         assert_eq!(left, None);
     }
 
     #[test]
     fn slow_creeping_below_the_compared_speed_is_not_judged() {
-        let (left, _) = run(2_000, 20, |_| 30.0, Report::StuckCounter);
+        let [left, _] = run(2_000, 20, |_| 30.0, Report::StuckCounter);
         assert_eq!(left, None);
     }
 
