@@ -203,6 +203,9 @@ impl<const LINKS: usize> Default for Guard<LINKS> {
 
 // HCI event codes and LE subevents the guard follows.
 const EVENT_DISCONNECTION_COMPLETE: u8 = 0x05;
+const EVENT_ENCRYPTION_CHANGE: u8 = 0x08;
+const EVENT_KEY_REFRESH_COMPLETE: u8 = 0x30;
+const EVENT_ENCRYPTION_CHANGE_V2: u8 = 0x59;
 const EVENT_LE_META: u8 = 0x3E;
 const LE_CONNECTION_COMPLETE: u8 = 0x01;
 const LE_ENHANCED_CONNECTION_COMPLETE: u8 = 0x0A;
@@ -244,8 +247,26 @@ impl<const LINKS: usize> Guard<LINKS> {
     }
 
     /// Follows an HCI event (code and parameters): connection complete events open a
-    /// link, disconnection complete closes it. Every event goes on to the host.
-    pub fn on_event(&mut self, code: u8, params: &[u8]) {
+    /// link, disconnection complete closes it. Returns whether the host may see it:
+    /// an encryption event for a handle that is no open link is dropped (the host
+    /// stops altogether on one).
+    pub fn on_event(&mut self, code: u8, params: &[u8]) -> bool {
+        if let (
+            EVENT_ENCRYPTION_CHANGE | EVENT_ENCRYPTION_CHANGE_V2 | EVENT_KEY_REFRESH_COMPLETE,
+            [_, lo, hi, ..],
+        ) = (code, params)
+        {
+            let handle = handle_of(*lo, *hi);
+            let known = self
+                .links
+                .iter()
+                .flatten()
+                .any(|link| link.handle == handle);
+            if !known {
+                self.counters.unknown_handle = self.counters.unknown_handle.saturating_add(1);
+            }
+            return known;
+        }
         match (code, params) {
             (EVENT_DISCONNECTION_COMPLETE, [0x00, lo, hi, ..]) => {
                 let handle = handle_of(*lo, *hi);
@@ -269,6 +290,7 @@ impl<const LINKS: usize> Guard<LINKS> {
             ) => self.open_link(handle_of(*lo, *hi), Route::LeHost),
             _ => {}
         }
+        true
     }
 
     fn open_link(&mut self, handle: u16, route: Route) {
@@ -871,13 +893,17 @@ mod tests {
             &[LE_ENHANCED_CONNECTION_COMPLETE, 0, 0x40, 0x00, 0, 1],
         );
         assert_eq!(first(&mut guard, &packet), DELIVER);
+        // Encryption events pass for open links only.
+        assert!(guard.on_event(EVENT_ENCRYPTION_CHANGE, &[0, 0x40, 0x00, 1]));
+        assert!(!guard.on_event(EVENT_ENCRYPTION_CHANGE, &[0, 0x41, 0x00, 1]));
+        assert!(!guard.on_event(EVENT_KEY_REFRESH_COMPLETE, &[0, 0x41, 0x00]));
         // A failed connection opens nothing.
         guard.on_event(EVENT_LE_META, &[LE_CONNECTION_COMPLETE, 0x3E, 0x41, 0x00]);
         assert_eq!(
             guard.on_acl(0x0041, 0b10, 0, &packet),
             AclVerdict::Drop(Rule::UnknownHandle)
         );
-        assert_eq!(guard.counters().unknown_handle, 3);
+        assert_eq!(guard.counters().unknown_handle, 5);
     }
 
     #[test]

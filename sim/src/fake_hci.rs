@@ -209,6 +209,8 @@ fn return_params(opcode: u16) -> Vec<u8> {
         0x2002 => vec![27, 0, 8],
         // LE Read Buffer Size v2: the same, no ISO buffers.
         0x2060 => vec![27, 0, 8, 0, 0, 0],
+        // LE Rand.
+        0x2018 => vec![0x5A, 0x3C, 0x96, 0x0F, 0xE1, 0x2D, 0x78, 0xB4],
         // LE Read Filter Accept List Size.
         0x200F => vec![4],
         // Read BD_ADDR.

@@ -89,9 +89,9 @@ impl GuardState {
             .lock(|guard| guard.borrow_mut().count_malformed_event());
     }
 
-    fn on_event(&self, event: &EventPacket<'_>) {
+    fn on_event(&self, event: &EventPacket<'_>) -> bool {
         self.guard
-            .lock(|guard| guard.borrow_mut().on_event(event.kind.0, event.data));
+            .lock(|guard| guard.borrow_mut().on_event(event.kind.0, event.data))
     }
 
     fn on_acl(&self, acl: &AclPacket<'_>) -> AclVerdict {
@@ -171,7 +171,9 @@ impl<C: Controller> Controller for GuardedController<'_, C> {
                         self.state.count_malformed_event();
                         continue;
                     }
-                    self.state.on_event(&event);
+                    if !self.state.on_event(&event) {
+                        continue;
+                    }
                     let data = copy_into(buf, event.data);
                     return Ok(ControllerToHostPacket::Event(EventPacket {
                         kind: event.kind,
