@@ -3,9 +3,11 @@
 //!
 //! A panic resets the chip. If something in radio range makes the Bluetooth stack panic
 //! (the guard in [`crate::hci_guard`] exists so that nothing known can), it would do so
-//! again after every boot, and the base would spend its life rebooting. So the panic
-//! handler writes each panic into a [`PanicHistory`] that survives the reset (RTC RAM
-//! on the chip, the simulator's state across its reboot), and the boot reads it:
+//! again after every boot, and the base would spend its life rebooting. This is the
+//! decision: the panic handler is to write each panic into a [`PanicHistory`] that
+//! survives the reset (two words of RTC RAM on the chip, the simulator's state across
+//! its reboot), and the boot to read it. (Only the decision exists so far; the chip,
+//! the simulator and the status report do not use it yet.)
 //!
 //! ```text
 //!   panic at uptime < SHORT_LIFE_MS ──▶ short_panics + 1
@@ -17,8 +19,9 @@
 //!
 //! With [`LOOP_PANICS`] = 3 and [`SHORT_LIFE_MS`] = 30 s: three boots in a row that each
 //! panic within 30 s of starting, so at most 90 s of looping, switch Bluetooth off. The
-//! base stays fully controllable over CAN; Bluetooth comes back on with a confirm press
-//! of the front button or a write of the pairing key to the command register.
+//! base is to stay fully controllable over CAN, and Bluetooth to come back on with a
+//! confirm press of the front button or a write of the pairing key to the command
+//! register ([`PanicHistory::turned_on`]).
 
 use crate::time::Timestamp;
 
