@@ -26,14 +26,22 @@ fn packets(mut input: &[u8]) -> Vec<Vec<u8>> {
         let (bytes, next) = rest.split_at(len);
         input = next;
         if tag % 2 == 0 {
-            let Some((flags, data)) = bytes.split_first() else { continue };
+            let Some((flags, data)) = bytes.split_first() else {
+                continue;
+            };
             let mut packet = vec![0x02, 0x00, (flags & 0b11) << 4];
             packet.extend_from_slice(&(data.len() as u16).to_le_bytes());
             packet.extend_from_slice(data);
             packets.push(packet);
         } else {
-            let Some((code, params)) = bytes.split_first() else { continue };
-            let code = if matches!(code, 0x0E | 0x0F) { 0xFF } else { *code };
+            let Some((code, params)) = bytes.split_first() else {
+                continue;
+            };
+            let code = if matches!(code, 0x0E | 0x0F) {
+                0xFF
+            } else {
+                *code
+            };
             let mut packet = vec![0x04, code, params.len() as u8];
             packet.extend_from_slice(params);
             packets.push(packet);
