@@ -61,6 +61,14 @@ remove NAME             the pad leaves the link (powered off)
 params NAME TIMEOUT_MS  the pad asks for new connection parameters (L2CAP request)
 greedy NAME TIMEOUT_MS  from now on the pad asks for them as soon as it is connected
 refuse NAME             from now on the pad refuses to pair (Pairing Not Supported)
+inject NAME CID HEX     the pad sends this L2CAP PDU (payload in hex, '-' for none) on
+                        channel CID now
+attack NAME WHEN CID HEX from now on the pad sends this PDU on every link at WHEN:
+                        `connect` (as soon as it is connected) or `key-missing` (right
+                        after it answered the robot's encryption without a key)
+peace NAME              no more attacks from this pad
+away NAME               the pad leaves radio range (links time out), keeping its bond
+back NAME               the pad is in range again (advertise it again)
 state NAME              print the pad's connection state
 quit                    end the program
 """
@@ -285,6 +293,18 @@ class Pad:
         )
         self.refuse_pairing = False
         self.params_on_connect: int | None = None
+        # WHEN -> (channel, payload): raw L2CAP PDUs this pad sends on every link.
+        self.attacks: dict[str, tuple[int, bytes]] = {}
+        host = self.device.host
+        find_key = host.long_term_key_provider
+
+        async def key_for_robot(handle, rand, ediv):
+            key = await find_key(handle, rand, ediv) if find_key else None
+            if key is None:
+                asyncio.create_task(self.fire_after_answer("key-missing"))
+            return key
+
+        host.long_term_key_provider = key_for_robot
         self.device.pairing_config_factory = lambda _connection: PairingConfig(
             sc=True,
             mitm=False,
@@ -402,6 +422,28 @@ class Pad:
         )
         if self.params_on_connect is not None:
             asyncio.create_task(request_params(self, self.params_on_connect))
+        if "connect" in self.attacks:
+            asyncio.get_running_loop().call_soon(self.fire, "connect")
+
+    async def fire_after_answer(self, when: str) -> None:
+        # A few turns of the loop: the host sends the (negative) answer and the
+        # controllers pass it on first, and the robot gets no time to hang up.
+        for _ in range(3):
+            await asyncio.sleep(0)
+        self.fire(when)
+
+    def fire(self, when: str) -> None:
+        attack = self.attacks.get(when)
+        if attack is None or self.connection is None:
+            return
+        channel, payload = attack
+        self.inject(channel, payload)
+        event("attacked", self.name, when, channel, payload.hex() or "-")
+
+    def inject(self, channel: int, payload: bytes) -> None:
+        if self.connection is None:
+            raise RuntimeError("not connected")
+        self.connection.send_l2cap_pdu(channel, payload)
 
     def on_subscription(self, _connection, characteristic, notify, _indicate) -> None:
         if characteristic is self.input_report and notify:
@@ -447,6 +489,10 @@ async def request_params(pad: Pad, timeout_ms: int) -> None:
         )
     except Exception as error:  # the central refused or the link dropped
         event("params-refused", pad.name, type(error).__name__)
+
+
+def parse_payload(text: str) -> bytes:
+    return b"" if text == "-" else bytes.fromhex(text)
 
 
 def axis_value(value: float, name: str) -> int:
@@ -526,6 +572,18 @@ class Peer:
                 self.pad(name).params_on_connect = int(timeout_ms)
             case ["refuse", name]:
                 self.pad(name).refuse_pairing = True
+            case ["inject", name, channel, payload]:
+                self.pad(name).inject(int(channel, 0), parse_payload(payload))
+            case ["attack", name, "connect" | "key-missing" as when, channel, payload]:
+                self.pad(name).attacks[when] = (int(channel, 0), parse_payload(payload))
+            case ["peace", name]:
+                self.pad(name).attacks.clear()
+            case ["away", name]:
+                pad = self.pad(name)
+                await self.lose(pad, quiet=True)
+                self.link.remove_controller(pad.controller)
+            case ["back", name]:
+                self.link.add_controller(self.pad(name).controller)
             case ["state", name]:
                 pad = self.pad(name)
                 return "connected" if pad.connection else "idle"

@@ -19,7 +19,8 @@ use std::path::{Path, PathBuf};
 
 use base_runtime::ble as remote;
 use base_runtime::channels::Channels;
-use bt_hci::controller::ExternalController;
+use bt_hci::cmd::le::LeSetScanParams;
+use bt_hci::controller::{ControllerCmdSync, ExternalController};
 use bt_hci_serial::SerialTransport;
 use embassy_futures::join::join;
 use embassy_futures::select::{Either, select};
@@ -28,7 +29,7 @@ use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use crate::file_flash::FileFlash;
 use crate::flash::{ERASE_SIZE, RamFlash};
 use crate::robot::{Pc, VirtualRobot};
-use crate::runtime::{QueueReceiver, block_on_realtime, cross_thread_queue};
+use crate::runtime::{QueueReceiver, block_on, block_on_realtime, cross_thread_queue};
 
 /// HCI commands the host may have in flight at once.
 pub const HCI_SLOTS: usize = 8;
@@ -216,11 +217,27 @@ impl RemoteRobot {
     /// `script` beside them; the controller loses power when the script returns (the
     /// HCI connection closes with it).
     pub fn run<T>(&self, controller: HostController, script: impl AsyncFnOnce(&Pc) -> T) -> T {
+        block_on_realtime(self.boot(controller, script))
+    }
+
+    /// [`Self::run`] on the virtual clock, for a controller that lives on the same
+    /// executor ([`crate::fake_hci`]): waits cost no wall time.
+    pub fn run_virtual<C, T>(&self, controller: C, script: impl AsyncFnOnce(&Pc) -> T) -> T
+    where
+        C: trouble_host::Controller + ControllerCmdSync<LeSetScanParams>,
+    {
+        block_on(self.boot(controller, script))
+    }
+
+    async fn boot<C, T>(&self, controller: C, script: impl AsyncFnOnce(&Pc) -> T) -> T
+    where
+        C: trouble_host::Controller + ControllerCmdSync<LeSetScanParams>,
+    {
         let (hardware, pc) = self.robot.boot();
         let channels = Channels::new();
         let address = remote::random_static_address(&ROBOT_MAC);
         let bond_flash = self.bond_flash.clone();
-        block_on_realtime(async {
+        {
             let firmware = join(
                 base_runtime::run(hardware, self.robot.settings, &channels),
                 remote::run(
@@ -235,7 +252,7 @@ impl RemoteRobot {
                 Either::First((never, _)) => never,
                 Either::Second(result) => result,
             }
-        })
+        }
     }
 }
 

@@ -9,6 +9,7 @@
 pub mod ble;
 pub mod can;
 pub mod drives;
+pub mod fake_hci;
 pub mod file_flash;
 pub mod flash;
 pub mod io;

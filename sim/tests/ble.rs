@@ -552,3 +552,161 @@ fn a_pad_that_fails_to_pair_inside_the_window_is_retried_with_a_back_off() {
         assert!(!pc.status().expect("status").flags.remote_bonded);
     });
 }
+
+/// The packets that crashed trouble-host 0.8 before the guard: (what, when the
+/// attacker sends it, L2CAP channel, payload in hex). `connect`: as soon as the robot
+/// connected it; `key-missing`: right after it answered the robot's bonded encryption
+/// without the key.
+const CRASH_TRIGGERS: [(&str, &str, u16, &str); 7] = [
+    ("an empty ATT PDU", "connect", 4, "-"),
+    ("Exchange MTU Request without the MTU", "connect", 4, "02"),
+    ("Read Request with a 1-byte handle", "connect", 4, "0a01"),
+    (
+        "an Error Response without its error code",
+        "connect",
+        4,
+        "010a0000",
+    ),
+    ("Write Command without a handle", "connect", 4, "52"),
+    (
+        "L2CAP Disconnection Request for channel 0",
+        "connect",
+        5,
+        // Code 6, identifier 1, length 4, destination channel 0, source 0x0040.
+        "0601040000004000",
+    ),
+    (
+        "key missing, then a Security Request without MITM",
+        "key-missing",
+        6,
+        "0b01",
+    ),
+];
+
+/// Lets pad `name` send `payload` on `channel` at `when` on its next link, and waits
+/// until it did and the robot closed that link.
+async fn attack_once(peer: &mut Peer, name: &str, when: &str, channel: u16, payload: &str) {
+    let mark = peer.mark();
+    peer.cmd(&format!("attack {name} {when} {channel} {payload}"))
+        .await;
+    peer.wait_for(mark, &["attacked", name], 15_000).await;
+    peer.wait_for(mark, &["disconnected", name], 5_000).await;
+    peer.cmd(&format!("peace {name}")).await;
+}
+
+/// The owner's pad, away during an attack at its address, comes back: it must be
+/// encrypted with the bond within 2 s of the attacker's leaving, and drive.
+async fn owner_is_back_within_2_s(peer: &mut Peer, robot: &RemoteRobot, pc: &Pc, attacker: &str) {
+    let mark = peer.mark();
+    let attack_ended = Instant::now();
+    peer.cmd(&format!("remove {attacker}")).await;
+    peer.cmd("back pad").await;
+    peer.cmd("advertise pad").await;
+    let back = peer
+        .wait_for(mark, &["encrypted", "pad", "1"], 10_000)
+        .await;
+    let after = back.at - attack_ended;
+    eprintln!("owner encrypted again {after:?} after the attack ended");
+    assert!(
+        after <= Duration::from_secs(2),
+        "owner back after {after:?}"
+    );
+    peer.wait_for(mark, &["subscribed", "pad"], 10_000).await;
+    assert!(peer.events_since(mark, &["pairing-started"]).is_empty());
+    drive_forward(peer, robot, pc).await;
+}
+
+#[test]
+fn crash_triggers_from_an_impostor_are_refused_and_the_owner_drives_afterwards() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        pair(&mut peer, pc, "pad", PAD_ADDRESS).await;
+        let bond = robot.bond_flash.contents(0..BOND_FLASH_SIZE as u32);
+        peer.cmd("away pad").await;
+        status(pc, 3_000, "the pad is gone", |s| !s.flags.remote_connected).await;
+        peer.cmd(&format!("pad impostor {PAD_ADDRESS}")).await;
+        peer.cmd("advertise impostor").await;
+        for (what, when, channel, payload) in CRASH_TRIGGERS {
+            eprintln!("impostor sends {what}");
+            attack_once(&mut peer, "impostor", when, channel, payload).await;
+            // The controller runs on (a panic in the host would have ended the test).
+            status(pc, 1_000, "the controller still reports", |s| {
+                s.flags.remote_bonded && !s.flags.remote_connected
+            })
+            .await;
+        }
+        assert!(peer.events_since(0, &["subscribed", "impostor"]).is_empty());
+        assert_eq!(bond, robot.bond_flash.contents(0..BOND_FLASH_SIZE as u32));
+        owner_is_back_within_2_s(&mut peer, &robot, pc, "impostor").await;
+    });
+}
+
+#[test]
+fn crash_triggers_from_a_pad_in_the_pairing_window_are_refused_and_the_owner_pairs_afterwards() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        peer.cmd(&format!("pad intruder {OTHER_PAD_ADDRESS}")).await;
+        peer.cmd("advertise intruder").await;
+        open_pairing_window(pc).await;
+        // Inside the window nothing is encrypted with a bond, so there is no key to
+        // miss: every trigger that comes on connection.
+        for (what, _, channel, payload) in CRASH_TRIGGERS
+            .into_iter()
+            .filter(|(_, when, _, _)| *when == "connect")
+        {
+            eprintln!("a pad in the window sends {what}");
+            attack_once(&mut peer, "intruder", "connect", channel, payload).await;
+            status(pc, 1_000, "the controller still reports", |s| {
+                !s.flags.remote_bonded
+            })
+            .await;
+        }
+        assert!(peer.events_since(0, &["paired", "intruder"]).is_empty());
+        peer.cmd("remove intruder").await;
+        // The window is still open: the owner's pad pairs and drives.
+        let mark = peer.mark();
+        peer.cmd(&format!("pad pad {PAD_ADDRESS}")).await;
+        peer.cmd("advertise pad").await;
+        peer.wait_for(mark, &["subscribed", "pad"], 20_000).await;
+        drive_forward(&mut peer, &robot, pc).await;
+    });
+    assert!(bond_stored_for(&robot, PAD_ADDRESS));
+}
+
+#[test]
+fn security_requests_and_pairing_from_an_impostor_never_pair_and_the_bond_stays() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        pair(&mut peer, pc, "pad", PAD_ADDRESS).await;
+        let bond = robot.bond_flash.contents(0..BOND_FLASH_SIZE as u32);
+        peer.cmd("away pad").await;
+        status(pc, 3_000, "the pad is gone", |s| !s.flags.remote_connected).await;
+        peer.cmd(&format!("pad impostor {PAD_ADDRESS}")).await;
+        peer.cmd("advertise impostor").await;
+        let mark = peer.mark();
+        for (what, payload) in [
+            ("Security Request, bonding + MITM + SC", "0b0d"),
+            ("Security Request, MITM + SC", "0b0c"),
+            ("Security Request, bonding + MITM, legacy", "0b05"),
+            ("Pairing Request, legacy Just Works", "01030001100707"),
+            ("Pairing Request, Secure Connections", "0103000d100707"),
+        ] {
+            eprintln!("impostor sends {what}");
+            attack_once(&mut peer, "impostor", "connect", 6, payload).await;
+        }
+        assert!(peer.events_since(mark, &["pairing-started"]).is_empty());
+        assert!(peer.events_since(mark, &["paired"]).is_empty());
+        assert!(
+            peer.events_since(mark, &["central-pairing-request"])
+                .is_empty()
+        );
+        assert_eq!(bond, robot.bond_flash.contents(0..BOND_FLASH_SIZE as u32));
+        owner_is_back_within_2_s(&mut peer, &robot, pc, "impostor").await;
+    });
+}

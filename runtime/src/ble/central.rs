@@ -16,7 +16,7 @@
 //! one.
 //!
 //! A failed attempt (a connection that fails, a pad that does not pair, a pad at the
-//! bonded address without its key) is followed by a back-off, 1 s doubling up to 32 s,
+//! bonded address without its key, a link the guard closed) is followed by a 1 s pause,
 //! so that a pad that keeps failing does not keep the radio and the pad busy.
 //! Connection parameter requests are answered with our own parameters, whatever the
 //! pad asks for: the 500 ms supervision timeout holds from the first packet on.
@@ -29,7 +29,7 @@ use core::ops::Range;
 
 use bt_hci::cmd::le::LeSetScanParams;
 use bt_hci::controller::ControllerCmdSync;
-use embassy_futures::select::{Either, Either3, Either4, select, select3, select4};
+use embassy_futures::select::{Either, Either4, select, select4};
 use embassy_time::{Duration, Timer, with_timeout};
 use embedded_storage_async::nor_flash::NorFlash;
 use heapless::Vec;
@@ -48,6 +48,7 @@ use embassy_sync::signal::Signal;
 use crate::channels::RawMutex;
 
 use super::bond::{BOND_RECORD_LEN, decode_bond, encode_bond};
+use super::guard::{GuardState, GuardedController};
 use super::{RemoteEnds, RemoteRequest};
 
 /// One gamepad, and the L2CAP channels the host needs for it (signalling, ATT, SMP).
@@ -88,38 +89,11 @@ fn connection_params() -> RequestedConnParams {
 const RECONNECT_ATTEMPT: Duration = Duration::from_secs(5);
 /// How long pairing may take once a pad is connected.
 const PAIRING_TIMEOUT: Duration = Duration::from_secs(15);
-/// The first wait after a failed attempt; each further failure doubles it.
-const BACKOFF_FIRST: Duration = Duration::from_secs(1);
-/// The longest wait between failed attempts.
-const BACKOFF_MAX: Duration = Duration::from_secs(32);
-
-/// The wait before the next attempt after failures in a row: [`BACKOFF_FIRST`],
-/// doubling up to [`BACKOFF_MAX`]. A success starts over.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Backoff {
-    next: Duration,
-}
-
-impl Default for Backoff {
-    fn default() -> Self {
-        Self {
-            next: BACKOFF_FIRST,
-        }
-    }
-}
-
-impl Backoff {
-    /// The wait after this failure.
-    pub fn after_failure(&mut self) -> Duration {
-        let wait = self.next;
-        self.next = (wait * 2).min(BACKOFF_MAX);
-        wait
-    }
-
-    pub fn reset(&mut self) {
-        *self = Self::default();
-    }
-}
+/// The wait after a failed attempt. One attempt a second at most: a pad that keeps
+/// failing (an impostor at the bonded address, say) costs the radio and the pads little,
+/// and once it is gone the owner's pad is back within 2 s. (A back-off that doubled up
+/// to 32 s kept the owner out for up to half a minute after an attack.)
+const PAUSE_AFTER_FAILURE: Duration = Duration::from_secs(1);
 
 /// How one attempt ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -148,7 +122,9 @@ where
 {
     let mut resources: HostResources<DefaultPacketPool, CONNECTIONS, L2CAP_CHANNELS> =
         HostResources::new();
-    let stack = trouble_host::new(controller, &mut resources)
+    // trouble-host sees the controller only through the guard (see `guard`).
+    let guard = GuardState::new();
+    let stack = trouble_host::new(GuardedController::new(&controller, &guard), &mut resources)
         .set_random_address(Address::random(address))
         .set_io_capabilities(IoCapabilities::NoInputNoOutput)
         .build();
@@ -174,10 +150,10 @@ where
     let mut central = stack.central();
     let mut remote = PadLink {
         stack: &stack,
+        guard: &guard,
         channels,
         request: RemoteRequest::default(),
     };
-    let mut backoff = Backoff::default();
     // A new bond waits here for the next standstill: on the chip a flash erase stalls
     // everything for up to 400 ms, which must never happen while the wheels turn. The
     // pad is served meanwhile; the bond lasts in the stack until it is stored.
@@ -193,9 +169,10 @@ where
             }
         }
     };
-    let never = select3(
+    let never = select4(
         runner.run_with_handler(&finder),
         store_bonds_at_rest,
+        guard.close_links(&controller),
         async {
             loop {
                 remote.refresh_request();
@@ -222,17 +199,15 @@ where
                     remote.wait_for_request().await;
                     Attempt::Idle
                 };
-                match attempt {
-                    Attempt::Served => backoff.reset(),
-                    Attempt::Idle => {}
-                    Attempt::Failed => remote.back_off(backoff.after_failure()).await,
+                if attempt == Attempt::Failed {
+                    remote.back_off(PAUSE_AFTER_FAILURE).await;
                 }
             }
         },
     )
     .await;
     match never {
-        Either3::First(result) => {
+        Either4::First(result) => {
             // The runner only returns on a controller failure; nothing can be done
             // without it, so keep the remote off and let the rest of the base run.
             let _ = result;
@@ -241,12 +216,13 @@ where
                 core::future::pending::<()>().await;
             }
         }
-        Either3::Second(never) | Either3::Third(never) => never,
+        Either4::Second(never) | Either4::Third(never) | Either4::Fourth(never) => never,
     }
 }
 
 struct PadLink<'s, 'r, C: HciController + ControllerCmdSync<LeSetScanParams>> {
     stack: &'s Stack<'r, C, DefaultPacketPool>,
+    guard: &'s GuardState,
     channels: RemoteEnds<'s>,
     request: RemoteRequest,
 }
@@ -305,7 +281,10 @@ impl<C: HciController + ControllerCmdSync<LeSetScanParams>> PadLink<'_, '_, C> {
             // The pad stopped advertising, or the controller refused the connection.
             _ => return Err(Attempt::Failed),
         };
+        // The guard lets the pad's pairing messages through only now.
+        self.guard.set_pairing_window(true);
         if conn.set_bondable(true).is_err() || conn.request_security().is_err() {
+            self.guard.set_pairing_window(false);
             conn.disconnect();
             return Err(Attempt::Failed);
         }
@@ -326,6 +305,7 @@ impl<C: HciController + ControllerCmdSync<LeSetScanParams>> PadLink<'_, '_, C> {
         .await
         .ok()
         .flatten();
+        self.guard.set_pairing_window(false);
         match bond {
             Some(bond) => {
                 info!("remote: paired and bonded");
@@ -345,6 +325,11 @@ impl<C: HciController + ControllerCmdSync<LeSetScanParams>> PadLink<'_, '_, C> {
         central: &mut Central<'_, C, DefaultPacketPool>,
         bond: &BondInformation,
     ) -> Attempt {
+        // The stack's copy of the bond is put back before every attempt, so whatever a
+        // peer made the stack do with it, the owner's pad finds it there.
+        if self.stack.add_bond_information(bond.clone()).is_err() {
+            warn!("remote: the stack refused the bond");
+        }
         let targets = [bond.identity.addr];
         let config = connect_config(&targets);
         let attempt = with_timeout(RECONNECT_ATTEMPT, central.connect(&config));
@@ -742,15 +727,6 @@ mod tests {
     fn the_address_is_the_mac_reversed_with_the_random_static_bits() {
         let address = random_static_address(&[0x10, 0x20, 0x30, 0x40, 0x50, 0x60]);
         assert_eq!(address, [0x60, 0x50, 0x40, 0x30, 0x20, 0xD0]);
-    }
-
-    #[test]
-    fn failures_in_a_row_wait_one_second_doubling_up_to_32_and_a_success_starts_over() {
-        let mut backoff = Backoff::default();
-        let waits: [u64; 8] = core::array::from_fn(|_| backoff.after_failure().as_secs());
-        assert_eq!(waits, [1, 2, 4, 8, 16, 32, 32, 32]);
-        backoff.reset();
-        assert_eq!(backoff.after_failure(), Duration::from_secs(1));
     }
 
     #[test]

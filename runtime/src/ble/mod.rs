@@ -5,11 +5,15 @@
 mod bond;
 #[cfg(feature = "ble")]
 mod central;
+#[cfg(feature = "ble")]
+mod guard;
 
 #[cfg(feature = "ble")]
 pub use bond::{BOND_RECORD_LEN, decode_bond, encode_bond};
 #[cfg(feature = "ble")]
 pub use central::*;
+#[cfg(feature = "ble")]
+pub use guard::{GUARD_LINKS, GuardState, GuardedController};
 
 use embassy_sync::signal::Signal;
 
