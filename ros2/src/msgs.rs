@@ -50,6 +50,21 @@ pub struct Empty {
 }
 impl ros2_client::Message for Empty {}
 
+/// std_srvs/Trigger's request: empty, so one byte on the wire as in [`Empty`].
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct TriggerRequest {
+    pub structure_needs_at_least_one_member: u8,
+}
+impl ros2_client::Message for TriggerRequest {}
+
+/// std_srvs/Trigger's response.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct TriggerResponse {
+    pub success: bool,
+    pub message: String,
+}
+impl ros2_client::Message for TriggerResponse {}
+
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 pub struct Point {
     pub x: f64,
