@@ -114,8 +114,7 @@ pub fn expand_ros_args(args: Vec<OsString>) -> Result<Vec<OsString>, String> {
             plain.push(arg);
             continue;
         }
-        loop {
-            let Some(arg) = args.next() else { break };
+        while let Some(arg) = args.next() {
             let text = arg
                 .to_str()
                 .ok_or_else(|| format!("{arg:?} is not UTF-8"))?
