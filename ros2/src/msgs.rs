@@ -43,14 +43,8 @@ pub struct TwistStamped {
 }
 impl ros2_client::Message for TwistStamped {}
 
-/// std_msgs/Empty: IDL structs cannot be empty, so ROS 2 puts one byte on the wire.
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
-pub struct Empty {
-    pub structure_needs_at_least_one_member: u8,
-}
-impl ros2_client::Message for Empty {}
-
-/// std_srvs/Trigger's request: empty, so one byte on the wire as in [`Empty`].
+/// std_srvs/Trigger's request: empty, and IDL structs cannot be empty, so ROS 2 puts
+/// one byte on the wire.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 pub struct TriggerRequest {
     pub structure_needs_at_least_one_member: u8,

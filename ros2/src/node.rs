@@ -109,7 +109,6 @@ struct Ros {
     node: Node,
     logger: NodeLoggingHandle,
     cmd_vel: CmdVel,
-    reset: Subscription<Empty>,
     reset_service: Server<TriggerRequest, TriggerResponse>,
     odom: Publisher<Odometry>,
     tf: Option<Publisher<TfMessage>>,
@@ -189,16 +188,6 @@ impl Ros {
                     .map_err(ros("/cmd_vel"))?,
             )
         };
-        let topic = node
-            .create_topic(
-                &name(ns, "reset_odometry")?,
-                msgs::type_name("std_msgs", "Empty"),
-                &reliable,
-            )
-            .map_err(ros("/reset_odometry"))?;
-        let reset = node
-            .create_subscription(&topic, None)
-            .map_err(ros("/reset_odometry"))?;
         // ROS 2's service default: reliable, volatile, the last 10.
         let reset_service = node
             .create_server(
@@ -256,7 +245,6 @@ impl Ros {
             node,
             logger,
             cmd_vel,
-            reset,
             reset_service,
             odom,
             tf,
@@ -440,9 +428,6 @@ impl<'a> State<'a> {
                         );
                     }
                 }
-            }
-            while let Ok(Some(_)) = ros.reset.take() {
-                self.start_reset(ros, bus, now)?;
             }
             while let Ok(Some((caller, _))) = ros.reset_service.receive_request() {
                 self.reset_callers.push(caller);
