@@ -55,7 +55,7 @@ fn defaults() -> BTreeMap<u8, u16> {
         .collect()
 }
 
-/// Another program reading registers as fast as it can: each request right after the
+/// Another program reading registers as fast as it can: each request 1 ms after the
 /// reply to the previous one (or after 10 ms without one), cycling through every
 /// register. `tag_base`: `None` sends the manual's `01 addr`; `Some` a tag per request.
 fn hammer(
@@ -91,6 +91,11 @@ fn hammer(
                 }
             }
             reads.fetch_add(1, Ordering::Relaxed);
+            // A program's own pace: with none, two programs that each take the next
+            // reply as theirs set each other off faster than any controller answers,
+            // and nobody gets a reply through (measured: ~6000 requests/s, and reads
+            // failing after 15 attempts on a loaded machine).
+            thread::sleep(Duration::from_millis(1));
         }
     })
 }
