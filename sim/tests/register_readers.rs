@@ -223,6 +223,10 @@ fn with_two_other_programs_reading_registers_flat_out_basectl_reads_saves_and_lo
             }
         }
     }
+    // The plain reader goes on for a while after basectl's configuration runs.
+    while started.elapsed() < Duration::from_secs(5) {
+        thread::sleep(Duration::from_millis(50));
+    }
     stop.store(true, Ordering::Relaxed);
     let (plain_reads, plain_wrong, plain_failed) = plain.join().expect("the plain reader");
     for hammer in hammers {
