@@ -79,9 +79,13 @@ class BaseController:
         raise TimeoutError(f"mode {mode} not reached within {timeout} s")
 
     def read_register(self, address, timeout=1.0):
+        """Takes only the reply that echoes this read's address and tag: other programs
+        on the bus may read registers at the same moment."""
+        tag = p.next_tag()
         self.flush()
-        self.send(p.register_read(address))
-        return p.parse_register_reply(self.wait_for(p.REGISTER_READ, timeout=timeout))
+        self.send(p.register_read(address, tag))
+        return p.parse_register_reply(
+            self.wait_for(p.REGISTER_READ, p.reply_to(address, tag), timeout=timeout))
 
     def write_register(self, address, value):
         self.send(p.register_write(address, value))

@@ -3,6 +3,8 @@
 The HIL suite speaks to the controller only through these builders and parsers, so it
 checks the firmware against the written protocol, not against the firmware's own codec.
 """
+import itertools
+import random
 import struct
 from dataclasses import dataclass
 
@@ -46,8 +48,20 @@ def register_write(address, value):
     return REGISTER_WRITE, struct.pack(">BH", address, value)
 
 
-def register_read(address):
-    return REGISTER_READ, bytes([0x01, address])
+def register_read(address, tag=0):
+    """`01 addr` (the manual's request) for tag 0, else `01 addr tagMSB tagLSB`: the
+    reply echoes the address and the tag."""
+    if tag == 0:
+        return REGISTER_READ, bytes([0x01, address])
+    return REGISTER_READ, struct.pack(">BBH", 0x01, address, tag)
+
+
+_tags = itertools.count(random.randrange(1, 0xFFFF))
+
+
+def next_tag():
+    """A tag for the next read of this program: never 0 (that is no tag)."""
+    return next(_tags) % 0xFFFF + 1
 
 
 def reset_odometry():
@@ -100,14 +114,33 @@ class RegisterReply:
     value: int = None
     refused_address: int = None
     reason: int = None
+    # Which read the reply answers (ext): the address read and the request's tag.
+    address: int = None
+    tag: int = None
 
 
 def parse_register_reply(data):
-    if data[0] == 0x00:
-        return RegisterReply(value=(data[1] << 8) | data[2])
-    if data[0] == 0xFF:
-        return RegisterReply(refused_address=data[1], reason=data[2])
+    """`00 MSB LSB addr tagMSB tagLSB` (the manual's three bytes, then the echo) or
+    `FF addr reason tagMSB tagLSB`."""
+    if data[0] == 0x00 and len(data) == 6:
+        value, address, tag = struct.unpack(">HBH", bytes(data[1:6]))
+        return RegisterReply(value=value, address=address, tag=tag)
+    if data[0] == 0xFF and len(data) == 5:
+        address, reason, tag = struct.unpack(">BBH", bytes(data[1:5]))
+        return RegisterReply(refused_address=address, reason=reason, address=address, tag=tag)
     raise ValueError(f"not a register reply: {bytes(data).hex()}")
+
+
+def reply_to(address, tag):
+    """A predicate on 0x004 data: the reply to our read of `address` with `tag`, not a
+    request and not the reply to another program's read."""
+    def answers(data):
+        try:
+            reply = parse_register_reply(data)
+        except (ValueError, IndexError):
+            return False
+        return reply.address == address and reply.tag == tag
+    return answers
 
 
 @dataclass

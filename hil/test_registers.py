@@ -36,3 +36,19 @@ def test_an_out_of_range_write_changes_nothing_and_is_counted(base):
 def test_reading_an_unknown_register_is_refused_with_its_address(base):
     reply = base.read_register(200)
     assert reply.refused_address == 200
+
+
+def test_each_reply_names_the_address_and_tag_it_answers(base):
+    """Another program's untagged reads and our tagged one cross: each reply keeps the
+    manual's three bytes and says which read it answers."""
+    expected = {p.REG_REGMAP_VERSION: base.read_register(p.REG_REGMAP_VERSION).value,
+                p.REG_LOOP_END_DELAY: base.read_register(p.REG_LOOP_END_DELAY).value}
+    base.flush()
+    base.send(p.register_read(p.REG_LOOP_END_DELAY))
+    base.send(p.register_read(p.REG_REGMAP_VERSION, tag=0xBEEF))
+    base.send(p.register_read(p.REG_LOOP_END_DELAY))
+    replies = [p.parse_register_reply(base.wait_for(p.REGISTER_READ, lambda data: data[0] != 0x01))
+               for _ in range(3)]
+    assert [(r.address, r.tag) for r in replies] == [
+        (p.REG_LOOP_END_DELAY, 0), (p.REG_REGMAP_VERSION, 0xBEEF), (p.REG_LOOP_END_DELAY, 0)]
+    assert all(r.value == expected[r.address] for r in replies)

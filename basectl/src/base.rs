@@ -5,7 +5,7 @@
 use std::fmt;
 use std::time::{Duration, Instant};
 
-use base_core::can::{Command, Report, Status};
+use base_core::can::{Command, ReadEcho, Report, Status};
 use base_core::registers::{Reg, RegisterInfo};
 
 use crate::bus::{Bus, BusError};
@@ -52,14 +52,15 @@ fn rejection_subjects(command: &Command) -> Vec<u8> {
     subjects
 }
 
-/// A pause of 10–80 ms, growing with the attempt and different for each program, so
-/// that two programs that asked at the same moment do not ask at the same moment again.
-fn backoff(attempt: u32) -> Duration {
+/// The first tag of this program: different for each program and each run, so that
+/// two programs reading the same register at the same moment use different tags.
+fn first_tag() -> u16 {
     let nanos = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |time| time.subsec_nanos());
-    let spread = (nanos ^ std::process::id().wrapping_mul(2_654_435_761)) % 40;
-    Duration::from_millis(10 + u64::from(attempt.min(4)) * 10 + u64::from(spread))
+    let mixed = nanos ^ std::process::id().wrapping_mul(2_654_435_761);
+    // Either half: both change with the time and the process.
+    (mixed as u16) ^ ((mixed >> 16) as u16)
 }
 
 impl fmt::Display for Error {
@@ -126,26 +127,17 @@ pub struct Base<'bus> {
     pose: Option<Pose>,
     weight_g: Option<u16>,
     battery: Option<(u8, u16)>,
-    /// Register reads other programs on the bus asked for that are not answered yet.
-    foreign_reads_pending: u32,
-    /// Register reads of other programs seen so far (never reset).
-    foreign_reads_seen: u64,
-    /// When another program last asked for a register.
-    last_foreign_read: Option<Instant>,
-    /// While our own read waits for its reply, replies are not counted as others'.
-    awaiting_own_reply: bool,
+    /// The tag of the previous register read; each read gets the next one.
+    last_tag: u16,
 }
 
-/// How often a register read is tried again when another program read a register at
-/// the same moment (replies carry no address, so whose is which is unknown).
-const READ_ATTEMPTS: u32 = 20;
-
-/// While other programs read registers (one did in this time), basectl listens for a
-/// moment of its own choosing before it asks, as nodes on a shared medium do.
-const FOREIGN_READS_RECENT: Duration = Duration::from_secs(2);
-
-/// The first byte of a register read request on 0x004 (replies start with 00 or FF).
-const READ_REQUEST: u8 = 0x01;
+/// How often a register read is asked, under a new tag each time, before basectl gives
+/// up: a reply can be lost when the controller's transmit queue is full because other
+/// programs read registers as fast as they can. Each attempt waits a fifth of the
+/// reply timeout (a reply normally comes within milliseconds), so a silent controller
+/// is reported after three reply timeouts.
+const READ_ATTEMPTS: u32 = 15;
+const ATTEMPT_SHARE: u32 = 5;
 
 impl<'bus> Base<'bus> {
     /// `reply_timeout`: how long a register read may take to be answered.
@@ -157,10 +149,7 @@ impl<'bus> Base<'bus> {
             pose: None,
             weight_g: None,
             battery: None,
-            foreign_reads_pending: 0,
-            foreign_reads_seen: 0,
-            last_foreign_read: None,
-            awaiting_own_reply: false,
+            last_tag: first_tag(),
         }
     }
 
@@ -177,25 +166,7 @@ impl<'bus> Base<'bus> {
             let Some(frame) = self.bus.receive(remaining)? else {
                 return Ok(None);
             };
-            // Another program on the bus (socketcand, SocketCAN) reads a register: its
-            // reply will come on the same ID as ours.
-            if frame.id() == base_core::can::id::REGISTER_READ
-                && frame.data().first() == Some(&READ_REQUEST)
-            {
-                self.foreign_reads_pending += 1;
-                self.foreign_reads_seen += 1;
-                self.last_foreign_read = Some(Instant::now());
-                continue;
-            }
             if let Ok(Some(report)) = Report::decode(frame.id(), frame.data()) {
-                if !self.awaiting_own_reply
-                    && matches!(
-                        report,
-                        Report::RegisterValue { .. } | Report::RegisterReadError { .. }
-                    )
-                {
-                    self.foreign_reads_pending = self.foreign_reads_pending.saturating_sub(1);
-                }
                 self.remember(report);
                 return Ok(Some(report));
             }
@@ -286,79 +257,68 @@ impl<'bus> Base<'bus> {
         )
     }
 
-    /// Reads one register. Requests and replies share 0x004 and a value reply carries
-    /// no address, so the first reply after the request is the answer, provided no
-    /// other program on the bus asked at the same moment. basectl sees the others'
-    /// requests: it waits until they are answered before it asks, and when another
-    /// request crossed its own it cannot tell whose reply came first, so it lets the
-    /// replies pass and asks again after a pause of its own.
+    /// Reads one register. Requests and replies share 0x004 and other programs on the
+    /// bus may read registers at the same moment, so each request carries a tag of its
+    /// own and only the reply that echoes this address and this tag is taken; every
+    /// other reply is someone else's.
     pub fn read_register(&mut self, address: u8) -> Result<u16, Error> {
         self.read_register_within(address, self.reply_timeout)
     }
 
-    /// [`Self::read_register`] with its own reply timeout.
-    fn read_register_within(&mut self, address: u8, timeout: Duration) -> Result<u16, Error> {
-        for attempt in 0..READ_ATTEMPTS {
-            self.wait_until_foreign_reads_answered()?;
-            let seen_before = self.foreign_reads_seen;
-            self.send(Command::RegisterRead { address })?;
-            self.awaiting_own_reply = true;
-            let reply = self.wait_for(&format!("reading register {address}"), timeout, |report| {
-                match *report {
-                    Report::RegisterValue { value } => Some(Ok(value)),
-                    Report::RegisterReadError {
-                        address: refused, ..
-                    } if refused != address => None,
-                    Report::RegisterReadError { address, reason } => {
-                        Some(Err(Error::ReadRefused { address, reason }))
-                    }
-                    _ => None,
-                }
-            });
-            self.awaiting_own_reply = false;
-            let crossed = self.foreign_reads_seen - seen_before;
-            if crossed == 0 {
-                return reply?;
-            }
-            // Our reply and theirs are both still to come, or one of them came: as
-            // many replies as crossing requests are left either way.
-            self.foreign_reads_pending = u32::try_from(crossed).unwrap_or(u32::MAX);
-            std::thread::sleep(backoff(attempt));
-        }
-        Err(Error::Aborted(format!(
-            "register {address}: another program on the bus kept reading registers at the \
-             same moment {READ_ATTEMPTS} times; try again"
-        )))
+    fn next_tag(&mut self) -> u16 {
+        // 0 is the manual's untagged request: a reply to any untagged read echoes it.
+        self.last_tag = match self.last_tag.wrapping_add(1) {
+            0 => 1,
+            tag => tag,
+        };
+        self.last_tag
     }
 
-    /// Lets the replies to other programs' register reads pass (up to one reply
-    /// timeout each: a request nobody answers does not block basectl), and while other
-    /// programs read registers, also a pause of random length in which none asks.
-    fn wait_until_foreign_reads_answered(&mut self) -> Result<(), Error> {
+    /// [`Self::read_register`] with its own reply timeout.
+    fn read_register_within(&mut self, address: u8, timeout: Duration) -> Result<u16, Error> {
+        let mut unaddressed_replies = 0_u32;
+        let attempt_timeout = timeout / ATTEMPT_SHARE;
         for _ in 0..READ_ATTEMPTS {
-            let deadline = Instant::now() + self.reply_timeout;
-            while self.foreign_reads_pending > 0 {
-                let remaining = deadline.saturating_duration_since(Instant::now());
-                if remaining.is_zero() || self.next_report(remaining)?.is_none() {
-                    self.foreign_reads_pending = 0;
+            let tag = self.next_tag();
+            self.send(Command::RegisterRead { address, tag })?;
+            let ours = ReadEcho { address, tag };
+            let awaited = format!("reading register {address}");
+            let reply = self.wait_for(&awaited, attempt_timeout, |report| match *report {
+                Report::RegisterValue {
+                    value,
+                    echo: Some(echo),
+                } if echo == ours => Some(Ok(value)),
+                Report::RegisterReadError {
+                    address: refused,
+                    reason,
+                    tag: Some(refused_tag),
+                } if refused == address && refused_tag == tag => {
+                    Some(Err(Error::ReadRefused { address, reason }))
                 }
-            }
-            let busy = self
-                .last_foreign_read
-                .is_some_and(|at| at.elapsed() < FOREIGN_READS_RECENT);
-            if !busy {
-                return Ok(());
-            }
-            let quiet_until = Instant::now() + backoff(0) / 3;
-            while self.foreign_reads_pending == 0 {
-                let remaining = quiet_until.saturating_duration_since(Instant::now());
-                if remaining.is_zero() {
-                    return Ok(());
+                Report::RegisterValue { echo: None, .. }
+                | Report::RegisterReadError { tag: None, .. } => {
+                    unaddressed_replies += 1;
+                    None
                 }
-                self.next_report(remaining)?;
+                _ => None,
+            });
+            match reply {
+                Ok(answer) => return answer,
+                Err(Error::NoReply { .. }) => {}
+                Err(error) => return Err(error),
             }
         }
-        Ok(())
+        if unaddressed_replies > 0 {
+            return Err(Error::Aborted(format!(
+                "register {address}: the base controller answers without saying which read \
+                 a reply belongs to (firmware before addressed register replies); basectl \
+                 cannot tell its reply from another program's, update the firmware"
+            )));
+        }
+        Err(Error::NoReply {
+            awaited: format!("reading register {address}, asked {READ_ATTEMPTS} times"),
+            timeout_ms: (attempt_timeout * READ_ATTEMPTS).as_millis(),
+        })
     }
 
     /// Sends `command` and proves it was accepted: a register read after it is
@@ -398,8 +358,9 @@ impl<'bus> Base<'bus> {
         }
     }
 
-    /// Writes a register and reads it back: a refused write changes nothing and gets
-    /// no reply, so the status frame names the reason.
+    /// Writes a register that cannot be read back (the write-only `command`): a
+    /// refused write changes nothing and gets no reply, so the status frame names the
+    /// reason.
     pub fn write_register(&mut self, register: &RegisterInfo, value: u16) -> Result<(), Error> {
         let step = format!("writing {value} to {}", register.name);
         self.send_checked(
@@ -409,6 +370,37 @@ impl<'bus> Base<'bus> {
             },
             &step,
         )
+    }
+
+    /// Writes a read-write register and reads it back. The controller handles frames
+    /// in order, so the read's reply shows the write's effect, and the tagged reply is
+    /// ours whatever other programs read meanwhile: the status frame (which a flooded
+    /// bus may lose) is needed only to name why a write did not take.
+    pub fn write_and_read_back(
+        &mut self,
+        register: &RegisterInfo,
+        value: u16,
+    ) -> Result<(), Error> {
+        self.send(Command::RegisterWrite {
+            address: register.address,
+            value,
+        })?;
+        let now = self.read_register(register.address)?;
+        if now == value {
+            return Ok(());
+        }
+        let status = self.next_status()?;
+        if status.last_rejection_subject == register.address && status.last_rejection != 0 {
+            return Err(Error::Refused {
+                step: format!("writing {value} to {}", register.name),
+                reason: status.last_rejection,
+                subject: status.last_rejection_subject,
+            });
+        }
+        Err(Error::Aborted(format!(
+            "{} reads back {now} after writing {value}: another client may have written it",
+            register.name
+        )))
     }
 
     /// The values of `registers`, in order.

@@ -36,12 +36,29 @@ pub fn version_text(value: u16) -> String {
     format!("{}.{}", value >> 8, value & 0xFF)
 }
 
-/// Reads every read-write register and the versions, and writes the file.
+/// The value of every read-write register, by address.
+fn read_writable(base: &mut Base) -> Result<BTreeMap<u8, u16>, Error> {
+    writable()
+        .map(|register| Ok((register.address, base.read_register(register.address)?)))
+        .collect()
+}
+
+/// Reads every read-write register and the versions, reads the registers once more
+/// and compares, and writes the file only when both readings agree: a value another
+/// program changed meanwhile is not saved.
 pub fn save(base: &mut Base, path: &Path, out: &mut dyn Write) -> Result<(), Error> {
     let [firmware, regmap] = base.read_registers([Reg::FwVersion, Reg::RegmapVersion])?;
+    let values = read_writable(base)?;
+    let again = read_writable(base)?;
+    if let Some(changed) = differences(&values, &again).first() {
+        return Err(Error::Aborted(format!(
+            "{changed} changed while it was being saved (another program wrote it); \
+             nothing was saved, try again"
+        )));
+    }
     let mut registers = Vec::new();
     for register in writable() {
-        let value = base.read_register(register.address)?;
+        let value = values[&register.address];
         registers.push(json!({
             "name": register.name,
             "address": register.address,
@@ -235,10 +252,7 @@ pub fn load(base: &mut Base, path: &Path, dry_run: bool, out: &mut dyn Write) ->
             version_text(firmware)
         )?;
     }
-    let mut current = BTreeMap::new();
-    for register in writable() {
-        current.insert(register.address, base.read_register(register.address)?);
-    }
+    let current = read_writable(base)?;
     let changes: BTreeMap<u8, u16> = file
         .values
         .iter()
@@ -281,8 +295,39 @@ pub fn load(base: &mut Base, path: &Path, dry_run: bool, out: &mut dyn Write) ->
         let register = base_core::registers::info(address).expect("checked above");
         write_checked(base, register, value)?;
     }
-    writeln!(out, "wrote {} registers and read each back", order.len())?;
+    // Each write was read back at once; a last reading of all proves that no later
+    // write (ours or another program's) undid an earlier one.
+    let mut expected = current;
+    expected.extend(&file.values);
+    let differing = differences(&expected, &read_writable(base)?);
+    if !differing.is_empty() {
+        return Err(Error::Aborted(format!(
+            "after loading, these registers do not hold the file's values: {} (another \
+             program may have written them)",
+            differing.join(", ")
+        )));
+    }
+    writeln!(
+        out,
+        "wrote {} registers, read each back and then all of them once more",
+        order.len()
+    )?;
     Ok(())
+}
+
+/// The registers whose value differs between two readings, as `name: first -> second`.
+fn differences(first: &BTreeMap<u8, u16>, second: &BTreeMap<u8, u16>) -> Vec<String> {
+    first
+        .iter()
+        .filter(|&(address, value)| second.get(address) != Some(value))
+        .map(|(address, value)| {
+            let name = base_core::registers::info(*address).map_or("?", |info| info.name);
+            match second.get(address) {
+                Some(now) => format!("{name}: {value} -> {now}"),
+                None => format!("{name}: {value} -> not read"),
+            }
+        })
+        .collect()
 }
 
 #[cfg(test)]

@@ -185,7 +185,10 @@ mod tests {
             row.line(Duration::from_secs(3)),
             "3.000000,5,-3,,24000,80,,,,,"
         );
-        assert!(!row.absorb(&Report::RegisterValue { value: 1 }));
+        assert!(!row.absorb(&Report::RegisterValue {
+            value: 1,
+            echo: None
+        }));
         assert_eq!(CSV_HEADER.split(',').count(), 11);
     }
 

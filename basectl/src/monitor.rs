@@ -137,8 +137,17 @@ pub fn describe(report: &Report) -> String {
             voltage_mv,
         } => format!("battery   {percent} %  {voltage_mv} mV"),
         Report::Weight { grams } => format!("weight    {grams} g"),
-        Report::RegisterValue { value } => format!("register  value {value}"),
-        Report::RegisterReadError { address, reason } => {
+        Report::RegisterValue {
+            value,
+            echo: Some(echo),
+        } => format!(
+            "register  {} = {value} (tag 0x{:04X})",
+            echo.address, echo.tag
+        ),
+        Report::RegisterValue { value, echo: None } => format!("register  value {value}"),
+        Report::RegisterReadError {
+            address, reason, ..
+        } => {
             format!(
                 "register  {address} refused: {}",
                 rejection::describe(reason)
@@ -229,12 +238,22 @@ pub fn report_json(report: &Report) -> serde_json::Value {
             json!({"report": "battery", "percent": percent, "voltage_mv": voltage_mv})
         }
         Report::Weight { grams } => json!({"report": "weight", "grams": grams}),
-        Report::RegisterValue { value } => json!({"report": "register_value", "value": value}),
-        Report::RegisterReadError { address, reason } => json!({
+        Report::RegisterValue { value, echo } => json!({
+            "report": "register_value",
+            "value": value,
+            "address": echo.map(|echo| echo.address),
+            "tag": echo.map(|echo| echo.tag),
+        }),
+        Report::RegisterReadError {
+            address,
+            reason,
+            tag,
+        } => json!({
             "report": "register_read_error",
             "address": address,
             "reason": rejection::name(reason),
             "reason_code": reason,
+            "tag": tag,
         }),
         Report::Status(status) => json!({
             "report": "status",

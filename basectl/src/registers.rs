@@ -163,25 +163,17 @@ pub fn write_checked(base: &mut Base, register: &RegisterInfo, value: u16) -> Re
             )));
         }
     }
-    match base.write_register(register, value) {
+    match base.write_and_read_back(register, value) {
         Err(Error::Refused { reason, .. }) if rejection::name(reason) == Some("Inconsistent") => {
-            return Err(Error::InvalidInput(format!(
+            Err(Error::InvalidInput(format!(
                 "the base controller refused writing {value} to {}: it breaks a rule between \
                  registers ({})",
                 register.name,
                 rules::involving(register.address).join("; ")
-            )));
+            )))
         }
-        other => other?,
+        other => other,
     }
-    let new = base.read_register(register.address)?;
-    if new != value {
-        return Err(Error::Aborted(format!(
-            "{} reads back {new} after writing {value}: another client may have written it",
-            register.name
-        )));
-    }
-    Ok(())
 }
 
 pub fn set(

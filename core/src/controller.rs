@@ -8,7 +8,7 @@ use heapless::Vec;
 use crate::battery::{self, BatteryFilter, BatteryParams};
 use crate::calibration::odometry::OdometryCalibration;
 use crate::calibration::scale::{ScaleCalibration, ScaleUpdate};
-use crate::can::{Command, FrameError, RawFrame, Rejection, Report};
+use crate::can::{Command, FrameError, RawFrame, ReadEcho, Rejection, Report};
 use crate::can::{Faults, Mode, Status, StatusFlags};
 use crate::feedback::{FeedbackPeriods, FeedbackSchedule};
 use crate::gamepad::GamepadState;
@@ -461,14 +461,20 @@ impl Controller {
             Command::RegisterWrite { address, value } => {
                 self.write_register(now, address, value, out);
             }
-            Command::RegisterRead { address } => {
+            Command::RegisterRead { address, tag } => {
+                // Every reply says which read it answers: with several programs on the
+                // bus, a reply without it could be taken for another register's value.
                 let report = match self.registers.read(address) {
-                    Ok(value) => Report::RegisterValue { value },
+                    Ok(value) => Report::RegisterValue {
+                        value,
+                        echo: Some(ReadEcho { address, tag }),
+                    },
                     Err(error) => {
                         self.rejections.record(error.code(), address);
                         Report::RegisterReadError {
                             address,
                             reason: error.code(),
+                            tag: Some(tag),
                         }
                     }
                 };

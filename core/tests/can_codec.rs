@@ -3,7 +3,8 @@
 
 use base_core::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
 use base_core::can::{
-    Command, ControlSource, Faults, FrameError, Mode, RawFrame, Report, Status, StatusFlags, id,
+    Command, ControlSource, Faults, FrameError, Mode, RawFrame, ReadEcho, Report, Status,
+    StatusFlags, id,
 };
 use proptest::prelude::*;
 
@@ -151,7 +152,37 @@ fn register_write_50_to_register_15_is_big_endian() {
 
 #[test]
 fn register_read_of_register_15() {
-    assert_command_golden(0x004, &[0x01, 0x0F], Command::RegisterRead { address: 15 });
+    assert_command_golden(
+        0x004,
+        &[0x01, 0x0F],
+        Command::RegisterRead {
+            address: 15,
+            tag: 0,
+        },
+    );
+}
+
+#[test]
+fn tagged_register_read_carries_the_tag_after_the_address() {
+    assert_command_golden(
+        0x004,
+        &[0x01, 0x0F, 0xBE, 0xEF],
+        Command::RegisterRead {
+            address: 15,
+            tag: 0xBEEF,
+        },
+    );
+}
+
+#[test]
+fn a_lone_third_byte_of_a_register_read_is_no_tag() {
+    assert_eq!(
+        Command::decode(0x004, &[0x01, 0x0F, 0x99]),
+        Ok(Some(Command::RegisterRead {
+            address: 15,
+            tag: 0
+        }))
+    );
 }
 
 #[test]
@@ -263,29 +294,80 @@ fn weight_1234_g() {
 }
 
 #[test]
-fn register_value_reply_50() {
+fn register_value_reply_keeps_the_manuals_bytes_and_adds_address_and_tag() {
     assert_report_golden(
         0x004,
-        &[0x00, 0x00, 0x32],
-        Report::RegisterValue { value: 50 },
+        &[0x00, 0x00, 0x32, 0x0F, 0x00, 0x00],
+        Report::RegisterValue {
+            value: 50,
+            echo: Some(ReadEcho {
+                address: 15,
+                tag: 0,
+            }),
+        },
     );
     assert_report_golden(
         0x004,
-        &[0x00, 0x27, 0x57],
-        Report::RegisterValue { value: 10071 },
+        &[0x00, 0x27, 0x57, 0x12, 0xBE, 0xEF],
+        Report::RegisterValue {
+            value: 10071,
+            echo: Some(ReadEcho {
+                address: 18,
+                tag: 0xBEEF,
+            }),
+        },
     );
 }
 
 #[test]
-fn register_read_error_reply_names_address_and_reason() {
+fn a_manual_three_byte_value_reply_decodes_without_an_echo() {
+    assert_report_golden(
+        0x004,
+        &[0x00, 0x27, 0x57],
+        Report::RegisterValue {
+            value: 10071,
+            echo: None,
+        },
+    );
+}
+
+#[test]
+fn register_read_error_reply_names_address_reason_and_tag() {
+    assert_report_golden(
+        0x004,
+        &[0xFF, 0x2A, 0x10, 0xBE, 0xEF],
+        Report::RegisterReadError {
+            address: 0x2A,
+            reason: 0x10,
+            tag: Some(0xBEEF),
+        },
+    );
     assert_report_golden(
         0x004,
         &[0xFF, 0x2A, 0x10],
         Report::RegisterReadError {
             address: 0x2A,
             reason: 0x10,
+            tag: None,
         },
     );
+}
+
+#[test]
+fn register_replies_of_other_lengths_are_refused() {
+    for data in [
+        &[0x00, 0x27, 0x57, 0x12][..],
+        &[0x00, 0x27, 0x57, 0x12, 0xBE],
+        &[0x00, 0x27, 0x57, 0x12, 0xBE, 0xEF, 0x00],
+        &[0xFF, 0x2A, 0x10, 0xBE],
+        &[0xFF, 0x2A, 0x10, 0xBE, 0xEF, 0x00],
+    ] {
+        assert_eq!(
+            Report::decode(0x004, data),
+            Err(FrameError::WrongLength),
+            "{data:02X?}"
+        );
+    }
 }
 
 #[test]
@@ -589,7 +671,8 @@ fn command() -> impl Strategy<Value = Command> {
         }),
         (any::<u8>(), any::<u16>())
             .prop_map(|(address, value)| Command::RegisterWrite { address, value }),
-        any::<u8>().prop_map(|address| Command::RegisterRead { address }),
+        (any::<u8>(), any::<u16>())
+            .prop_map(|(address, tag)| Command::RegisterRead { address, tag }),
         Just(Command::ResetOdometry),
         Just(Command::Heartbeat),
         scale_step().prop_map(Command::ScaleCalibration),
@@ -654,9 +737,21 @@ fn report() -> impl Strategy<Value = Report> {
             voltage_mv
         }),
         any::<u16>().prop_map(|grams| Report::Weight { grams }),
-        any::<u16>().prop_map(|value| Report::RegisterValue { value }),
-        (any::<u8>(), any::<u8>())
-            .prop_map(|(address, reason)| Report::RegisterReadError { address, reason }),
+        (
+            any::<u16>(),
+            proptest::option::of((any::<u8>(), any::<u16>()))
+        )
+            .prop_map(|(value, echo)| Report::RegisterValue {
+                value,
+                echo: echo.map(|(address, tag)| ReadEcho { address, tag }),
+            }),
+        (any::<u8>(), any::<u8>(), proptest::option::of(any::<u16>())).prop_map(
+            |(address, reason, tag)| Report::RegisterReadError {
+                address,
+                reason,
+                tag
+            }
+        ),
         status().prop_map(Report::Status),
     ]
 }

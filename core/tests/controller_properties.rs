@@ -6,7 +6,7 @@
 //! (spec §5.1, §6, the supervisor's rules), tracked from the inputs alone.
 
 use base_core::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
-use base_core::can::{Command, ControlSource, Mode, RawFrame, Report, Status, id};
+use base_core::can::{Command, ControlSource, Mode, RawFrame, ReadEcho, Report, Status, id};
 use base_core::controller::{AT_REST_RPM, Controller, Input, Output};
 use base_core::gamepad::{Buttons, Dpad, GamepadState};
 use base_core::kinematics::{self, KinematicsParams, MotorRpm, SafetyLimits, Twist};
@@ -246,7 +246,8 @@ fn can_frame() -> impl Strategy<Value = RawFrame> {
             .prop_map(|(first, bytes, len)| frame_with(id::ENABLE, Some(first), bytes, len)),
         8 => velocity_frame(),
         4 => register_write(),
-        1 => any::<u8>().prop_map(|address| Command::RegisterRead { address }.encode()),
+        1 => (any::<u8>(), any::<u16>())
+            .prop_map(|(address, tag)| Command::RegisterRead { address, tag }.encode()),
         1 => Just(Command::ResetOdometry.encode()),
         1 => Just(Command::Heartbeat.encode()),
         1 => scale_calibration(),
@@ -1336,7 +1337,7 @@ proptest! {
             let Input::CanFrame(frame) = step.input else {
                 return Ok(());
             };
-            if let Ok(Some(Command::RegisterRead { address })) =
+            if let Ok(Some(Command::RegisterRead { address, tag })) =
                 Command::decode(frame.id(), frame.data())
             {
                 let replies: Vec<_> = step
@@ -1347,8 +1348,15 @@ proptest! {
                     .map(|f| Report::decode(f.id(), f.data()))
                     .collect();
                 let expected = match step.after.registers.read(address) {
-                    Ok(value) => Report::RegisterValue { value },
-                    Err(error) => Report::RegisterReadError { address, reason: error.code() },
+                    Ok(value) => Report::RegisterValue {
+                        value,
+                        echo: Some(ReadEcho { address, tag }),
+                    },
+                    Err(error) => Report::RegisterReadError {
+                        address,
+                        reason: error.code(),
+                        tag: Some(tag),
+                    },
                 };
                 prop_assert_eq!(replies, vec![Ok(Some(expected))]);
             }

@@ -10,7 +10,8 @@ use base_core::calibration::odometry::OdometryCalibrationError;
 use base_core::calibration::scale::ScaleCalibrationError;
 use base_core::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
 use base_core::can::{
-    Command, ControlSource, Faults, FrameError, Mode, RawFrame, Rejection, Report, Status,
+    Command, ControlSource, Faults, FrameError, Mode, RawFrame, ReadEcho, Rejection, Report,
+    Status,
     StatusFlags, id,
 };
 use base_core::plausibility::Finding;
@@ -265,9 +266,10 @@ fn command_signals(command: &Command) -> Vec<(&'static str, Expect)> {
             ("WriteAddress", register_address(address)),
             ("WriteValue", value(register_value)),
         ],
-        Command::RegisterRead { address } => vec![
+        Command::RegisterRead { address, tag } => vec![
             ("RegisterReadKind", variant_name(command)),
             ("ReadAddress", register_address(address)),
+            ("ReadTag", value(tag)),
         ],
         Command::ResetOdometry => vec![("ResetRequest", variant_name(command))],
         Command::Heartbeat => vec![("HeartbeatRequest", variant_name(command))],
@@ -316,15 +318,28 @@ fn report_signals(report: &Report) -> Vec<(&'static str, Expect)> {
         Report::Weight { grams } => vec![("Weight", value(grams))],
         Report::RegisterValue {
             value: register_value,
+            echo: Some(echo),
         } => vec![
             ("RegisterReadKind", variant_name(report)),
             ("ReadValue", value(register_value)),
+            ("ReplyAddress", value(echo.address)),
+            ("ReplyTag", value(echo.tag)),
         ],
-        Report::RegisterReadError { address, reason } => vec![
+        Report::RegisterReadError {
+            address,
+            reason,
+            tag: Some(tag),
+        } => vec![
             ("RegisterReadKind", variant_name(report)),
             ("RefusedAddress", value(address)),
             ("RefusalReason", rejection_reason(reason)),
+            ("RefusalTag", value(tag)),
         ],
+        // The DBC describes what the base controller sends: replies that say which
+        // read they answer.
+        Report::RegisterValue { echo: None, .. } | Report::RegisterReadError { tag: None, .. } => {
+            panic!("{report:?}: the base controller never sends a reply without its echo")
+        }
         Report::Status(status) => status_signals(&status),
     }
 }
@@ -430,7 +445,11 @@ fn commands() -> Vec<Command> {
     }
     // Every register, and addresses no register has.
     for address in TABLE.iter().map(|info| info.address).chain([34, 41, 255]) {
-        commands.push(Command::RegisterRead { address });
+        // The DBC has the tagged layout; a tag of 0 is the manual's two-byte request.
+        commands.push(Command::RegisterRead {
+            address,
+            tag: 0xBEEF,
+        });
         commands.push(Command::RegisterWrite {
             address,
             value: 0x1234,
@@ -546,13 +565,20 @@ fn reports() -> Vec<Report> {
     }
     for edge in U16_EDGES {
         reports.push(Report::Weight { grams: edge });
-        reports.push(Report::RegisterValue { value: edge });
+        reports.push(Report::RegisterValue {
+            value: edge,
+            echo: Some(ReadEcho {
+                address: 18,
+                tag: edge,
+            }),
+        });
     }
     for error in REGISTER_ERRORS {
         for address in [34, 0xFF] {
             reports.push(Report::RegisterReadError {
                 address,
                 reason: error.code(),
+                tag: Some(0xBEEF),
             });
         }
     }
@@ -708,7 +734,7 @@ fn every_codec_id_has_a_dbc_message_from_its_sender_with_the_longest_encoded_dlc
             );
         }
     }
-    // One DLC per ID: the longest layout, so 0x004 (request 2, replies 3) and the
+    // One DLC per ID: the longest layout, so 0x004 (request 4, replies 6) and the
     // calibration frames (steps 1, values 3) get 3.
     for message in &dbc.messages {
         let can_id = message_id(message);

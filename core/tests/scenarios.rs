@@ -4,7 +4,7 @@
 //! so 500 mm/s is 336 motor r/min: +336 on the left drive, −336 on the right.
 
 use base_core::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
-use base_core::can::{Command, ControlSource, Mode, RawFrame, Report, id};
+use base_core::can::{Command, ControlSource, Mode, RawFrame, ReadEcho, Report, id};
 use base_core::controller::{Controller, Input, Output};
 use base_core::gamepad::{Buttons, Dpad, GamepadState};
 use base_core::kinematics::MotorRpm;
@@ -1343,7 +1343,7 @@ fn a_tare_beyond_16_bits_persists_the_full_offset_and_weighs_from_it() {
 
 #[test]
 fn the_counters_read_what_the_shell_reports() {
-    let read = |address| can(Command::RegisterRead { address });
+    let read = |address| can(Command::RegisterRead { address, tag: 0 });
     let mut controller = run(
         defaults(),
         &[
@@ -1352,7 +1352,17 @@ fn the_counters_read_what_the_shell_reports() {
                 Input::FlashErases(0x0001_0002),
                 &[Register(Reg::FlashErasesHi, 1)],
             ),
-            (1, read(47), &[Sends(Report::RegisterValue { value: 2 })]),
+            (
+                1,
+                read(47),
+                &[Sends(Report::RegisterValue {
+                    value: 2,
+                    echo: Some(ReadEcho {
+                        address: 47,
+                        tag: 0,
+                    }),
+                })],
+            ),
         ],
     );
     controller.set_can_tx_dropped(70_000);
@@ -1467,7 +1477,13 @@ fn register_writes_with_bad_values_are_rejected_and_change_nothing() {
             (
                 60,
                 raw(id::REGISTER_READ, &[1, 15]),
-                &[Sends(Report::RegisterValue { value: 20 })],
+                &[Sends(Report::RegisterValue {
+                    value: 20,
+                    echo: Some(ReadEcho {
+                        address: 15,
+                        tag: 0,
+                    }),
+                })],
             ),
             (
                 70,
@@ -1475,6 +1491,7 @@ fn register_writes_with_bad_values_are_rejected_and_change_nothing() {
                 &[Sends(Report::RegisterReadError {
                     address: 36,
                     reason: 0x10,
+                    tag: Some(0),
                 })],
             ),
         ],

@@ -4,7 +4,8 @@
 
 use std::time::{Duration, Instant};
 
-use base_core::can::Command;
+use base_core::can::{Command, ReadEcho};
+use base_core::registers::Reg;
 
 use crate::convert::{self, NotFinite, RosPose, WireVelocity};
 
@@ -165,11 +166,49 @@ pub struct OdometrySample {
     pub angular_z: f64,
 }
 
-/// The report side: 0x0EC (x, y) then 0x0ED (heading) make one pose.
+/// The register the base's feedback period is read from: the position frames come
+/// every `loop_end_delay` ms.
+pub const CYCLE_REGISTER: u8 = Reg::LoopEndDelay.address();
+
+/// How long the base controller may take to answer the read that follows a reset.
+const RESET_ANSWER_TIMEOUT: Duration = Duration::from_secs(1);
+
+/// Where an odometry reset is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum ResetPhase {
+    /// `005#01` and a tagged register read were sent. The controller handles frames
+    /// in order, so the read's reply comes after the reset took effect; a pose that
+    /// arrives before the reply may be from before or after the reset, and is not
+    /// published.
+    AwaitingAnswer { tag: u16, deadline: Instant },
+    /// The reply came: every pose from now on is from after the reset. Without a pose
+    /// by `deadline` the base sends none (emergency mode).
+    AwaitingPose { deadline: Instant },
+}
+
+/// How a reset ended, for the service caller.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ResetOutcome {
+    /// A pose from after the reset was published.
+    Shown,
+    /// The base applied the reset but sends no position now (emergency mode).
+    NoPositionStream,
+    /// The base controller did not answer: whether it reset is unknown.
+    NoAnswer,
+}
+
+/// The report side: 0x0EC (x, y) then 0x0ED (heading) make one pose. The twist is the
+/// pose change over whole cycles of the base (register `loop_end_delay`), not over
+/// the frames' arrival times, which a loaded PC or bus stretches and squeezes.
 #[derive(Debug, Default)]
 pub struct OdometrySide {
     position: Option<(i32, i32)>,
     previous: Option<(Instant, RosPose)>,
+    /// The twist last published: kept across a reset, where the pose jumps.
+    last_twist: (f64, f64),
+    /// The base's feedback period, once its register was read.
+    cycle: Option<Duration>,
+    reset: Option<ResetPhase>,
 }
 
 impl OdometrySide {
@@ -178,27 +217,116 @@ impl OdometrySide {
     }
 
     /// 0x0ED completes the pose the last 0x0EC started. `None` without a position
-    /// yet.
-    pub fn on_heading(&mut self, now: Instant, heading_mrad: i32) -> Option<OdometrySample> {
-        let (x_mm, y_mm) = self.position.take()?;
-        let pose = convert::pose_from_wire(x_mm, y_mm, heading_mrad);
-        let (linear_x, angular_z) = match self.previous {
-            Some((then, previous)) => {
-                convert::twist_between(previous, pose, (now - then).as_secs_f64())
+    /// yet, and while a reset waits for the controller's answer. The second value says
+    /// that a reset has now shown in the published poses.
+    pub fn on_heading(
+        &mut self,
+        now: Instant,
+        heading_mrad: i32,
+    ) -> (Option<OdometrySample>, Option<ResetOutcome>) {
+        let Some((x_mm, y_mm)) = self.position.take() else {
+            return (None, None);
+        };
+        let mut outcome = None;
+        match self.reset {
+            Some(ResetPhase::AwaitingAnswer { .. }) => return (None, None),
+            Some(ResetPhase::AwaitingPose { .. }) => {
+                // The first pose after the reset: no twist across the jump.
+                self.previous = None;
+                self.reset = None;
+                outcome = Some(ResetOutcome::Shown);
             }
-            None => (0.0, 0.0),
+            None => {}
+        }
+        let pose = convert::pose_from_wire(x_mm, y_mm, heading_mrad);
+        let twist = match self.previous {
+            Some((then, previous)) => {
+                convert::twist_between(previous, pose, self.elapsed(now - then))
+            }
+            // The first pose: at rest as far as anyone knows; after a reset, moving
+            // as before it.
+            None => self.last_twist,
         };
         self.previous = Some((now, pose));
-        Some(OdometrySample {
+        self.last_twist = twist;
+        let sample = OdometrySample {
             pose,
-            linear_x,
-            angular_z,
-        })
+            linear_x: twist.0,
+            angular_z: twist.1,
+        };
+        (Some(sample), outcome)
     }
 
-    /// After an odometry reset the pose jumps to zero: no twist across the jump.
-    pub fn forget_previous(&mut self) {
-        self.previous = None;
+    /// The time between two poses that arrived `arrival` apart: the whole number of
+    /// the base's cycles nearest to it (at least one). Until the cycle is known, the
+    /// arrival time itself.
+    fn elapsed(&self, arrival: Duration) -> f64 {
+        match self.cycle {
+            Some(cycle) if !cycle.is_zero() => {
+                let cycle = cycle.as_secs_f64();
+                (arrival.as_secs_f64() / cycle).round().max(1.0) * cycle
+            }
+            _ => arrival.as_secs_f64(),
+        }
+    }
+
+    /// The frames that reset the odometry (`tag`: the node's own, for the read that
+    /// proves the reset was handled). A reset already under way starts over.
+    pub fn start_reset(&mut self, now: Instant, tag: u16) -> [Command; 2] {
+        self.reset = Some(ResetPhase::AwaitingAnswer {
+            tag,
+            deadline: now + RESET_ANSWER_TIMEOUT,
+        });
+        self.position = None;
+        [
+            Command::ResetOdometry,
+            Command::RegisterRead {
+                address: CYCLE_REGISTER,
+                tag,
+            },
+        ]
+    }
+
+    /// A register reply (anyone's): its address says which register it is, so a
+    /// reply of `loop_end_delay` sets the cycle, and the reply to our reset's read
+    /// ends the wait for the controller.
+    pub fn on_register_value(&mut self, now: Instant, echo: ReadEcho, value: u16) {
+        if echo.address != CYCLE_REGISTER {
+            return;
+        }
+        self.cycle = Some(Duration::from_millis(u64::from(value)));
+        if let Some(ResetPhase::AwaitingAnswer { tag, .. }) = self.reset
+            && tag == echo.tag
+        {
+            // Two cycles and a margin: a base that sends poses sends one by then.
+            let wait = self.cycle.unwrap_or_default() * 2 + Duration::from_millis(100);
+            self.reset = Some(ResetPhase::AwaitingPose {
+                deadline: now + wait,
+            });
+            self.position = None;
+        }
+    }
+
+    /// The base's feedback period, once read.
+    pub fn cycle(&self) -> Option<Duration> {
+        self.cycle
+    }
+
+    /// A reset that ended without a pose by `now`.
+    pub fn tick(&mut self, now: Instant) -> Option<ResetOutcome> {
+        match self.reset {
+            Some(ResetPhase::AwaitingAnswer { deadline, .. }) if now >= deadline => {
+                self.reset = None;
+                self.previous = None;
+                Some(ResetOutcome::NoAnswer)
+            }
+            Some(ResetPhase::AwaitingPose { deadline }) if now >= deadline => {
+                self.reset = None;
+                self.previous = None;
+                Some(ResetOutcome::NoPositionStream)
+            }
+            _ => None,
+        }
     }
 }
 
@@ -273,17 +401,146 @@ mod tests {
     fn position_and_heading_make_a_pose_and_the_twist_from_their_differences() {
         let start = Instant::now();
         let mut odometry = OdometrySide::default();
-        assert_eq!(odometry.on_heading(start, 0), None, "no position yet");
+        assert_eq!(
+            odometry.on_heading(start, 0),
+            (None, None),
+            "no position yet"
+        );
         odometry.on_position(0, 0);
-        let first = odometry.on_heading(start, 0).unwrap();
+        let first = odometry.on_heading(start, 0).0.unwrap();
         assert_eq!((first.linear_x, first.angular_z), (0.0, 0.0));
         // 25 mm forward and 50 mrad clockwise in 50 ms.
         odometry.on_position(25, 0);
         let second = odometry
             .on_heading(start + Duration::from_millis(50), 50)
+            .0
             .unwrap();
         assert!((second.linear_x - 0.5).abs() < 1e-3, "{second:?}");
         assert!((second.angular_z + 1.0).abs() < 1e-9, "{second:?}");
         assert!((second.pose.yaw + 0.05).abs() < 1e-12);
+    }
+
+    /// A pose every 50 ms (`loop_end_delay` 50), its frames up to 20 ms late:
+    /// `pose(cycle)` is (x mm, heading mrad clockwise).
+    fn jittered(
+        odometry: &mut OdometrySide,
+        pose: impl Fn(i32) -> (i32, i32),
+    ) -> Vec<OdometrySample> {
+        let start = Instant::now();
+        let late_ms = [0, 20, 3, 17, 0, 9, 20, 1];
+        (0..40)
+            .filter_map(|cycle: i32| {
+                let (x_mm, heading_mrad) = pose(cycle);
+                odometry.on_position(x_mm, 0);
+                let arrival = start
+                    + Duration::from_millis(
+                        50 * cycle as u64 + late_ms[cycle as usize % late_ms.len()],
+                    );
+                odometry.on_heading(arrival, heading_mrad).0
+            })
+            .collect()
+    }
+
+    fn knowing_the_cycle() -> OdometrySide {
+        let mut odometry = OdometrySide::default();
+        let echo = ReadEcho {
+            address: CYCLE_REGISTER,
+            tag: 0,
+        };
+        odometry.on_register_value(Instant::now(), echo, 50);
+        odometry
+    }
+
+    #[test]
+    fn the_twist_is_exact_over_the_bases_cycle_however_late_the_frames_arrive() {
+        // 0.3 m/s straight ahead: 15 mm per cycle.
+        let samples = jittered(&mut knowing_the_cycle(), |cycle| (cycle * 15, 0));
+        for sample in &samples[1..] {
+            assert!((sample.linear_x - 0.3).abs() < 1e-9, "{sample:?}");
+        }
+        // 0.2 rad/s counter-clockwise on the spot: -10 mrad (clockwise) per cycle.
+        let samples = jittered(&mut knowing_the_cycle(), |cycle| (0, -10 * cycle));
+        for sample in &samples[1..] {
+            assert!((sample.angular_z - 0.2).abs() < 1e-9, "{sample:?}");
+        }
+    }
+
+    #[test]
+    fn before_the_cycle_is_known_the_arrival_times_are_used() {
+        let samples = jittered(&mut OdometrySide::default(), |cycle| (cycle * 15, 0));
+        assert!(
+            samples[1..]
+                .iter()
+                .any(|sample| (sample.linear_x - 0.3).abs() > 0.03),
+            "arrival jitter shows without the cycle"
+        );
+    }
+
+    #[test]
+    fn a_pose_sent_before_the_reset_took_effect_makes_no_velocity_spike() {
+        let start = Instant::now();
+        let ms = |ms: u64| start + Duration::from_millis(ms);
+        let mut odometry = OdometrySide::default();
+        let cycle_echo = |tag| ReadEcho {
+            address: CYCLE_REGISTER,
+            tag,
+        };
+        odometry.on_register_value(start, cycle_echo(0), 50);
+        // Driving at 0.3 m/s, 2 m out.
+        for (cycle, arrival) in [(0, 0), (1, 50), (2, 100)] {
+            odometry.on_position(2000 + cycle * 15, 0);
+            odometry.on_heading(ms(arrival as u64), 0);
+        }
+        assert_eq!(
+            odometry.start_reset(ms(110), 7),
+            [
+                Command::ResetOdometry,
+                Command::RegisterRead {
+                    address: CYCLE_REGISTER,
+                    tag: 7
+                }
+            ]
+        );
+        // A pose the controller sent before it handled the reset: not published.
+        odometry.on_position(2045, 0);
+        assert_eq!(odometry.on_heading(ms(150), 0), (None, None));
+        // Another program's read of the same register is not our answer.
+        odometry.on_register_value(ms(151), cycle_echo(8), 50);
+        odometry.on_position(2060, 0);
+        assert_eq!(odometry.on_heading(ms(152), 0), (None, None));
+        odometry.on_register_value(ms(155), cycle_echo(7), 50);
+        // After the answer: the pose from zero, moving as before.
+        odometry.on_position(10, 0);
+        let (sample, outcome) = odometry.on_heading(ms(200), 0);
+        let sample = sample.unwrap();
+        assert_eq!(outcome, Some(ResetOutcome::Shown));
+        assert!((sample.pose.x - 0.010).abs() < 1e-9, "{sample:?}");
+        assert!((sample.linear_x - 0.3).abs() < 1e-3, "{sample:?}");
+        odometry.on_position(25, 0);
+        let sample = odometry.on_heading(ms(250), 0).0.unwrap();
+        assert!((sample.linear_x - 0.3).abs() < 1e-3, "{sample:?}");
+    }
+
+    #[test]
+    fn a_reset_without_an_answer_or_without_poses_ends_and_says_so() {
+        let start = Instant::now();
+        let mut odometry = OdometrySide::default();
+        odometry.start_reset(start, 1);
+        assert_eq!(odometry.tick(start + Duration::from_millis(999)), None);
+        assert_eq!(
+            odometry.tick(start + RESET_ANSWER_TIMEOUT),
+            Some(ResetOutcome::NoAnswer)
+        );
+        odometry.start_reset(start, 2);
+        let echo = ReadEcho {
+            address: CYCLE_REGISTER,
+            tag: 2,
+        };
+        odometry.on_register_value(start, echo, 50);
+        assert_eq!(odometry.tick(start + Duration::from_millis(150)), None);
+        assert_eq!(
+            odometry.tick(start + Duration::from_millis(200)),
+            Some(ResetOutcome::NoPositionStream)
+        );
     }
 }

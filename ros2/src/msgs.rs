@@ -43,12 +43,21 @@ pub struct TwistStamped {
 }
 impl ros2_client::Message for TwistStamped {}
 
-/// std_msgs/Empty: IDL structs cannot be empty, so ROS 2 puts one byte on the wire.
+/// std_srvs/Trigger's request: empty, and IDL structs cannot be empty, so ROS 2 puts
+/// one byte on the wire.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
-pub struct Empty {
+pub struct TriggerRequest {
     pub structure_needs_at_least_one_member: u8,
 }
-impl ros2_client::Message for Empty {}
+impl ros2_client::Message for TriggerRequest {}
+
+/// std_srvs/Trigger's response.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct TriggerResponse {
+    pub success: bool,
+    pub message: String,
+}
+impl ros2_client::Message for TriggerResponse {}
 
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 pub struct Point {

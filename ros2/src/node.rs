@@ -1,7 +1,8 @@
 //! The node: one thread owns the bus and the ROS 2 entities. Each turn of its loop
 //! takes every waiting `/cmd_vel` and odometry reset, sends what is due, then waits
 //! up to 1 ms for a frame from the base (so a new `/cmd_vel` waits at most that long
-//! before it goes out).
+//! before it goes out). A second thread runs ros2-client's spinner, which answers the
+//! parameter services.
 
 use std::fmt;
 use std::sync::Arc;
@@ -10,19 +11,27 @@ use std::time::{Duration, Instant};
 
 use base_core::can::{Command, Mode, RawFrame, Rejection, Report, Status};
 use basectl::bus::{Bus, BusError};
+use ros2_client::log::LogLevel;
+use ros2_client::rosout::{NodeLoggingHandle, RosoutRaw};
+use ros2_client::service::{Server, ServiceMapping};
 use ros2_client::{
-    Context, ContextOptions, Name, Node, NodeName, NodeOptions, Publisher, QosProfile,
-    Subscription,
+    Context, ContextOptions, Name, Node, NodeName, NodeOptions, ParameterValue, Publisher,
+    QosProfile, RmwRequestId, ServiceTypeName, Subscription,
     qos::{Durability, History},
 };
 
-use crate::bridge::{CommandSide, Counts, OdometrySample, OdometrySide};
+use crate::bridge::{
+    CYCLE_REGISTER, CommandSide, Counts, OdometrySample, OdometrySide, ResetOutcome,
+};
 use crate::msgs::{self, *};
 
 /// How long the loop waits for a frame before it looks at DDS again.
 const POLL: Duration = Duration::from_millis(1);
 /// Without any frame from the base for this long, `/diagnostics` says it is stale.
 const SILENCE: Duration = Duration::from_secs(3);
+/// How often the base's feedback period (register `loop_end_delay`) is read again:
+/// someone may change it while the node runs.
+const CYCLE_READ_PERIOD: Duration = Duration::from_secs(5);
 
 /// Everything the node is told by its command line.
 #[derive(Debug, Clone)]
@@ -41,6 +50,8 @@ pub struct Settings {
     /// 0 = no heartbeat.
     pub heartbeat_period: Duration,
     pub hardware_id: String,
+    /// Every setting as a ROS parameter (name, value), for the parameter services.
+    pub parameters: Vec<(String, ParameterValue)>,
 }
 
 #[derive(Debug)]
@@ -95,9 +106,10 @@ impl CmdVel {
 }
 
 struct Ros {
-    _node: Node,
+    node: Node,
+    logger: NodeLoggingHandle,
     cmd_vel: CmdVel,
-    reset: Subscription<Empty>,
+    reset_service: Server<TriggerRequest, TriggerResponse>,
     odom: Publisher<Odometry>,
     tf: Option<Publisher<TfMessage>>,
     battery: Publisher<BatteryState>,
@@ -112,13 +124,34 @@ impl Ros {
     fn open(settings: &Settings) -> Result<Self, Error> {
         let context = Context::with_options(ContextOptions::new().domain_id(settings.domain_id))
             .map_err(ros("DDS participant"))?;
+        // The parameters are read-only once the node runs: every setting is taken at
+        // start (command line, --ros-args -p, --params-file). Their declaration passes
+        // the validator too.
+        let running = Arc::new(AtomicBool::new(false));
+        let declared = Arc::clone(&running);
+        let mut options = NodeOptions::new()
+            .enable_rosout(true)
+            .start_parameter_services(true)
+            .parameter_validator(Box::new(move |name, _| {
+                if !declared.load(Ordering::Relaxed) {
+                    return Ok(());
+                }
+                Err(format!(
+                    "{name} is read-only while base-ros2 runs: restart it with \
+                     --ros-args -p {name}:=VALUE"
+                ))
+            }));
+        for (name, value) in &settings.parameters {
+            options = options.declare_parameter(name, value.clone());
+        }
         let mut node = context
             .new_node(
                 NodeName::new(&settings.namespace, &settings.node_name)
                     .map_err(ros("node name"))?,
-                NodeOptions::new().enable_rosout(false),
+                options,
             )
             .map_err(ros("node"))?;
+        running.store(true, Ordering::Relaxed);
         let ns = &settings.namespace;
         // ROS 2's default: reliable, volatile, the last 10.
         let reliable = QosProfile::publisher_default()
@@ -155,16 +188,16 @@ impl Ros {
                     .map_err(ros("/cmd_vel"))?,
             )
         };
-        let topic = node
-            .create_topic(
+        // ROS 2's service default: reliable, volatile, the last 10.
+        let reset_service = node
+            .create_server(
+                ServiceMapping::Enhanced,
                 &name(ns, "reset_odometry")?,
-                msgs::type_name("std_msgs", "Empty"),
-                &reliable,
+                &ServiceTypeName::new("std_srvs", "Trigger"),
+                reliable.clone(),
+                reliable.clone(),
             )
-            .map_err(ros("/reset_odometry"))?;
-        let reset = node
-            .create_subscription(&topic, None)
-            .map_err(ros("/reset_odometry"))?;
+            .map_err(ros("reset_odometry service"))?;
         let topic = node
             .create_topic(
                 &name(ns, "odom")?,
@@ -207,15 +240,33 @@ impl Ros {
         let diagnostics = node
             .create_publisher(&topic, None)
             .map_err(ros("/diagnostics"))?;
+        let logger = node.logging_handle();
         Ok(Ros {
-            _node: node,
+            node,
+            logger,
             cmd_vel,
-            reset,
+            reset_service,
             odom,
             tf,
             battery,
             diagnostics,
         })
+    }
+}
+
+impl Ros {
+    /// A line on stderr and the same on `/rosout`.
+    fn log(&self, level: LogLevel, message: &str) {
+        eprintln!("base-ros2: {message}");
+        self.logger.rosout_raw(
+            Time::now(),
+            level,
+            self.logger.base_name(),
+            message,
+            file!(),
+            "",
+            line!(),
+        );
     }
 }
 
@@ -229,13 +280,22 @@ fn header(frame_id: &str) -> Header {
 /// Runs the node until `stop` is set (Ctrl-C, SIGTERM) or the bus fails. Before it
 /// returns, a driving base is stopped (zero velocity, enable withdrawn).
 pub fn run(settings: &Settings, bus: &mut dyn Bus, stop: &Arc<AtomicBool>) -> Result<(), Error> {
-    let ros = Ros::open(settings)?;
-    eprintln!(
-        "base-ros2: node {}/{} on ROS_DOMAIN_ID {}; /cmd_vel time-out {} ms",
-        settings.namespace.trim_end_matches('/'),
-        settings.node_name,
-        settings.domain_id,
-        settings.cmd_vel_timeout.as_millis()
+    let mut ros = Ros::open(settings)?;
+    let spinner = ros
+        .node
+        .spinner()
+        .map_err(|error| Error::Ros(format!("spinner: {error:?}")))?;
+    // The spinner answers the parameter services; it ends when the node is dropped.
+    std::thread::spawn(move || futures::executor::block_on(spinner.spin()));
+    ros.log(
+        LogLevel::Info,
+        &format!(
+            "node {}/{} on ROS_DOMAIN_ID {}; /cmd_vel time-out {} ms",
+            settings.namespace.trim_end_matches('/'),
+            settings.node_name,
+            settings.domain_id,
+            settings.cmd_vel_timeout.as_millis()
+        ),
     );
     let mut state = State::new(settings);
     let result = state.run(&ros, bus, stop);
@@ -262,6 +322,11 @@ struct State<'a> {
     next_silence_report: Instant,
     malformed_cmd_vel: u64,
     malformed_frames: u64,
+    /// The tag of the node's last register read (the reply echoes it).
+    last_tag: u16,
+    next_cycle_read: Instant,
+    /// Reset service calls waiting for the reset to show in the poses.
+    reset_callers: Vec<RmwRequestId>,
 }
 
 impl<'a> State<'a> {
@@ -277,6 +342,55 @@ impl<'a> State<'a> {
             next_silence_report: now + SILENCE,
             malformed_cmd_vel: 0,
             malformed_frames: 0,
+            last_tag: 0,
+            next_cycle_read: now,
+            reset_callers: Vec::new(),
+        }
+    }
+
+    /// A tag for the node's next register read, never 0 (the manual's untagged read).
+    fn next_tag(&mut self) -> u16 {
+        self.last_tag = self.last_tag.wrapping_add(1).max(1);
+        self.last_tag
+    }
+
+    fn start_reset(&mut self, ros: &Ros, bus: &mut dyn Bus, now: Instant) -> Result<(), Error> {
+        let tag = self.next_tag();
+        send_all(bus, &self.odometry.start_reset(now, tag))?;
+        ros.log(LogLevel::Info, "odometry reset requested");
+        Ok(())
+    }
+
+    /// Answers every waiting reset call.
+    fn reset_ended(&mut self, ros: &Ros, outcome: ResetOutcome) {
+        let (success, message) = match outcome {
+            ResetOutcome::Shown => (true, "odometry reset; /odom now starts from zero"),
+            ResetOutcome::NoPositionStream => (
+                true,
+                "odometry reset; the base sends no position in its current mode (emergency?)",
+            ),
+            ResetOutcome::NoAnswer => (
+                false,
+                "the base controller did not answer within 1 s: whether it reset is unknown",
+            ),
+        };
+        let level = if success {
+            LogLevel::Info
+        } else {
+            LogLevel::Warn
+        };
+        ros.log(level, message);
+        for caller in self.reset_callers.drain(..) {
+            let response = TriggerResponse {
+                success,
+                message: message.to_owned(),
+            };
+            if let Err(error) = ros.reset_service.send_response(caller, response) {
+                ros.log(
+                    LogLevel::Warn,
+                    &format!("reset_odometry: the answer was not sent: {error:?}"),
+                );
+            }
         }
     }
 
@@ -291,33 +405,55 @@ impl<'a> State<'a> {
                             .on_cmd_vel(now, twist.linear.x, twist.angular.z)
                         {
                             Ok(frames) => send_all(bus, &frames)?,
-                            Err(_) => eprintln!(
-                                "base-ros2: /cmd_vel refused: linear.x {} angular.z {} is not \
-                                 finite ({} so far)",
-                                twist.linear.x, twist.angular.z, self.commands.counts.not_finite
+                            Err(_) => ros.log(
+                                LogLevel::Warn,
+                                &format!(
+                                    "/cmd_vel refused: linear.x {} angular.z {} is not finite \
+                                     ({} so far)",
+                                    twist.linear.x,
+                                    twist.angular.z,
+                                    self.commands.counts.not_finite
+                                ),
                             ),
                         }
                     }
                     Err(error) => {
                         self.malformed_cmd_vel += 1;
-                        eprintln!(
-                            "base-ros2: a /cmd_vel could not be decoded ({} so far): {error}",
-                            self.malformed_cmd_vel
+                        ros.log(
+                            LogLevel::Warn,
+                            &format!(
+                                "a /cmd_vel could not be decoded ({} so far): {error}",
+                                self.malformed_cmd_vel
+                            ),
                         );
                     }
                 }
             }
-            while let Ok(Some(_)) = ros.reset.take() {
-                bus.send(&Command::ResetOdometry.encode())?;
-                self.odometry.forget_previous();
-                eprintln!("base-ros2: odometry reset");
+            while let Ok(Some((caller, _))) = ros.reset_service.receive_request() {
+                self.reset_callers.push(caller);
+                self.start_reset(ros, bus, now)?;
+            }
+            if let Some(outcome) = self.odometry.tick(now) {
+                self.reset_ended(ros, outcome);
+            }
+            if now >= self.next_cycle_read {
+                let tag = self.next_tag();
+                let read = Command::RegisterRead {
+                    address: CYCLE_REGISTER,
+                    tag,
+                };
+                bus.send(&read.encode())?;
+                self.next_cycle_read = now + CYCLE_READ_PERIOD;
             }
             let timeouts = self.commands.counts.timeouts;
             send_all(bus, &self.commands.tick(now))?;
             if self.commands.counts.timeouts != timeouts {
-                eprintln!(
-                    "base-ros2: /cmd_vel older than {} ms: base stopped",
-                    self.settings.cmd_vel_timeout.as_millis()
+                ros.log(
+                    LogLevel::Warn,
+                    &format!(
+                        "/cmd_vel older than {} ms: base stopped",
+                        self.settings.cmd_vel_timeout.as_millis()
+                    ),
                 );
             }
             if !self.settings.heartbeat_period.is_zero() && now >= self.next_heartbeat {
@@ -342,10 +478,13 @@ impl<'a> State<'a> {
             Ok(None) => return,
             Err(error) => {
                 self.malformed_frames += 1;
-                eprintln!(
-                    "base-ros2: frame 0x{:03X} ignored: {error} ({} so far)",
-                    frame.id(),
-                    self.malformed_frames
+                ros.log(
+                    LogLevel::Warn,
+                    &format!(
+                        "frame 0x{:03X} ignored: {error} ({} so far)",
+                        frame.id(),
+                        self.malformed_frames
+                    ),
                 );
                 return;
             }
@@ -355,17 +494,28 @@ impl<'a> State<'a> {
         match report {
             Report::Position { x_mm, y_mm } => self.odometry.on_position(x_mm, y_mm),
             Report::Heading { heading_mrad } => {
-                if let Some(sample) = self.odometry.on_heading(now, heading_mrad) {
+                let (sample, reset) = self.odometry.on_heading(now, heading_mrad);
+                if let Some(sample) = sample {
                     self.publish_odometry(ros, &sample);
                 }
+                if let Some(outcome) = reset {
+                    self.reset_ended(ros, outcome);
+                }
             }
+            Report::RegisterValue {
+                value,
+                echo: Some(echo),
+            } => self.odometry.on_register_value(now, echo, value),
             Report::Battery {
                 percent,
                 voltage_mv,
             } => self.publish_battery(ros, percent, voltage_mv),
             Report::Status(status) => {
                 if self.last_status.map(|last| last.mode) != Some(status.mode) {
-                    eprintln!("base-ros2: base controller mode {:?}", status.mode);
+                    ros.log(
+                        LogLevel::Info,
+                        &format!("base controller mode {:?}", status.mode),
+                    );
                 }
                 self.last_status = Some(status);
                 self.publish_status(ros, &status);

@@ -18,7 +18,9 @@ use std::time::{Duration, Instant};
 
 use base_core::can::Command as CanCommand;
 use basectl::bus::{Bus, SocketcandBus};
-use virtual_robot::process::SimulatorProcess;
+mod support;
+
+use support::{Bridge, start_simulator};
 
 fn python_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python")
@@ -41,33 +43,6 @@ fn cyclonedds_available() -> bool {
     found
 }
 
-/// The simulator binary, built next to this test (`cargo test --workspace` builds it;
-/// alone, `cargo test -p base-ros2` builds it here).
-fn simulator_binary() -> PathBuf {
-    let exe = std::env::current_exe().unwrap();
-    let profile_dir = exe.parent().unwrap().parent().unwrap();
-    let binary = profile_dir.join("virtual-base-controller");
-    let status = Command::new(env!("CARGO"))
-        // The profile `cargo test` builds everything with: in a workspace run the
-        // simulator is already built and this is a no-op.
-        .args([
-            "build",
-            "-q",
-            "--profile",
-            "test",
-            "-p",
-            "virtual-robot",
-            "--bin",
-            "virtual-base-controller",
-        ])
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .status()
-        .expect("cargo builds the simulator");
-    assert!(status.success(), "the simulator did not build");
-    assert!(binary.exists(), "no simulator at {}", binary.display());
-    binary
-}
-
 /// Cyclone DDS on the loopback interface only, without multicast (a CI machine may
 /// have no multicast-capable interface): it finds base-ros2 by unicast on 127.0.0.1,
 /// where RustDDS announces itself to same-host peers.
@@ -81,79 +56,6 @@ const CYCLONEDDS_LOOPBACK: &str = "<CycloneDDS><Domain id=\"any\"><General>\
 /// the same time.
 fn domain_id(test: u32) -> String {
     (100 + (std::process::id() % 30) * 4 + test).to_string()
-}
-
-/// The simulator (without an SLCAN link: the node uses socketcand), once the
-/// controller has reached standby.
-fn start_simulator() -> SimulatorProcess {
-    let simulator = SimulatorProcess::launch(simulator_binary())
-        .no_link()
-        .start()
-        .expect("the simulator starts");
-    // The drives boot within the first second; let the controller reach standby.
-    thread::sleep(Duration::from_millis(1500));
-    simulator
-}
-
-/// The bridge as a child process; its stderr is collected for failure messages.
-struct Bridge {
-    child: Child,
-    log: Arc<Mutex<String>>,
-}
-
-impl Bridge {
-    fn start(socketcand: &str, domain: &str) -> Self {
-        Self::with_args(socketcand, domain, &[])
-    }
-
-    fn with_args(socketcand: &str, domain: &str, args: &[&str]) -> Self {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_base-ros2"))
-            .args(["--interface", "socketcand", "--channel", socketcand])
-            .args(args)
-            .env("ROS_DOMAIN_ID", domain)
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("base-ros2 starts");
-        let log = Arc::new(Mutex::new(String::new()));
-        let lines = BufReader::new(child.stderr.take().unwrap()).lines();
-        let sink = Arc::clone(&log);
-        thread::spawn(move || {
-            for line in lines.map_while(Result::ok) {
-                let mut log = sink.lock().unwrap();
-                log.push_str(&line);
-                log.push('\n');
-            }
-        });
-        Bridge { child, log }
-    }
-
-    fn log(&self) -> String {
-        self.log.lock().unwrap().clone()
-    }
-
-    /// SIGTERM, as systemd or ros2 launch end it; the exit status.
-    fn terminate(mut self) -> std::process::ExitStatus {
-        let _ = Command::new("kill")
-            .arg(self.child.id().to_string())
-            .status();
-        let deadline = Instant::now() + Duration::from_secs(5);
-        loop {
-            if let Some(status) = self.child.try_wait().unwrap() {
-                return status;
-            }
-            assert!(Instant::now() < deadline, "base-ros2 ignored SIGTERM");
-            thread::sleep(Duration::from_millis(20));
-        }
-    }
-}
-
-impl Drop for Bridge {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
 }
 
 /// Every command frame on the bus, as a socketcand client sees it.
@@ -214,7 +116,7 @@ fn a_ros2_peer_on_cyclone_dds_drives_the_simulated_base_and_reads_odom_tf_batter
     let mut simulator = start_simulator();
     let mut listener = Listener::start(&simulator.socketcand().to_string());
     let domain = domain_id(0);
-    let bridge = Bridge::start(&simulator.socketcand().to_string(), &domain);
+    let bridge = Bridge::with_args(&simulator.socketcand().to_string(), &domain, &[]);
     let mut peer = Command::new("python3")
         .arg(python_dir().join("ros_peer.py"))
         .arg("scenarios")
@@ -377,7 +279,7 @@ fn cmd_vel_latency() {
     assert!(cyclonedds_available(), "the measurement needs cyclonedds");
     let simulator = start_simulator();
     let domain = domain_id(3);
-    let bridge = Bridge::start(&simulator.socketcand().to_string(), &domain);
+    let bridge = Bridge::with_args(&simulator.socketcand().to_string(), &domain, &[]);
     let socketcand = simulator.socketcand();
     let (host, port) = (socketcand.ip().to_string(), socketcand.port().to_string());
     let output = Command::new("python3")

@@ -357,7 +357,7 @@ fn a_reboot_while_driving_stops_the_wheels_at_once_and_the_controller_answers_ag
         }
     };
     assert!(
-        matches!(reply, Report::RegisterValue { value: 50 }),
+        matches!(reply, Report::RegisterValue { value: 50, .. }),
         "{reply:?}"
     );
     // And it drives again on the PC's commands.

@@ -524,13 +524,16 @@ fn flash_erases_wait_for_standstill_and_never_stall_the_control_cycle() {
     });
     let value = robot.run(async |pc| {
         let before = pc.reports(base_core::can::id::REGISTER_READ).len();
-        pc.command(base_core::can::Command::RegisterRead { address: 11 });
+        pc.command(base_core::can::Command::RegisterRead {
+            address: 11,
+            tag: 0,
+        });
         wait_ms(50).await;
         pc.reports(base_core::can::id::REGISTER_READ)
             .into_iter()
             .skip(before)
             .find_map(|(_, report)| match report {
-                base_core::can::Report::RegisterValue { value } => Some(value),
+                base_core::can::Report::RegisterValue { value, .. } => Some(value),
                 _ => None,
             })
     });

@@ -137,11 +137,12 @@ fn a_register_written_over_slcan_is_still_there_after_a_restart() {
         let line = lines
             .recv_timeout(deadline.saturating_duration_since(Instant::now()))
             .expect("a register reply arrives");
-        if line.starts_with("t0043") {
+        if line.starts_with("t0046") {
             break line;
         }
     };
-    assert_eq!(reply, "t0043000141\r");
+    // 00 value MSB LSB, then the address read (9) and the request's tag (none: 0).
+    assert_eq!(reply, "t0046000141090000\r");
     quit(simulator);
 }
 

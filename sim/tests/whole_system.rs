@@ -239,13 +239,13 @@ fn a_register_written_over_can_survives_a_reboot() {
 
 async fn read_register(pc: &Pc, address: u8) -> Option<u16> {
     let before = pc.reports(id::REGISTER_READ).len();
-    pc.command(Command::RegisterRead { address });
+    pc.command(Command::RegisterRead { address, tag: 0 });
     wait_ms(50).await;
     pc.reports(id::REGISTER_READ)
         .into_iter()
         .skip(before)
         .find_map(|(_, report)| match report {
-            Report::RegisterValue { value } => Some(value),
+            Report::RegisterValue { value, .. } => Some(value),
             _ => None,
         })
 }
@@ -635,7 +635,11 @@ fn flooded_enable_lapse(flood: Duration) -> Flood {
         let last_enable = Instant::now();
         let feeds_before = robot.watchdog.feeds();
         let replies_before = pc.reports(id::REGISTER_READ).len();
-        let read = Command::RegisterRead { address: 11 }.encode();
+        let read = Command::RegisterRead {
+            address: 11,
+            tag: 0,
+        }
+        .encode();
         let wire = frame_time(&SimFrame::standard(read.id(), read.data()).expect("a frame"));
         let mut stood_after = None;
         let mut reads_sent = 0;
@@ -839,6 +843,7 @@ async fn burst_of_reads(pc: &Pc, count: u8) -> Vec<u16> {
     for address in 0..count {
         pc.command(Command::RegisterRead {
             address: address % 34,
+            tag: 0,
         });
     }
     wait_ms(200).await;
@@ -846,7 +851,7 @@ async fn burst_of_reads(pc: &Pc, count: u8) -> Vec<u16> {
         .into_iter()
         .skip(before)
         .filter_map(|(_, report)| match report {
-            Report::RegisterValue { value } => Some(value),
+            Report::RegisterValue { value, .. } => Some(value),
             _ => None,
         })
         .collect()

@@ -41,8 +41,10 @@ pub enum Command {
     },
     /// 0x003: `addr, MSB, LSB`.
     RegisterWrite { address: u8, value: u16 },
-    /// 0x004: `01, addr`.
-    RegisterRead { address: u8 },
+    /// 0x004: `01, addr` (the manual's request), or `01, addr, tag MSB, tag LSB` (ext):
+    /// the reply echoes the address and the tag, so that a program can tell its own
+    /// reply from another program's. `tag` 0 is the manual's two-byte request.
+    RegisterRead { address: u8, tag: u16 },
     /// 0x005: `01`.
     ResetOdometry,
     /// 0x006: `01`.
@@ -90,7 +92,11 @@ impl Command {
             },
             id::REGISTER_READ => match (first, rest) {
                 (REGISTER_VALUE | REGISTER_ERROR, _) => return Ok(None),
-                (REGISTER_READ_REQUEST, &[address, ..]) => Command::RegisterRead { address },
+                (REGISTER_READ_REQUEST, &[address, ref tag @ ..]) => Command::RegisterRead {
+                    address,
+                    // A tag needs both bytes; a lone third byte is extra, as before.
+                    tag: be_u16(tag).unwrap_or(0),
+                },
                 (REGISTER_READ_REQUEST, []) => return Err(FrameError::WrongLength),
                 _ => return Err(FrameError::UnknownSubcommand),
             },
@@ -122,8 +128,15 @@ impl Command {
                 let [msb, lsb] = value.to_be_bytes();
                 RawFrame::from_array(id::REGISTER_WRITE, [address, msb, lsb])
             }
-            Command::RegisterRead { address } => {
+            Command::RegisterRead { address, tag: 0 } => {
                 RawFrame::from_array(id::REGISTER_READ, [REGISTER_READ_REQUEST, address])
+            }
+            Command::RegisterRead { address, tag } => {
+                let [tag_msb, tag_lsb] = tag.to_be_bytes();
+                RawFrame::from_array(
+                    id::REGISTER_READ,
+                    [REGISTER_READ_REQUEST, address, tag_msb, tag_lsb],
+                )
             }
             Command::ResetOdometry => RawFrame::from_array(id::RESET_ODOMETRY, [REQUEST]),
             Command::Heartbeat => RawFrame::from_array(id::HEARTBEAT, [REQUEST]),

@@ -10,7 +10,7 @@ mod status;
 
 pub use command::Command;
 pub use rejection::Rejection;
-pub use report::Report;
+pub use report::{ReadEcho, Report};
 pub use status::{ControlSource, Faults, Mode, Status, StatusFlags};
 
 use core::fmt;

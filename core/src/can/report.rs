@@ -4,6 +4,15 @@
 use super::command::{REGISTER_ERROR, REGISTER_READ_REQUEST, REGISTER_VALUE};
 use super::{FrameError, MAX_DATA_LEN, RawFrame, Status, id};
 
+/// Which read a register reply answers (ext, after the manual's bytes): the address
+/// asked for and the tag the request carried (0 for the manual's two-byte request).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ReadEcho {
+    pub address: u8,
+    pub tag: u16,
+}
+
 /// One message to the robot PC.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -16,11 +25,18 @@ pub enum Report {
     Battery { percent: u8, voltage_mv: u16 },
     /// 0x0EA: the producer clamps negative weights to 0.
     Weight { grams: u16 },
-    /// 0x004 `00 MSB LSB`: reply to a register read.
-    RegisterValue { value: u16 },
-    /// 0x004 `FF addr reason` (ext): the read was refused; `reason` is the register
-    /// module's rejection code.
-    RegisterReadError { address: u8, reason: u8 },
+    /// 0x004 `00 MSB LSB addr tagMSB tagLSB`: reply to a register read. Bytes 0–2 are
+    /// the manual's; bytes 3–5 (ext) say which read it answers. `echo` is `None` for a
+    /// three-byte reply (firmware before the extension), which cannot be matched.
+    RegisterValue { value: u16, echo: Option<ReadEcho> },
+    /// 0x004 `FF addr reason tagMSB tagLSB` (ext): the read was refused; `reason` is the
+    /// register module's rejection code, `tag` the request's (`None` for a three-byte
+    /// refusal from firmware before the tag).
+    RegisterReadError {
+        address: u8,
+        reason: u8,
+        tag: Option<u16>,
+    },
     /// 0x0EE (ext).
     Status(Status),
 }
@@ -75,8 +91,25 @@ impl Report {
                 [REGISTER_READ_REQUEST, ..] => return Ok(None),
                 [REGISTER_VALUE, msb, lsb] => Report::RegisterValue {
                     value: u16::from_be_bytes([msb, lsb]),
+                    echo: None,
                 },
-                [REGISTER_ERROR, address, reason] => Report::RegisterReadError { address, reason },
+                [REGISTER_VALUE, msb, lsb, address, tag_msb, tag_lsb] => Report::RegisterValue {
+                    value: u16::from_be_bytes([msb, lsb]),
+                    echo: Some(ReadEcho {
+                        address,
+                        tag: u16::from_be_bytes([tag_msb, tag_lsb]),
+                    }),
+                },
+                [REGISTER_ERROR, address, reason] => Report::RegisterReadError {
+                    address,
+                    reason,
+                    tag: None,
+                },
+                [REGISTER_ERROR, address, reason, tag_msb, tag_lsb] => Report::RegisterReadError {
+                    address,
+                    reason,
+                    tag: Some(u16::from_be_bytes([tag_msb, tag_lsb])),
+                },
                 [] | [REGISTER_VALUE | REGISTER_ERROR, ..] => {
                     return Err(FrameError::WrongLength);
                 }
@@ -111,12 +144,36 @@ impl Report {
                 RawFrame::from_array(id::BATTERY, [percent, v0, v1])
             }
             Report::Weight { grams } => RawFrame::from_array(id::WEIGHT, grams.to_le_bytes()),
-            Report::RegisterValue { value } => {
+            Report::RegisterValue { value, echo: None } => {
                 let [msb, lsb] = value.to_be_bytes();
                 RawFrame::from_array(id::REGISTER_READ, [REGISTER_VALUE, msb, lsb])
             }
-            Report::RegisterReadError { address, reason } => {
-                RawFrame::from_array(id::REGISTER_READ, [REGISTER_ERROR, address, reason])
+            Report::RegisterValue {
+                value,
+                echo: Some(ReadEcho { address, tag }),
+            } => {
+                let [msb, lsb] = value.to_be_bytes();
+                let [tag_msb, tag_lsb] = tag.to_be_bytes();
+                RawFrame::from_array(
+                    id::REGISTER_READ,
+                    [REGISTER_VALUE, msb, lsb, address, tag_msb, tag_lsb],
+                )
+            }
+            Report::RegisterReadError {
+                address,
+                reason,
+                tag: None,
+            } => RawFrame::from_array(id::REGISTER_READ, [REGISTER_ERROR, address, reason]),
+            Report::RegisterReadError {
+                address,
+                reason,
+                tag: Some(tag),
+            } => {
+                let [tag_msb, tag_lsb] = tag.to_be_bytes();
+                RawFrame::from_array(
+                    id::REGISTER_READ,
+                    [REGISTER_ERROR, address, reason, tag_msb, tag_lsb],
+                )
             }
             Report::Status(status) => RawFrame::from_array(id::STATUS, status.to_bytes()),
         }

@@ -1,5 +1,5 @@
 """A ROS 2 peer of base-ros2 on Cyclone DDS (the DDS behind rmw_cyclonedds), for the
-tests in ros2/tests/dds.rs: it publishes /cmd_vel and /reset_odometry and reads /odom,
+tests in ros2/tests/dds.rs: it publishes /cmd_vel and reads /odom,
 /tf, /battery_state and /diagnostics with ROS 2's type and topic names on the wire.
 
     python3 ros_peer.py scenarios   # the end-to-end checks; prints PASS lines
@@ -23,7 +23,7 @@ from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
 from ros_types import (
-    BatteryState, DiagnosticArray, Empty, Header, Odometry, TFMessage, Twist, TwistStamped,
+    BatteryState, DiagnosticArray, Header, Odometry, TFMessage, Twist, TwistStamped,
     Vector3, yaw)
 
 # ROS 2's default QoS: reliable, volatile, keep the last 10.
@@ -49,7 +49,6 @@ class Peer:
         self.stamped = stamped
         self.cmd_vel = DataWriter(
             p, Topic(p, "rt/cmd_vel", TwistStamped if stamped else Twist), qos=QOS)
-        self.reset = DataWriter(p, Topic(p, "rt/reset_odometry", Empty), qos=QOS)
         self.types = {"odom": Odometry, "tf": TFMessage, "battery": BatteryState,
                       "diagnostics": DiagnosticArray}
         topics = {"odom": "rt/odom", "tf": "rt/tf", "battery": "rt/battery_state",
@@ -109,14 +108,10 @@ def scenarios():
     check(first.header.frame_id == "odom" and first.child_frame_id == "base_link",
           f"/odom frames are odom -> base_link (got {first.header.frame_id!r} -> "
           f"{first.child_frame_id!r})")
-    # Start from zero, whatever an earlier run left.
-    peer.wait(0.5)
-    for _ in range(3):
-        peer.reset.write(Empty())
-    peer.wait_for(lambda: abs(peer.odom().pose.pose.position.x) < 1e-3
-                  and abs(yaw(peer.odom().pose.pose.orientation)) < 1e-3,
-                  5, "/reset_odometry brings /odom back to zero")
-    print("PASS /reset_odometry brings /odom back to zero", flush=True)
+    # A fresh simulator starts at zero (the reset is a service, tested with rclpy in
+    # ros2/tests/rclpy.rs).
+    check(abs(first.pose.pose.position.x) < 1e-3 and abs(yaw(first.pose.pose.orientation)) < 1e-3,
+          "/odom starts at zero")
 
     # Forward, 0.3 m/s for 2 s.
     peer.drive(0.3, 0.0, 2.0)

@@ -22,11 +22,6 @@ class Header(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
 
 
 @dataclass
-class Empty(IdlStruct, typename="std_msgs::msg::dds_::Empty_"):
-    structure_needs_at_least_one_member: uint8 = 0
-
-
-@dataclass
 class Vector3(IdlStruct, typename="geometry_msgs::msg::dds_::Vector3_"):
     x: float64 = 0.0
     y: float64 = 0.0
