@@ -54,3 +54,4 @@ pub mod remote;
 pub mod scale;
 pub mod supervisor;
 pub mod time;
+pub mod update;
