@@ -107,13 +107,14 @@ async fn read_register(pc: &Pc, reg: Reg) -> Option<u16> {
     let before = pc.reports(id::REGISTER_READ).len();
     pc.command(Command::RegisterRead {
         address: reg.address(),
+        tag: 0,
     });
     wait_ms(50).await;
     pc.reports(id::REGISTER_READ)
         .into_iter()
         .skip(before)
         .find_map(|(_, report)| match report {
-            Report::RegisterValue { value } => Some(value),
+            Report::RegisterValue { value, .. } => Some(value),
             _ => None,
         })
 }
