@@ -19,17 +19,17 @@
 //!   │            CheckingGroup ─────────────────────────────┘
 //!   │                  │ the group answers: DrivesReady
 //!   │                  ▼
-//!   │   ┌───────▶ cycle start ── S-ON or S-OFF due ──▶ Exciting(left, right)
-//!   │   │              │                                    │ done
-//!   │   │              ▼                                    │
-//!   │   │         Exchanging (one 17h) ◀────────────────────┘
-//!   │   │              │ answered, or fewer than N failed cycles in a row
-//!   │   │              ▼
-//!   │   └──────── CycleWait: the next cycle, or a new demand at once
+//!   │   ┌───────▶ CycleWait ── S-ON or S-OFF due ──▶ Exciting(left, right)
+//!   │   │   ▲  │  │                                     │ done, or failed
+//!   │   │   │  │  └── a command the drives do not have ──▶ Writing (one 10h)
+//!   │   │   │  │                                          │ done, or failed
+//!   │   │   │  └── the read's moment came ──▶ Reading (one 03h)
+//!   │   │   │                                     │ answered, or failed
+//!   │   └───┴─────────────────────────────────────┘ (fewer than N failed in a row)
 //!   │
-//!   ├── a setup request, at cycle start
+//!   ├── a setup request, in CycleWait
 //!   │
-//!   │   N failed cycles in a row (a failed S-ON or S-OFF counts as one):
+//!   │   N failed reads, or N failed writes (S-ON and S-OFF included), in a row:
 //!   │   Holding(Escalation) ──▶ Probing(left, right) ──▶ Holding(UntilSetupRequested)
 //!   │                                                         │        ▲
 //!   │                                                         ▼        │ poll_interval
@@ -46,12 +46,19 @@
 //! - The first request after boot is such a hold: a controller that restarts while the
 //!   base drives stops the wheels at once, before and during the drives' power-up wait,
 //!   whichever drive answers.
-//! - Only `Exchanging` sends a non-zero speed, and only while excited and after
+//! - Only `Writing` sends a non-zero speed, and only while excited and after
 //!   `excite_settle_ms` has passed since S-ON.
-//! - N = `failures_before_loss` failed cycles in a row (the group silent, a member
-//!   silent or reset, or the group frame alone failing while each drive answers
-//!   unicast) end the cycle: zero goes out by unicast at once, then each drive is
-//!   probed and the lost ones are reported ([`Input::DriveSilent`]; both when both
+//! - The cycle splits the line's work: the feedback read (FC 03h to the group: both
+//!   positions, speeds and alarms) goes out once per `loop_end_delay` on a fixed
+//!   schedule that commands never move, and a command (FC 10h to the group: both
+//!   wheels' speed, rates and trigger) goes out at the next free moment whenever the
+//!   controller wants something the drives do not have yet. A newer demand replaces
+//!   one that was not sent; one that was acknowledged is not sent again.
+//! - N = `failures_before_loss` failed reads, or failed writes, in a row (the group
+//!   silent, a member silent or reset, or the group frames alone failing while each
+//!   drive answers unicast) end the cycle (a failed write is tried again after the
+//!   next read, so it never starves the feedback): zero goes out by unicast at once,
+//!   then each drive is probed and the lost ones are reported ([`Input::DriveSilent`]; both when both
 //!   answer alone, because the commands cannot reach the wheels).
 //! - [`Input::DrivesReady`] comes only after boot or a setup request (the controller's
 //!   contract): drives that come back unasked stay held until the controller asks.
@@ -84,6 +91,10 @@ pub struct DriveDemand {
     pub cycle_ms: u16,
     /// `estop_decel`, (r/min)/s: how a held drive brakes to zero.
     pub stop_decel: u32,
+    /// When the controller sends its next position frame: the link times its feedback
+    /// read half a cycle before each one, so that every frame carries exactly one
+    /// fresh read whatever the commands in between do. `None`: any phase.
+    pub feedback_due_at: Option<Timestamp>,
 }
 
 impl DriveDemand {
@@ -98,6 +109,7 @@ impl DriveDemand {
             setup_requests: 0,
             cycle_ms,
             stop_decel,
+            feedback_due_at: None,
         }
     }
 }
@@ -209,16 +221,40 @@ pub struct HoldRound {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Cycle {
-    /// When the next cycle frame is due.
-    pub next_at: Timestamp,
-    /// Failed cycles in a row.
-    pub failures: u8,
+    /// When the next feedback read is due. It advances by whole periods from the read
+    /// before, whatever the commands in between do.
+    pub read_at: Timestamp,
+    /// Failed feedback reads in a row.
+    pub read_failures: u8,
+    /// Failed writes (command, S-ON or S-OFF) in a row.
+    pub write_failures: u8,
+    /// A write went out while the read was due: the read goes next, so commands at
+    /// any rate delay it by one write at most.
+    pub read_deferred: bool,
+    /// A write that failed is tried again only from this moment on, so a failing
+    /// write never starves the feedback read.
+    pub write_retry_at: Timestamp,
     /// No speed but zero before this moment: the drives settle after S-ON.
     pub settled_at: Timestamp,
-    /// The last exchange sent zero instead of the demanded speed, for the settle.
-    pub held_for_settle: bool,
+    /// The command both drives acknowledged last; `None` before the first.
+    pub written: Option<WheelCommand>,
     /// The last alarm code per wheel, so each alarm is reported once.
     pub alarms: [u32; 2],
+}
+
+impl Cycle {
+    fn start(now: Timestamp) -> Self {
+        Self {
+            read_at: now,
+            read_failures: 0,
+            write_failures: 0,
+            read_deferred: false,
+            write_retry_at: now,
+            settled_at: now,
+            written: None,
+            alarms: [0; 2],
+        }
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -242,9 +278,11 @@ pub enum State {
         excite: bool,
         cycle: Cycle,
     },
-    /// The cycle's 17h transaction is out.
-    Exchanging { cycle: Cycle },
-    /// Until the next cycle frame is due, or a new demand comes.
+    /// The command write (FC 10h to the group) is out.
+    Writing { cycle: Cycle, command: WheelCommand },
+    /// The feedback read (FC 03h to the group) is out.
+    Reading { cycle: Cycle },
+    /// Until the next read is due, or a new demand comes.
     CycleWait { wake_at: Timestamp, cycle: Cycle },
     /// After escalation: the share control block of one drive is being read.
     Probing { wheel: Wheel, lost: bool },
@@ -303,15 +341,16 @@ impl DriveLink {
                         silent_rounds,
                         ..
                     } => self.begin_hold(hold, silent_rounds, settings, &mut effects),
-                    // A new demand goes out at once, not at the next cycle.
+                    // A new command goes out at once; the read keeps its schedule.
                     State::CycleWait { cycle, .. } => {
-                        self.begin_cycle(now, cycle, settings, &mut effects)
+                        self.next_in_cycle(now, cycle, settings, &mut effects)
                     }
                     State::Holding { .. }
                     | State::SettingUp { .. }
                     | State::CheckingGroup
                     | State::Exciting { .. }
-                    | State::Exchanging { .. }
+                    | State::Writing { .. }
+                    | State::Reading { .. }
                     | State::Probing { .. } => {}
                 }
             }
@@ -324,7 +363,7 @@ impl DriveLink {
                 Event::Timer,
             ) => self.begin_hold(hold, silent_rounds, settings, &mut effects),
             (State::CycleWait { cycle, .. }, Event::Timer) => {
-                self.begin_cycle(now, cycle, settings, &mut effects)
+                self.next_in_cycle(now, cycle, settings, &mut effects)
             }
             (State::Holding { hold, round }, Event::Reply(reply)) => {
                 self.on_hold_reply(now, hold, round, reply, settings, &mut effects)
@@ -343,8 +382,11 @@ impl DriveLink {
                 },
                 Event::Reply(reply),
             ) => self.on_excite_reply(now, wheel, excite, cycle, reply, settings, &mut effects),
-            (State::Exchanging { cycle }, Event::Reply(reply)) => {
-                self.on_exchange(now, cycle, reply, settings, &mut effects)
+            (State::Writing { cycle, command }, Event::Reply(reply)) => {
+                self.on_command_written(now, cycle, command, reply, settings, &mut effects)
+            }
+            (State::Reading { cycle }, Event::Reply(reply)) => {
+                self.on_feedback(now, cycle, reply, settings, &mut effects)
             }
             (State::Probing { wheel, lost }, Event::Reply(reply)) => {
                 self.on_probe(wheel, lost, reply, settings, &mut effects)
@@ -359,7 +401,8 @@ impl DriveLink {
                 | State::SettingUp { .. }
                 | State::CheckingGroup
                 | State::Exciting { .. }
-                | State::Exchanging { .. }
+                | State::Writing { .. }
+                | State::Reading { .. }
                 | State::Probing { .. },
                 Event::Timer,
             ) => {}
@@ -673,31 +716,60 @@ impl DriveLink {
         info!("drives set up");
         self.excited = false;
         report(effects, Input::DrivesReady);
-        let cycle = Cycle {
-            next_at: now,
-            failures: 0,
-            settled_at: now,
-            held_for_settle: false,
-            alarms: [0; 2],
-        };
-        self.begin_cycle(now, cycle, settings, effects);
+        self.next_in_cycle(now, Cycle::start(now), settings, effects);
     }
 
-    /// One cycle: a setup request ends it; S-ON changes go first, then the exchange.
-    fn begin_cycle(
+    /// What the running cycle does next: a setup request ends it; otherwise a write
+    /// that is due (S-ON or S-OFF first, then a command the drives do not have yet) goes
+    /// out at once, then the feedback read once its moment came; else it waits.
+    fn next_in_cycle(
         &mut self,
         now: Timestamp,
-        cycle: Cycle,
+        mut cycle: Cycle,
         settings: &DriveSettings,
         effects: &mut Effects,
     ) {
         if self.setup_requested() {
             return self.begin_hold(Hold::ForSetup, [0; 2], settings, effects);
         }
-        if self.demand.excite != self.excited {
+        let read_due = now >= cycle.read_at;
+        // A due read waits for one write at most; after a failed write it goes first,
+        // so a line that fails long frames still brings the feedback and a failing
+        // write is retried once per period.
+        let read_first = read_due && (cycle.read_deferred || cycle.write_failures > 0);
+        let may_write = now >= cycle.write_retry_at && !read_first;
+        cycle.read_deferred |= read_due;
+        if may_write && self.demand.excite != self.excited {
             return self.send_excite(Wheel::Left, self.demand.excite, cycle, settings, effects);
         }
-        self.send_exchange(now, cycle, settings, effects);
+        let command = self.command_now(now, &cycle);
+        let write_pending = cycle.written != Some(command);
+        if may_write && write_pending {
+            return self.send_command(cycle, command, settings, effects);
+        }
+        if read_due {
+            return self.send_read(cycle, settings, effects);
+        }
+        let mut wake_at = cycle.read_at;
+        if write_pending || self.demand.excite != self.excited {
+            wake_at = wake_at.min(cycle.write_retry_at);
+        }
+        // A speed held back for the brake release goes out as soon as it may.
+        if self.excited && now < cycle.settled_at && self.demand.wheels.rpm != MotorRpm::ZERO {
+            wake_at = wake_at.min(cycle.settled_at);
+        }
+        self.state = State::CycleWait { wake_at, cycle };
+        effects.next = Some(Next::WaitUntil(wake_at));
+    }
+
+    /// The controller's command as the drives may have it now: zero while they are not
+    /// excited or still settle after S-ON.
+    fn command_now(&self, now: Timestamp, cycle: &Cycle) -> WheelCommand {
+        let mut command = self.demand.wheels;
+        if !(self.excited && now >= cycle.settled_at) {
+            command.rpm = MotorRpm::ZERO;
+        }
+        command
     }
 
     fn send_excite(
@@ -733,54 +805,120 @@ impl DriveLink {
             write_echo(bytes, slave(wheel, settings), reg::DRIVER_INPUT_COMMAND, 1).is_ok()
         });
         if !acknowledged {
-            return self.cycle_failed(now, cycle, settings, effects);
+            return self.write_failed(now, cycle, settings, effects);
         }
         if wheel == Wheel::Left {
             return self.send_excite(Wheel::Right, excite, cycle, settings, effects);
         }
         self.excited = excite;
+        cycle.write_failures = 0;
         if excite {
             cycle.settled_at = now.plus_millis(u64::from(settings.excite_settle_ms));
         }
-        self.send_exchange(now, cycle, settings, effects);
+        self.next_in_cycle(now, cycle, settings, effects);
     }
 
-    /// One 17h transaction that writes both wheels' command and reads both positions,
-    /// speeds and alarms.
-    fn send_exchange(
+    /// The command write: both wheels' speed and rates, and the trigger, in one FC 10h
+    /// to the group, short so that it never waits long behind anything.
+    fn send_command(
         &mut self,
-        now: Timestamp,
-        mut cycle: Cycle,
+        cycle: Cycle,
+        command: WheelCommand,
         settings: &DriveSettings,
         effects: &mut Effects,
     ) {
-        let command = self.demand.wheels;
-        let rpm = if self.excited && now >= cycle.settled_at {
-            command.rpm
-        } else {
-            MotorRpm::ZERO
-        };
-        cycle.held_for_settle = self.excited && rpm != command.rpm;
         let unit = settings.accel_unit;
         let member = |speed: i32, accel: u32| {
             let accel = unit.field(accel);
             // Signed speeds go on the wire as two's complement.
             [settings.operation_type, speed as u32, accel, accel, 1]
         };
-        let left = member(rpm.left, command.left_accel);
-        let right = member(rpm.right, command.right_accel);
-        let frame = modbus::share_read_write(
-            settings.share_group,
-            0,
-            reg::SHARE_READ_LIST.len() as u16,
-            0,
-            &[&left, &right],
-        );
-        self.state = State::Exchanging { cycle };
+        let left = member(command.rpm.left, command.left_accel);
+        let right = member(command.rpm.right, command.right_accel);
+        let frame = modbus::share_write(settings.share_group, 0, &[&left, &right]);
+        self.state = State::Writing { cycle, command };
         effects.next = Some(Next::Send(Request::new(frame, Target::Share)));
     }
 
-    fn on_exchange(
+    #[allow(clippy::too_many_arguments)]
+    fn on_command_written(
+        &mut self,
+        now: Timestamp,
+        mut cycle: Cycle,
+        command: WheelCommand,
+        reply: Result<&[u8], TransferError>,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        let registers = (2 * 2 * reg::SHARE_WRITE_LIST.len()) as u16;
+        let acknowledged = reply.is_ok_and(|bytes| {
+            modbus::parse_write_echo(bytes, settings.share_group, 0, registers).is_ok()
+        });
+        if !acknowledged {
+            return self.write_failed(now, cycle, settings, effects);
+        }
+        cycle.written = Some(command);
+        cycle.write_failures = 0;
+        self.next_in_cycle(now, cycle, settings, effects);
+    }
+
+    /// A write that did not reach both drives is counted and tried again after the
+    /// next read; N in a row end the cycle.
+    fn write_failed(
+        &mut self,
+        now: Timestamp,
+        mut cycle: Cycle,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        report(effects, Input::ModbusError);
+        cycle.write_failures = cycle.write_failures.saturating_add(1);
+        if cycle.write_failures >= settings.failures_before_loss {
+            return self.escalate(settings, effects);
+        }
+        cycle.write_retry_at = cycle.read_at.max(now);
+        self.next_in_cycle(now, cycle, settings, effects);
+    }
+
+    /// The read after the one due at `read_at`: whole periods on, or, when the
+    /// controller says when its position frames go out, half a period before the next
+    /// one (moved by at most half a period at a time, so never two reads within half a
+    /// period); after a stall, at once.
+    fn next_read_at(
+        &self,
+        now: Timestamp,
+        read_at: Timestamp,
+        settings: &DriveSettings,
+    ) -> Timestamp {
+        let period = u64::from(cycle_period_ms(self.demand.cycle_ms, settings));
+        let aligned = self
+            .demand
+            .feedback_due_at
+            .filter(|_| period == u64::from(self.demand.cycle_ms))
+            .map(|due| {
+                let half = period / 2;
+                let earliest = read_at.as_millis() + half;
+                // The reads' phase: half a period before each frame.
+                let phase = (due.as_millis() + period - half) % period;
+                let offset = (phase + period - earliest % period) % period;
+                Timestamp::from_millis(earliest + offset)
+            });
+        aligned.unwrap_or(read_at.plus_millis(period)).max(now)
+    }
+
+    /// The feedback read: positions, speeds and alarms of both drives in one FC 03h.
+    fn send_read(&mut self, cycle: Cycle, settings: &DriveSettings, effects: &mut Effects) {
+        let frame = modbus::share_read(
+            settings.share_group,
+            0,
+            reg::SHARE_READ_LIST.len() as u16,
+            2,
+        );
+        self.state = State::Reading { cycle };
+        effects.next = Some(Next::Send(Request::new(frame, Target::Share)));
+    }
+
+    fn on_feedback(
         &mut self,
         now: Timestamp,
         mut cycle: Cycle,
@@ -788,18 +926,25 @@ impl DriveLink {
         settings: &DriveSettings,
         effects: &mut Effects,
     ) {
+        cycle.read_at = self.next_read_at(now, cycle.read_at, settings);
+        cycle.read_deferred = false;
         let share = reply.ok().and_then(|bytes| {
             modbus::parse_share_reply(
                 bytes,
                 settings.share_group,
-                modbus::READ_WRITE_MULTIPLE,
+                modbus::READ_HOLDING,
                 2,
                 reg::SHARE_READ_LIST.len(),
             )
             .ok()
         });
         let Some(share) = share else {
-            return self.cycle_failed(now, cycle, settings, effects);
+            report(effects, Input::ModbusError);
+            cycle.read_failures = cycle.read_failures.saturating_add(1);
+            if cycle.read_failures >= settings.failures_before_loss {
+                return self.escalate(settings, effects);
+            }
+            return self.next_in_cycle(now, cycle, settings, effects);
         };
         let (left, right) = (share.member(0), share.member(1));
         report(
@@ -831,44 +976,14 @@ impl DriveLink {
             }
             cycle.alarms[index] = code;
         }
-        cycle.failures = 0;
-        self.wait_for_next_cycle(now, cycle, settings, effects);
+        cycle.read_failures = 0;
+        self.next_in_cycle(now, cycle, settings, effects);
     }
 
-    /// A cycle whose frames did not reach both drives is counted; N in a row end it.
-    fn cycle_failed(
-        &mut self,
-        now: Timestamp,
-        mut cycle: Cycle,
-        settings: &DriveSettings,
-        effects: &mut Effects,
-    ) {
-        report(effects, Input::ModbusError);
-        cycle.failures = cycle.failures.saturating_add(1);
-        if cycle.failures >= settings.failures_before_loss {
-            // No command reached the drives for N cycles: zero by unicast first, then
-            // find out why.
-            return self.begin_hold(Hold::Escalation, [0; 2], settings, effects);
-        }
-        self.wait_for_next_cycle(now, cycle, settings, effects);
-    }
-
-    fn wait_for_next_cycle(
-        &mut self,
-        now: Timestamp,
-        mut cycle: Cycle,
-        settings: &DriveSettings,
-        effects: &mut Effects,
-    ) {
-        let period = u64::from(cycle_period_ms(self.demand.cycle_ms, settings));
-        cycle.next_at = cycle.next_at.plus_millis(period).max(now);
-        let mut wake_at = cycle.next_at;
-        // A speed held back for the brake release goes out as soon as it may.
-        if self.excited && cycle.held_for_settle {
-            wake_at = wake_at.min(cycle.settled_at.max(now));
-        }
-        self.state = State::CycleWait { wake_at, cycle };
-        effects.next = Some(Next::WaitUntil(wake_at));
+    /// N failed reads or writes in a row: no command reached the drives or no feedback
+    /// came for that long. Zero by unicast first, then find out why.
+    fn escalate(&mut self, settings: &DriveSettings, effects: &mut Effects) {
+        self.begin_hold(Hold::Escalation, [0; 2], settings, effects);
     }
 
     fn send_probe(
