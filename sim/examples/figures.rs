@@ -48,6 +48,17 @@ fn main() {
         &velocity,
     );
     report_latency("e-stop edge → zero speed on the wire", &estop);
+    let (velocity, estop) = measure_latencies(&robot_at_baud(FAST_BAUD));
+    report_latency(
+        "at 230400 baud: CAN velocity frame → both drives have the new speed",
+        &velocity,
+    );
+    report_latency(
+        "at 230400 baud: e-stop edge → zero speed on the wire",
+        &estop,
+    );
+    report_command_limit(DrivesConfig::commissioned().baud);
+    report_command_limit(FAST_BAUD);
 
     println!();
     report_fail_safe();
@@ -67,7 +78,7 @@ fn main() {
 fn robot_at_baud(baud: u32) -> VirtualRobot {
     let mut robot = VirtualRobot::with_drives(DrivesConfig {
         baud,
-        ..DrivesConfig::default()
+        ..DrivesConfig::commissioned()
     });
     robot.settings.drives.line.baud = baud;
     robot
@@ -93,9 +104,9 @@ fn measure_latencies(robot: &VirtualRobot) -> (Vec<Duration>, Vec<Duration>) {
         }
 
         let mut estop = Vec::new();
-        for trial in 0..TRIALS / 2 {
+        for trial in 0..TRIALS {
             pc.drive(300, 0, 300).await;
-            Timer::after(Duration::from_micros(trial * 2_000)).await;
+            Timer::after(Duration::from_micros(trial * 1_000)).await;
             let pressed = Instant::now();
             robot.press_estop();
             wait_ms(60).await;
@@ -220,6 +231,21 @@ fn report_fail_safe() {
         "control latency while a 400 ms flash erase is pending: max {:.0} ms (without register writes: max {:.0} ms; the time between two control cycles while driving)",
         ms(control_gap(true)),
         ms(control_gap(false))
+    );
+}
+
+/// The wire's limit for a new command: its write (FC 10h to the share group, both
+/// drives' items) on the line, and the C3.5 after which the drives act on it.
+fn report_command_limit(baud: u32) {
+    let items = base_core::drives::reg::SHARE_WRITE_LIST.len();
+    // Address, function, start, count, byte count; 4 bytes per item and drive; CRC.
+    let bytes = 7 + 2 * 4 * items + 2;
+    let char_ms = virtual_robot::runtime::char_time(baud, 11).as_micros() as f64 / 1000.0;
+    let on_wire = bytes as f64 * char_ms;
+    println!(
+        "limit at {baud} baud: the command write ({bytes} bytes) takes {on_wire:.1} ms on the \
+         wire, the drives apply it {:.1} ms after its first byte",
+        on_wire + FRAME_GAP_CHARS * char_ms
     );
 }
 

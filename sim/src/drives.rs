@@ -157,8 +157,8 @@ pub struct DrivesConfig {
 }
 
 impl Default for DrivesConfig {
-    /// 115200 8E1, 3.0 ms transmission waiting time, 1 s boot, trailer sent, slave 1
-    /// left, slave 2 right and mirrored (spec §6).
+    /// The drives as shipped: 115200 8E1, 3.0 ms transmission waiting time, 1 s boot,
+    /// trailer sent, slave 1 left, slave 2 right and mirrored (spec §6).
     fn default() -> Self {
         Self {
             baud: 115_200,
@@ -184,6 +184,15 @@ impl Default for DrivesConfig {
 }
 
 impl DrivesConfig {
+    /// The drives as docs/drives.md has them commissioned on the robot: the factory
+    /// settings with the transmission waiting time (0x138E) lowered to 0.5 ms.
+    pub fn commissioned() -> Self {
+        Self {
+            transmission_wait: Duration::from_micros(500),
+            ..Self::default()
+        }
+    }
+
     /// Time one character takes on the line.
     pub fn char_time(&self) -> Duration {
         char_time(self.baud, self.bits_per_char)

@@ -72,10 +72,11 @@ impl Default for VirtualRobot {
 }
 
 impl VirtualRobot {
-    /// A robot on the defaults: drives at 115200 8E1 powered on now, a blank flash, all
-    /// inputs released, a 24.5 V battery and an empty scale.
+    /// A robot on the defaults: drives commissioned as docs/drives.md says (115200 8E1,
+    /// 0.5 ms transmission waiting time) powered on now, a blank flash, all inputs
+    /// released, a 24.5 V battery and an empty scale.
     pub fn new() -> Self {
-        Self::with_drives(DrivesConfig::default())
+        Self::with_drives(DrivesConfig::commissioned())
     }
 
     pub fn with_drives(config: DrivesConfig) -> Self {

@@ -59,7 +59,7 @@ impl Pattern {
 fn robot() -> VirtualRobot {
     VirtualRobot::with_drives(DrivesConfig {
         log_capacity: 100_000,
-        ..DrivesConfig::default()
+        ..DrivesConfig::commissioned()
     })
 }
 
@@ -293,4 +293,76 @@ fn a_speed_alternating_100_and_110_every_20_ms_never_trips_the_drives_timeout() 
             .count();
         assert!(reads >= 18, "{reads} feedback reads in the second after");
     });
+}
+
+/// A robot whose controller and drives both talk at `baud`.
+fn robot_at_baud(baud: u32) -> VirtualRobot {
+    let mut robot = VirtualRobot::with_drives(DrivesConfig {
+        baud,
+        ..DrivesConfig::commissioned()
+    });
+    robot.settings.drives.line.baud = baud;
+    robot
+}
+
+/// The worst latency over events at every phase of the 50 ms cycle (1 ms apart), from
+/// a CAN velocity frame to both drives having the new speed, and from an e-stop edge to
+/// zero on the wire.
+fn worst_latencies(robot: &VirtualRobot) -> (Duration, Duration) {
+    const PHASES: u64 = 50;
+    let applied = || {
+        [1, 2]
+            .map(|slave| robot.drives.drive(slave).last_new_speed_at.expect("speed"))
+            .into_iter()
+            .max()
+            .expect("two drives")
+    };
+    robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        stream(pc, Pattern::Constant, 50, 500).await;
+        let mut velocity = Duration::from_ticks(0);
+        for phase in 0..PHASES {
+            pc.enable();
+            let sent = Instant::now();
+            pc.velocity(if phase % 2 == 0 { 300 } else { 200 }, 0);
+            // 51 ms on: the next frame lands 1 ms later in the drive link's cycle.
+            wait_ms(51).await;
+            velocity = velocity.max(applied() - sent);
+        }
+        let mut estop = Duration::from_ticks(0);
+        for phase in 0..PHASES {
+            stream(pc, Pattern::Constant, 50, 300).await;
+            embassy_time::Timer::after(Duration::from_micros(phase * 1_000)).await;
+            let pressed = Instant::now();
+            robot.press_estop();
+            wait_ms(60).await;
+            estop = estop.max(applied() - pressed);
+            robot.release_estop();
+            wait_ms(100).await;
+            robot.press_button(200).await;
+            wait_ms(800).await;
+        }
+        (velocity, estop)
+    })
+}
+
+/// The goals: a new speed at both drives within 10 ms at 115200 baud; zero on the
+/// wire within 8 ms of the e-stop edge at 230400. At 115200 the e-stop's bound is
+/// 12 ms, not 8: the edge (about 2 ms to sample and debounce) may come as the feedback
+/// read starts, and the half-duplex line must finish it (5.1 ms) before the zero
+/// (4.3 ms to the drives) can go out: 11.4 ms.
+#[test]
+fn worst_case_latencies_stay_within_their_goals() {
+    let (velocity, estop) = worst_latencies(&robot_at_baud(115_200));
+    assert!(
+        velocity <= Duration::from_millis(10),
+        "velocity {velocity:?}"
+    );
+    assert!(estop <= Duration::from_millis(12), "e-stop {estop:?}");
+    let (velocity, estop) = worst_latencies(&robot_at_baud(230_400));
+    assert!(
+        velocity <= Duration::from_millis(10),
+        "velocity {velocity:?}"
+    );
+    assert!(estop <= Duration::from_millis(8), "e-stop {estop:?}");
 }

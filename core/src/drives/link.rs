@@ -831,7 +831,7 @@ impl DriveLink {
         let member = |speed: i32, accel: u32| {
             let accel = unit.field(accel);
             // Signed speeds go on the wire as two's complement.
-            [settings.operation_type, speed as u32, accel, accel, 1]
+            [speed as u32, accel, accel, 1]
         };
         let left = member(command.rpm.left, command.left_accel);
         let right = member(command.rpm.right, command.right_accel);

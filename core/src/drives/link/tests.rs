@@ -191,9 +191,10 @@ impl Bench {
 
     /// A share group reply: each member's items followed by the CRC so far.
     fn share_reply(&self, function: u8) -> std::vec::Vec<u8> {
-        let mut reply = vec![GROUP, function, 2 * (4 * 4 + 2)];
+        let items = reg::SHARE_READ_LIST.len();
+        let mut reply = vec![GROUP, function, 2 * (4 * items as u8 + 2)];
         for member in self.feedback {
-            for value in member {
+            for value in &member[..items] {
                 reply.extend_from_slice(&value.to_be_bytes());
             }
             reply = with_crc(reply);
@@ -250,11 +251,11 @@ fn written_items(request: &Request) -> std::vec::Vec<u32> {
         .collect()
 }
 
-/// The speeds of a command write to the group: member 1's and member 2's second item.
+/// The speeds of a command write to the group: member 1's and member 2's first item.
 fn command_speeds(request: &Request) -> (i32, i32) {
     let items = written_items(request);
     let per_member = reg::SHARE_WRITE_LIST.len();
-    (items[1] as i32, items[per_member + 1] as i32)
+    (items[0] as i32, items[per_member] as i32)
 }
 
 const HOLD_LEFT: [Then; 3] = [
