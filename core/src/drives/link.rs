@@ -30,7 +30,8 @@
 //!   ├── a setup request, in CycleWait
 //!   │
 //!   │   N failed reads, or N failed writes (S-ON and S-OFF included), in a row:
-//!   │   Holding(Escalation) ──▶ Probing(left, right) ──▶ Holding(UntilSetupRequested)
+//!   │   StoppingBlind(zero ×3 [, braking, S-OFF ×3 when the drives' timeout is off],
+//!   │   silent) ──▶ Probing(left, right) ──▶ Holding(UntilSetupRequested)
 //!   │                                                         │        ▲
 //!   │                                                         ▼        │ poll_interval
 //!   └──────────── a setup request ◀─────────────── HoldPause(UntilSetupRequested)
@@ -57,8 +58,10 @@
 //! - N = `failures_before_loss` failed reads, or failed writes, in a row (the group
 //!   silent, a member silent or reset, or the group frames alone failing while each
 //!   drive answers unicast) end the cycle (a failed write is tried again after the
-//!   next read, so it never starves the feedback): zero goes out by unicast at once,
-//!   then each drive is probed and the lost ones are reported ([`Input::DriveSilent`]; both when both
+//!   next read, so it never starves the feedback). Nothing a drive says can be
+//!   trusted then, so the stop needs no reply: zero by broadcast, then silence until
+//!   every drive's communication timeout has surely tripped (with it off: S-OFF by
+//!   broadcast first). Then each drive is probed and the lost ones are reported ([`Input::DriveSilent`]; both when both
 //!   answer alone, because the commands cannot reach the wheels).
 //! - [`Input::DrivesReady`] comes only after boot or a setup request (the controller's
 //!   contract): drives that come back unasked stay held until the controller asks.
@@ -135,7 +138,7 @@ pub struct Request {
 
 impl Request {
     fn new(frame: Frame, target: Target) -> Self {
-        // Every request the link builds has a reply; 0 would only end the read early.
+        // 0: a broadcast, which draws no reply (the master then waits for nothing).
         let expected_len = modbus::expected_reply_len(&frame, target).unwrap_or(0);
         Self {
             frame,
@@ -174,8 +177,6 @@ pub enum Hold {
     /// Boot, a setup request or a failed setup: the drives are set up once the
     /// power-up wait has passed and both answer.
     ForSetup,
-    /// N failed cycles: zero by unicast first, then each drive is probed.
-    Escalation,
     /// After a loss, until the controller asks for a setup.
     UntilSetupRequested,
 }
@@ -189,6 +190,33 @@ pub enum HoldWrite {
     Trigger,
     ServoOff,
 }
+
+/// The blind stop, in order. Broadcasts (address 0) reach every drive that hears
+/// the line and draw no reply, so they act even when no reply gets back.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum BlindStep {
+    /// Zero speed with `stop_decel` and the trigger, in one broadcast; the n-th of
+    /// [`BLIND_REPEATS`].
+    Zero(u8),
+    /// Only with the drives' timeout off: until `stop_decel` had [`STOP_TIME_MS`] to
+    /// stop the wheels.
+    Braking,
+    /// Only with the drives' timeout off: S-OFF by broadcast; the n-th of
+    /// [`BLIND_REPEATS`].
+    ServoOff(u8),
+    /// Nothing on the line, so that every drive's communication timeout trips
+    /// (alarm 85h: de-excited, brake applied) whatever it made of the frames above.
+    Silent,
+}
+
+/// How often each blind broadcast goes out: a frame lost to noise is not the end.
+pub const BLIND_REPEATS: u8 = 3;
+/// The time `estop_decel` is allowed to stop the wheels from `max_motor_vel` (the
+/// registers' rule), before the blind S-OFF.
+pub const STOP_TIME_MS: u64 = 300;
+/// Silence beyond the drives' communication timeout before the link talks again.
+pub const SILENCE_MARGIN_MS: u64 = 100;
 
 /// The setup of one drive, in order (docs/drives.md, What happens on the wire).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -284,7 +312,10 @@ pub enum State {
     Reading { cycle: Cycle },
     /// Until the next read is due, or a new demand comes.
     CycleWait { wake_at: Timestamp, cycle: Cycle },
-    /// After escalation: the share control block of one drive is being read.
+    /// N failed reads or writes: the drives are stopped without needing a reply, then
+    /// the line stays silent until their communication timeout has surely tripped.
+    StoppingBlind { step: BlindStep, since: Timestamp },
+    /// After the blind stop: the share control block of one drive is being read.
     Probing { wheel: Wheel, lost: bool },
 }
 
@@ -351,6 +382,7 @@ impl DriveLink {
                     | State::Exciting { .. }
                     | State::Writing { .. }
                     | State::Reading { .. }
+                    | State::StoppingBlind { .. }
                     | State::Probing { .. } => {}
                 }
             }
@@ -390,6 +422,13 @@ impl DriveLink {
             }
             (State::Probing { wheel, lost }, Event::Reply(reply)) => {
                 self.on_probe(wheel, lost, reply, settings, &mut effects)
+            }
+            // A broadcast draws no reply; its "reply" says the frame is out.
+            (State::StoppingBlind { step, since }, Event::Reply(_)) => {
+                self.on_blind_sent(now, step, since, settings, &mut effects)
+            }
+            (State::StoppingBlind { step, since }, Event::Timer) => {
+                self.on_blind_timer(step, since, settings, &mut effects)
             }
             // The runtime sends a reply only for a request and a timer only for a wait:
             // anything else changes nothing.
@@ -550,7 +589,6 @@ impl DriveLink {
             Hold::ForSetup | Hold::UntilSetupRequested => {
                 self.pause(now, hold, round.silent_rounds, settings, effects)
             }
-            Hold::Escalation => self.send_probe(Wheel::Left, false, settings, effects),
         }
     }
 
@@ -874,7 +912,7 @@ impl DriveLink {
         report(effects, Input::ModbusError);
         cycle.write_failures = cycle.write_failures.saturating_add(1);
         if cycle.write_failures >= settings.failures_before_loss {
-            return self.escalate(settings, effects);
+            return self.escalate(now, settings, effects);
         }
         cycle.write_retry_at = cycle.read_at.max(now);
         self.next_in_cycle(now, cycle, settings, effects);
@@ -942,7 +980,7 @@ impl DriveLink {
             report(effects, Input::ModbusError);
             cycle.read_failures = cycle.read_failures.saturating_add(1);
             if cycle.read_failures >= settings.failures_before_loss {
-                return self.escalate(settings, effects);
+                return self.escalate(now, settings, effects);
             }
             return self.next_in_cycle(now, cycle, settings, effects);
         };
@@ -981,9 +1019,104 @@ impl DriveLink {
     }
 
     /// N failed reads or writes in a row: no command reached the drives or no feedback
-    /// came for that long. Zero by unicast first, then find out why.
-    fn escalate(&mut self, settings: &DriveSettings, effects: &mut Effects) {
-        self.begin_hold(Hold::Escalation, [0; 2], settings, effects);
+    /// came for that long, so nothing the drives say can be trusted. Stop them in a
+    /// way that needs no reply, fall silent, then find out why.
+    fn escalate(&mut self, now: Timestamp, settings: &DriveSettings, effects: &mut Effects) {
+        warn!("drive link lost: blind stop, then silence");
+        self.send_blind(BlindStep::Zero(1), now, settings, effects);
+    }
+
+    fn send_blind(
+        &mut self,
+        step: BlindStep,
+        since: Timestamp,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        const BROADCAST: u8 = 0;
+        let frame = match step {
+            BlindStep::Zero(_) => {
+                let decel = settings.accel_unit.field(self.demand.stop_decel);
+                // Operation type, position, speed 0, rates, torque limit 100 % (the
+                // drives' own default), trigger: the trigger comes last and applies
+                // the rest in the same frame.
+                let fields = [settings.operation_type, 0, 0, decel, decel, 1_000, 1];
+                modbus::write_items(BROADCAST, reg::DDO_OPERATION_TYPE, &fields)
+            }
+            BlindStep::ServoOff(_) => {
+                modbus::write_items(BROADCAST, reg::DRIVER_INPUT_COMMAND, &[0])
+            }
+            BlindStep::Braking | BlindStep::Silent => return,
+        };
+        self.state = State::StoppingBlind { step, since };
+        effects.next = Some(Next::Send(Request::new(frame, Target::Unicast)));
+    }
+
+    fn on_blind_sent(
+        &mut self,
+        now: Timestamp,
+        step: BlindStep,
+        since: Timestamp,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        match step {
+            BlindStep::Zero(sent) if sent < BLIND_REPEATS => {
+                self.send_blind(BlindStep::Zero(sent + 1), since, settings, effects)
+            }
+            // With the drives' timeout on, silence now: it trips in every drive, the
+            // one that executes nothing too, and de-excites it; a drive that took the
+            // zero brakes meanwhile.
+            BlindStep::Zero(_) if comm_timeout_ms(settings) > 0 => {
+                self.fall_silent(now, since, settings, effects)
+            }
+            // Without it only the drives' S-OFF can end the excitation: once the
+            // zero had its time.
+            BlindStep::Zero(_) => {
+                let wake_at = since.plus_millis(STOP_TIME_MS).max(now);
+                self.state = State::StoppingBlind {
+                    step: BlindStep::Braking,
+                    since,
+                };
+                effects.next = Some(Next::WaitUntil(wake_at));
+            }
+            BlindStep::ServoOff(sent) if sent < BLIND_REPEATS => {
+                self.send_blind(BlindStep::ServoOff(sent + 1), since, settings, effects)
+            }
+            BlindStep::ServoOff(_) => self.fall_silent(now, since, settings, effects),
+            BlindStep::Braking | BlindStep::Silent => {}
+        }
+    }
+
+    /// Nothing on the line until the drives' timeout has surely tripped.
+    fn fall_silent(
+        &mut self,
+        now: Timestamp,
+        since: Timestamp,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        self.excited = false;
+        let wake_at = now.plus_millis(comm_timeout_ms(settings) + SILENCE_MARGIN_MS);
+        self.state = State::StoppingBlind {
+            step: BlindStep::Silent,
+            since,
+        };
+        effects.next = Some(Next::WaitUntil(wake_at));
+    }
+
+    fn on_blind_timer(
+        &mut self,
+        step: BlindStep,
+        since: Timestamp,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        match step {
+            BlindStep::Braking => self.send_blind(BlindStep::ServoOff(1), since, settings, effects),
+            BlindStep::Silent => self.send_probe(Wheel::Left, false, settings, effects),
+            BlindStep::Zero(_) | BlindStep::ServoOff(_) => {}
+        }
     }
 
     fn send_probe(
@@ -1085,6 +1218,11 @@ pub fn cycle_period_ms(cycle_ms: u16, settings: &DriveSettings) -> u32 {
         Some(timeout) if timeout > 0 => cycle.min((u32::from(timeout) / 3).max(1)),
         _ => cycle,
     }
+}
+
+/// The drives' communication timeout the link set, ms; 0 when off or left alone.
+fn comm_timeout_ms(settings: &DriveSettings) -> u64 {
+    u64::from(settings.drive_comm_timeout_ms.unwrap_or(0))
 }
 
 /// Oriental alarm codes are one byte (e.g. 84h); the register is 32 bits wide.

@@ -265,6 +265,8 @@ const HOLD_LEFT: [Then; 3] = [
 ];
 const HOLD_RIGHT_ZERO: Then = Send(2, WRITE, reg::DDO_OPERATION_TYPE);
 const COMMAND: Then = Send(GROUP, WRITE, 0);
+const BLIND_ZERO: Then = Send(0, WRITE, reg::DDO_OPERATION_TYPE);
+const BLIND_S_OFF: Then = Send(0, WRITE, reg::DRIVER_INPUT_COMMAND);
 const READ_FEEDBACK: Then = Send(GROUP, READ, 0);
 
 #[test]
@@ -763,8 +765,11 @@ fn failed_reads_below_n_are_counted_and_a_good_one_clears_the_count() {
     ]);
 }
 
+/// Without replies an echo-based hold would never send its trigger, and its valid
+/// frames would keep the drives' own timeout from ever tripping: the blind stop needs
+/// no reply and ends in silence.
 #[test]
-fn the_nth_failed_read_holds_both_drives_by_unicast_at_once() {
+fn the_nth_failed_read_stops_both_drives_blind_then_falls_silent() {
     let mut bench = Bench::cycling();
     bench.step(1_002, Answer);
     bench.run(&[
@@ -772,12 +777,18 @@ fn the_nth_failed_read_holds_both_drives_by_unicast_at_once() {
         (1_050, Timer, READ_FEEDBACK, &[]),
         (1_075, Silent, WaitUntil(1_100), &[Input::ModbusError]),
         (1_100, Timer, READ_FEEDBACK, &[]),
-        (1_125, Silent, HOLD_LEFT[0], &[Input::ModbusError]),
+        (1_125, Garbled, BLIND_ZERO, &[Input::ModbusError]),
+    ]);
+    blind_stop_from(&mut bench, 1_125);
+    // Demands change nothing until the silence is over.
+    bench.run(&[
+        (1_500, Line::Demand(demand(600, true, 0)), CarryOn, &[]),
+        (1_560, Timer, Send(1, READ, reg::SHARE_CONTROL), &[]),
     ]);
 }
 
 #[test]
-fn the_nth_failed_command_write_holds_both_drives_by_unicast_while_the_reads_pass() {
+fn the_nth_failed_command_write_stops_both_drives_blind_while_the_reads_pass() {
     let mut bench = Bench::cycling();
     bench.step(1_002, Answer);
     bench.step(1_004, Answer);
@@ -793,20 +804,13 @@ fn the_nth_failed_command_write_holds_both_drives_by_unicast_while_the_reads_pas
         (1_077, Silent, WaitUntil(1_100), &[Input::ModbusError]),
         (1_100, Timer, READ_FEEDBACK, &[]),
         (1_102, Answer, COMMAND, &[feedback_of(&bench)]),
-        (1_127, Silent, HOLD_LEFT[0], &[Input::ModbusError]),
+        (1_127, Silent, BLIND_ZERO, &[Input::ModbusError]),
     ]);
-    assert_eq!(written_items(bench.request()), [16, 0, 0, 4_500, 4_500]);
-    // Still wanted excited (the supervisor brakes to a stop first): no S-OFF.
-    bench.run(&[
-        (1_136, Answer, HOLD_LEFT[1], &[]),
-        (1_137, Answer, HOLD_RIGHT_ZERO, &[]),
-        (1_138, Answer, Send(2, WRITE, reg::DDO_TRIGGER), &[]),
-        (1_139, Answer, Send(1, READ, reg::SHARE_CONTROL), &[]),
-    ]);
+    blind_stop_from(&mut bench, 1_127);
 }
 
-/// A bench whose cycle failed N times; the escalation's hold round is answered and the
-/// left drive's probe is out.
+/// A bench whose cycle failed N times; after the blind stop and the silence the left
+/// drive's probe is out.
 fn probing() -> Bench {
     let mut bench = Bench::cycling();
     bench.step(1_002, Answer);
@@ -815,11 +819,10 @@ fn probing() -> Bench {
         (1_050, Timer, READ_FEEDBACK, &[]),
         (1_075, Silent, WaitUntil(1_100), &[Input::ModbusError]),
         (1_100, Timer, READ_FEEDBACK, &[]),
-        (1_125, Silent, HOLD_LEFT[0], &[Input::ModbusError]),
+        (1_125, Silent, BLIND_ZERO, &[Input::ModbusError]),
     ]);
-    for _ in 0..6 {
-        bench.step(1_130, Answer);
-    }
+    blind_stop_from(&mut bench, 1_125);
+    bench.run(&[(1_560, Timer, Send(1, READ, reg::SHARE_CONTROL), &[])]);
     assert_eq!(
         bench.link.state(),
         State::Probing {
@@ -828,6 +831,55 @@ fn probing() -> Bench {
         }
     );
     bench
+}
+
+/// The blind stop that starts at `since` with the first zero out: zero three times,
+/// then silence for the drives' timeout (300 ms) and 100 ms more; the wait for it is
+/// out at the end, at `since` + 435.
+fn blind_stop_from(bench: &mut Bench, since: u64) {
+    let fields = [16, 0, 0, 4_500, 4_500, 1_000, 1];
+    assert_eq!(written_items(bench.request()), fields);
+    bench.run(&[
+        (since + 5, Answer, BLIND_ZERO, &[]),
+        (since + 10, Answer, BLIND_ZERO, &[]),
+        (since + 35, Silent, WaitUntil(since + 435), &[]),
+    ]);
+    assert!(!bench.link.excited());
+}
+
+/// With the drives' timeout off, silence stops nothing: after the zero had its time
+/// S-OFF goes out by broadcast too, and only then the line falls silent.
+#[test]
+fn without_the_drives_timeout_the_blind_stop_adds_s_off_by_broadcast() {
+    let settings = DriveSettings {
+        drive_comm_timeout_ms: None,
+        ..SETTINGS
+    };
+    let (mut bench, _) = Bench::boot_at(0, settings);
+    for _ in 0..6 {
+        bench.step(0, Answer);
+    }
+    bench.step(1_000, Timer);
+    bench.set_up(1_000);
+    bench.step(1_002, Answer);
+    bench.run(&[
+        (1_027, Silent, WaitUntil(1_050), &[Input::ModbusError]),
+        (1_050, Timer, READ_FEEDBACK, &[]),
+        (1_075, Silent, WaitUntil(1_100), &[Input::ModbusError]),
+        (1_100, Timer, READ_FEEDBACK, &[]),
+        (1_125, Silent, BLIND_ZERO, &[Input::ModbusError]),
+        (1_130, Answer, BLIND_ZERO, &[]),
+        (1_135, Answer, BLIND_ZERO, &[]),
+        (1_140, Answer, WaitUntil(1_425), &[]),
+        (1_425, Timer, BLIND_S_OFF, &[]),
+    ]);
+    assert_eq!(written_items(bench.request()), [0]);
+    bench.run(&[
+        (1_430, Answer, BLIND_S_OFF, &[]),
+        (1_435, Answer, BLIND_S_OFF, &[]),
+        (1_440, Answer, WaitUntil(1_540), &[]),
+        (1_540, Timer, Send(1, READ, reg::SHARE_CONTROL), &[]),
+    ]);
 }
 
 #[test]
