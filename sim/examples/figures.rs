@@ -130,8 +130,9 @@ fn report_fail_safe() {
     let wheel_mm = |revolutions: f64| revolutions / 10.0 * 2.0 * std::f64::consts::PI * 142.0;
     // The reset falls at ten moments 5 ms apart across one 50 ms control cycle: the
     // run-on depends on what the line carries at that moment.
-    let reset_run_on = |silent: Option<u8>, phase_ms: u64| {
-        let robot = VirtualRobot::new();
+    let reset_run_on_after_boot = |silent: Option<u8>, phase_ms: u64, boot_ms: u64| {
+        let mut robot = VirtualRobot::new();
+        robot.boot_time = Duration::from_millis(boot_ms);
         robot.run(async |pc| {
             wait_ms(BOOT_MS).await;
             pc.drive(500, 0, 2_000).await;
@@ -151,6 +152,8 @@ fn report_fail_safe() {
         }
         run_on
     };
+    let reset_run_on =
+        |silent: Option<u8>, phase_ms: u64| reset_run_on_after_boot(silent, phase_ms, 0);
     let phases = || (0..10).map(|k| k * 5);
     let range = |values: Vec<f64>| {
         let min = values.iter().copied().fold(f64::INFINITY, f64::min);
@@ -168,6 +171,51 @@ fn report_fail_safe() {
         "reset run-on, one drive silent: {max:.0} mm (worst of 10 reset moments; best {min:.0} mm)"
     );
     println!("  (the silent drive itself, stopped by its communication timeout: {silent:.0} mm)");
+    // The same with a chip's boot time: nothing on the line for 300 ms.
+    let (_, max) = range(
+        phases()
+            .map(|phase| reset_run_on_after_boot(None, phase, 300)[0])
+            .collect(),
+    );
+    println!("reset run-on with a 300 ms boot, both drives answering: {max:.0} mm");
+    let runs: Vec<[f64; 2]> = phases()
+        .map(|phase| reset_run_on_after_boot(Some(2), phase, 300))
+        .collect();
+    let (_, max) = range(runs.iter().map(|run| run[0].max(run[1])).collect());
+    println!("reset run-on with a 300 ms boot, one drive silent: {max:.0} mm");
+
+    // The link cannot hear the drives: from 500 mm/s, at five moments of a cycle.
+    let stopped_after = |fault: &dyn Fn(&VirtualRobot), phase_ms: u64| {
+        let robot = VirtualRobot::new();
+        robot.run(async |pc| {
+            wait_ms(BOOT_MS).await;
+            pc.drive(500, 0, 2_000).await;
+            wait_ms(phase_ms).await;
+            let before = [1, 2].map(|slave| robot.drives.drive(slave).forward_revolutions());
+            fault(&robot);
+            pc.drive(500, 0, 3_000).await;
+            [1, 2]
+                .into_iter()
+                .zip(before)
+                .map(|(slave, before)| {
+                    wheel_mm(robot.drives.drive(slave).forward_revolutions() - before).abs()
+                })
+                .fold(0.0_f64, f64::max)
+        })
+    };
+    let worst = |fault: &dyn Fn(&VirtualRobot)| {
+        (0..5)
+            .map(|k| stopped_after(fault, k * 10))
+            .fold(0.0_f64, f64::max)
+    };
+    println!(
+        "replies lost while driving -> both wheels stopped: {:.0} mm",
+        worst(&|robot| robot.drives.lose_replies(true))
+    );
+    println!(
+        "a drive answering exceptions -> both wheels stopped: {:.0} mm",
+        worst(&|robot| robot.drives.set_busy(1, true))
+    );
 
     let robot = VirtualRobot::new();
     let zero_after = robot.run(async |pc| {

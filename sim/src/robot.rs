@@ -63,6 +63,10 @@ pub struct VirtualRobot {
     pub watchdog: SimWatchdog,
     /// Whether the next boot reports a watchdog reset.
     pub reset_by_watchdog: bool,
+    /// From power-on (the start of [`Self::run`]) until the firmware runs, as a chip's
+    /// bootloader and start-up take about 0.3 s. The line is silent meanwhile. Zero by
+    /// default.
+    pub boot_time: Duration,
 }
 
 impl Default for VirtualRobot {
@@ -94,6 +98,7 @@ impl VirtualRobot {
             load_cell: SimLoadCell::new(8_000, 100.0),
             watchdog: SimWatchdog::new(WATCHDOG_TIMEOUT),
             reset_by_watchdog: false,
+            boot_time: Duration::from_ticks(0),
         }
     }
 
@@ -102,13 +107,12 @@ impl VirtualRobot {
     pub fn run<T>(&self, script: impl AsyncFnOnce(&Pc) -> T) -> T {
         let (hardware, pc) = self.boot();
         let channels = Channels::new();
+        let firmware = async {
+            Timer::after(self.boot_time).await;
+            base_runtime::run(hardware, self.settings, &channels).await
+        };
         block_on(async {
-            match select(
-                base_runtime::run(hardware, self.settings, &channels),
-                script(&pc),
-            )
-            .await
-            {
+            match select(firmware, script(&pc)).await {
                 Either::First(never) => never,
                 Either::Second(result) => result,
             }
