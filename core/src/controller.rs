@@ -274,6 +274,12 @@ impl Controller {
         &self.odometry
     }
 
+    /// When the next position frame goes out; the drive link reads the drives half a
+    /// cycle before it, so each frame carries one fresh reading.
+    pub fn position_due_at(&self) -> Timestamp {
+        self.feedback.odometry_due_at()
+    }
+
     /// Handles one input at `now`. Periodic frames that are due go out with whatever
     /// the input caused, so the shell may feed frames and ticks in any mix.
     pub fn handle(&mut self, now: Timestamp, input: Input) -> Output {

@@ -91,6 +91,11 @@ impl FeedbackSchedule {
         }
     }
 
+    /// When the next odometry frame (position and heading) is due.
+    pub fn odometry_due_at(&self) -> Timestamp {
+        self.odometry.next
+    }
+
     /// The earliest deadline, so the shell can sleep until then.
     pub fn next_deadline(&self, periods: &FeedbackPeriods) -> Option<Timestamp> {
         [

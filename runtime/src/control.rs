@@ -114,6 +114,7 @@ fn dispatch<S: OutputPin>(
     }
     next.cycle_ms = controller.registers().get(Reg::LoopEndDelay);
     next.stop_decel = u32::from(controller.registers().get(Reg::EstopDecel));
+    next.feedback_due_at = Some(controller.position_due_at());
     // A new command always goes out, even one equal to the last (the e-stop edge).
     if next != *demand || out.wheels.is_some() {
         *demand = next;

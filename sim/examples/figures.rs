@@ -49,6 +49,17 @@ fn main() {
         &velocity,
     );
     report_latency("e-stop edge → zero speed on the wire", &estop);
+    let (velocity, estop) = measure_latencies(&robot_at_baud(FAST_BAUD));
+    report_latency(
+        "at 230400 baud: CAN velocity frame → both drives have the new speed",
+        &velocity,
+    );
+    report_latency(
+        "at 230400 baud: e-stop edge → zero speed on the wire",
+        &estop,
+    );
+    report_command_limit(DrivesConfig::commissioned().baud);
+    report_command_limit(FAST_BAUD);
 
     println!();
     report_fail_safe();
@@ -69,7 +80,7 @@ fn main() {
 fn robot_at_baud(baud: u32) -> VirtualRobot {
     let mut robot = VirtualRobot::with_drives(DrivesConfig {
         baud,
-        ..DrivesConfig::default()
+        ..DrivesConfig::commissioned()
     });
     robot.settings.drives.line.baud = baud;
     robot
@@ -95,9 +106,9 @@ fn measure_latencies(robot: &VirtualRobot) -> (Vec<Duration>, Vec<Duration>) {
         }
 
         let mut estop = Vec::new();
-        for trial in 0..TRIALS / 2 {
+        for trial in 0..TRIALS {
             pc.drive(300, 0, 300).await;
-            Timer::after(Duration::from_micros(trial * 2_000)).await;
+            Timer::after(Duration::from_micros(trial * 1_000)).await;
             let pressed = Instant::now();
             robot.press_estop();
             wait_ms(60).await;
@@ -121,8 +132,9 @@ fn report_fail_safe() {
     let wheel_mm = |revolutions: f64| revolutions / 10.0 * 2.0 * std::f64::consts::PI * 142.0;
     // The reset falls at ten moments 5 ms apart across one 50 ms control cycle: the
     // run-on depends on what the line carries at that moment.
-    let reset_run_on = |silent: Option<u8>, phase_ms: u64| {
-        let robot = VirtualRobot::new();
+    let reset_run_on_after_boot = |silent: Option<u8>, phase_ms: u64, boot_ms: u64| {
+        let mut robot = VirtualRobot::new();
+        robot.boot_time = Duration::from_millis(boot_ms);
         robot.run(async |pc| {
             wait_ms(BOOT_MS).await;
             pc.drive(500, 0, 2_000).await;
@@ -142,6 +154,8 @@ fn report_fail_safe() {
         }
         run_on
     };
+    let reset_run_on =
+        |silent: Option<u8>, phase_ms: u64| reset_run_on_after_boot(silent, phase_ms, 0);
     let phases = || (0..10).map(|k| k * 5);
     let range = |values: Vec<f64>| {
         let min = values.iter().copied().fold(f64::INFINITY, f64::min);
@@ -159,15 +173,62 @@ fn report_fail_safe() {
         "reset run-on, one drive silent: {max:.0} mm (worst of 10 reset moments; best {min:.0} mm)"
     );
     println!("  (the silent drive itself, stopped by its communication timeout: {silent:.0} mm)");
+    // The same with a chip's boot time: nothing on the line for 300 ms.
+    let (_, max) = range(
+        phases()
+            .map(|phase| reset_run_on_after_boot(None, phase, 300)[0])
+            .collect(),
+    );
+    println!("reset run-on with a 300 ms boot, both drives answering: {max:.0} mm");
+    let runs: Vec<[f64; 2]> = phases()
+        .map(|phase| reset_run_on_after_boot(Some(2), phase, 300))
+        .collect();
+    let (_, max) = range(runs.iter().map(|run| run[0].max(run[1])).collect());
+    println!("reset run-on with a 300 ms boot, one drive silent: {max:.0} mm");
+
+    // The link cannot hear the drives: from 500 mm/s, at five moments of a cycle.
+    let stopped_after = |fault: &dyn Fn(&VirtualRobot), phase_ms: u64| {
+        let robot = VirtualRobot::new();
+        robot.run(async |pc| {
+            wait_ms(BOOT_MS).await;
+            pc.drive(500, 0, 2_000).await;
+            wait_ms(phase_ms).await;
+            let before = [1, 2].map(|slave| robot.drives.drive(slave).forward_revolutions());
+            fault(&robot);
+            pc.drive(500, 0, 3_000).await;
+            [1, 2]
+                .into_iter()
+                .zip(before)
+                .map(|(slave, before)| {
+                    wheel_mm(robot.drives.drive(slave).forward_revolutions() - before).abs()
+                })
+                .fold(0.0_f64, f64::max)
+        })
+    };
+    let worst = |fault: &dyn Fn(&VirtualRobot)| {
+        (0..5)
+            .map(|k| stopped_after(fault, k * 10))
+            .fold(0.0_f64, f64::max)
+    };
+    println!(
+        "replies lost while driving -> both wheels stopped: {:.0} mm",
+        worst(&|robot| robot.drives.lose_replies(true))
+    );
+    println!(
+        "a drive answering exceptions -> both wheels stopped: {:.0} mm",
+        worst(&|robot| robot.drives.set_busy(1, true))
+    );
 
     let robot = VirtualRobot::new();
     let zero_after = robot.run(async |pc| {
         wait_ms(BOOT_MS).await;
         pc.drive(300, 0, 1_000).await;
-        let failing = Instant::now();
-        // Long frames fail (the 53-byte group frame), the short unicast ones pass.
+        // Long frames fail (the group's command write), the short read and unicast
+        // frames pass; the PC then changes its speed, which needs the write.
         robot.drives.fail_requests_longer_than(Some(40));
-        pc.drive(300, 0, 1_000).await;
+        pc.drive(300, 0, 300).await;
+        let failing = Instant::now();
+        pc.drive(200, 0, 1_000).await;
         let zero = [1, 2].map(|slave| {
             let drive = robot.drives.drive(slave);
             assert_eq!(drive.command.expect("commanded").speed_rpm, 0);
@@ -176,7 +237,7 @@ fn report_fail_safe() {
         zero.into_iter().max().expect("two drives") - failing
     });
     println!(
-        "group frame failing -> zero on the wire: {:.0} ms",
+        "group command write failing -> zero on the wire: {:.0} ms (from the first command that needs it)",
         ms(zero_after)
     );
 
@@ -204,7 +265,9 @@ fn report_fail_safe() {
                 .drives
                 .requests()
                 .into_iter()
-                .filter(|request| request.bytes[1] == 0x17 && (from..to).contains(&request.at))
+                .filter(|request| {
+                    request.bytes[..2] == [15, 0x03] && (from..to).contains(&request.at)
+                })
                 .map(|request| request.at)
                 .collect();
             cycles
@@ -255,6 +318,21 @@ fn report_stuck_encoder() {
     let best = rolled.iter().copied().fold(f64::INFINITY, f64::min);
     println!(
         "stuck encoder -> both wheels stopped: {worst:.0} mm (worst of 10 moments; best {best:.0} mm)"
+    );
+}
+
+/// The wire's limit for a new command: its write (FC 10h to the share group, both
+/// drives' items) on the line, and the C3.5 after which the drives act on it.
+fn report_command_limit(baud: u32) {
+    let items = base_core::drives::reg::SHARE_WRITE_LIST.len();
+    // Address, function, start, count, byte count; 4 bytes per item and drive; CRC.
+    let bytes = 7 + 2 * 4 * items + 2;
+    let char_ms = virtual_robot::runtime::char_time(baud, 11).as_micros() as f64 / 1000.0;
+    let on_wire = bytes as f64 * char_ms;
+    println!(
+        "limit at {baud} baud: the command write ({bytes} bytes) takes {on_wire:.1} ms on the \
+         wire, the drives apply it {:.1} ms after its first byte",
+        on_wire + FRAME_GAP_CHARS * char_ms
     );
 }
 

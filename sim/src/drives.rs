@@ -157,8 +157,8 @@ pub struct DrivesConfig {
 }
 
 impl Default for DrivesConfig {
-    /// 115200 8E1, 3.0 ms transmission waiting time, 1 s boot, trailer sent, slave 1
-    /// left, slave 2 right and mirrored (spec §6).
+    /// The drives as shipped: 115200 8E1, 3.0 ms transmission waiting time, 1 s boot,
+    /// trailer sent, slave 1 left, slave 2 right and mirrored (spec §6).
     fn default() -> Self {
         Self {
             baud: 115_200,
@@ -184,6 +184,15 @@ impl Default for DrivesConfig {
 }
 
 impl DrivesConfig {
+    /// The drives as docs/drives.md has them commissioned on the robot: the factory
+    /// settings with the transmission waiting time (0x138E) lowered to 0.5 ms.
+    pub fn commissioned() -> Self {
+        Self {
+            transmission_wait: Duration::from_micros(500),
+            ..Self::default()
+        }
+    }
+
     /// Time one character takes on the line.
     pub fn char_time(&self) -> Duration {
         char_time(self.baud, self.bits_per_char)
@@ -489,6 +498,48 @@ impl DrivesHandle {
     }
 }
 
+// ---------------------------------------------------------------------------------------
+// Line and reply faults: the controller's receive path dead, one drive's replies
+// garbled, a drive that answers "busy" to everything
+// ---------------------------------------------------------------------------------------
+
+impl DrivesHandle {
+    /// The master's receive path dies (or heals): every reply is lost on its way to
+    /// the master, while the drives still hear and execute every request.
+    pub fn lose_replies(&self, lost: bool) {
+        self.change(|bus, _| bus.replies_lost = lost);
+    }
+
+    /// Every reply byte this drive sends reaches the master garbled (or, with `false`,
+    /// clean again); its requests still arrive intact.
+    ///
+    /// # Panics
+    /// If no drive has the address `slave`.
+    pub fn garble_replies_of(&self, slave: u8, garbled: bool) {
+        self.change(|bus, _| {
+            let index = bus.index_of(slave);
+            bus.garbled_from[index] = garbled;
+        });
+    }
+
+    /// The drive answers every request addressed to it (alone or as a share member)
+    /// with exception 06h (slave device busy) and executes nothing, broadcasts
+    /// included; it still hears the line, so valid frames keep its communication
+    /// timeout from tripping.
+    ///
+    /// # Panics
+    /// If no drive has the address `slave`.
+    pub fn set_busy(&self, slave: u8, busy: bool) {
+        self.change(|bus, _| {
+            let index = bus.index_of(slave);
+            bus.drives[index].busy = busy;
+        });
+    }
+}
+
+/// Exception code of a drive that is busy.
+const SLAVE_DEVICE_BUSY: u8 = 0x06;
+
 /// A byte on the wire, with the end of its stop bit.
 #[derive(Debug, Clone, Copy)]
 struct WireByte {
@@ -515,6 +566,9 @@ struct Bus {
     replies: VecDeque<ReplyByte>,
     garble_replies: usize,
     fail_longer_than: Option<usize>,
+    /// Line and reply faults (see the section above).
+    replies_lost: bool,
+    garbled_from: [bool; 2],
     log: VecDeque<FrameRecord>,
     reply_log: VecDeque<FrameRecord>,
     request_count: usize,
@@ -538,6 +592,8 @@ impl Bus {
             replies: VecDeque::new(),
             garble_replies: 0,
             fail_longer_than: None,
+            replies_lost: false,
+            garbled_from: [false; 2],
             log: VecDeque::new(),
             reply_log: VecDeque::new(),
             request_count: 0,
@@ -707,6 +763,9 @@ impl Bus {
         if let Request::Write { start, words, .. } = request {
             for &index in listeners {
                 let drive = &mut self.drives[index];
+                if drive.busy {
+                    continue;
+                }
                 drive.requests_handled += 1;
                 if let Err(code) = drive.write_registers(*start, words, unicast_item, at) {
                     drive.note_exception(code);
@@ -726,8 +785,11 @@ impl Bus {
         let drive = &mut self.drives[index];
         drive.requests_handled += 1;
         let function = pdu[0];
-        let result =
-            request.and_then(|request| drive.execute(&request, unicast_item, unicast_item, at));
+        let result = if drive.busy {
+            Err(SLAVE_DEVICE_BUSY)
+        } else {
+            request.and_then(|request| drive.execute(&request, unicast_item, unicast_item, at))
+        };
         let bytes = match result {
             Ok(Some(words)) => read_reply(address, function, &words),
             Ok(None) => {
@@ -774,6 +836,7 @@ impl Bus {
             let drive = &mut self.drives[index];
             drive.requests_handled += 1;
             let answer = match &request {
+                _ if drive.busy => Err(SLAVE_DEVICE_BUSY),
                 Ok(request) => drive.execute_share(request, at),
                 Err(code) => Err(*code),
             };
@@ -855,6 +918,11 @@ impl Bus {
             let middle = bytes.len() / 2;
             bytes[middle].1 ^= 0xFF;
         }
+        for (from, byte) in &mut bytes {
+            if self.garbled_from[*from] {
+                *byte ^= 0x5A;
+            }
+        }
         // `processed_at` is already C3.5 after the request; the waiting time follows.
         let start = processed_at + self.config.transmission_wait;
         // Two drives talking at once (only if the master asked during a reply): the
@@ -869,6 +937,9 @@ impl Bus {
             bytes: bytes.iter().map(|&(_, byte)| byte).collect(),
         };
         push_bounded(&mut self.reply_log, reply, self.config.log_capacity);
+        if self.replies_lost {
+            return;
+        }
         let mut end = start;
         for (from, byte) in bytes {
             end += char_time;
@@ -1126,6 +1197,8 @@ struct Drive {
     /// Where the position counter started (power-on).
     counter_origin: f64,
     silent: bool,
+    /// Answers exception 06h to everything and executes nothing (a line fault).
+    busy: bool,
     last_traffic: Instant,
     requests_handled: usize,
     malformed_requests: usize,
@@ -1153,6 +1226,7 @@ impl Drive {
             powered_since: Some(now),
             counter_origin: 0.0,
             silent: false,
+            busy: false,
             last_traffic: now,
             requests_handled: 0,
             malformed_requests: 0,

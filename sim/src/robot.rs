@@ -63,6 +63,10 @@ pub struct VirtualRobot {
     pub watchdog: SimWatchdog,
     /// Whether the next boot reports a watchdog reset.
     pub reset_by_watchdog: bool,
+    /// From power-on (the start of [`Self::run`]) until the firmware runs, as a chip's
+    /// bootloader and start-up take about 0.3 s. The line is silent meanwhile. Zero by
+    /// default.
+    pub boot_time: Duration,
 }
 
 impl Default for VirtualRobot {
@@ -72,10 +76,11 @@ impl Default for VirtualRobot {
 }
 
 impl VirtualRobot {
-    /// A robot on the defaults: drives at 115200 8E1 powered on now, a blank flash, all
-    /// inputs released, a 24.5 V battery and an empty scale.
+    /// A robot on the defaults: drives commissioned as docs/drives.md says (115200 8E1,
+    /// 0.5 ms transmission waiting time) powered on now, a blank flash, all inputs
+    /// released, a 24.5 V battery and an empty scale.
     pub fn new() -> Self {
-        Self::with_drives(DrivesConfig::default())
+        Self::with_drives(DrivesConfig::commissioned())
     }
 
     pub fn with_drives(config: DrivesConfig) -> Self {
@@ -93,6 +98,7 @@ impl VirtualRobot {
             load_cell: SimLoadCell::new(8_000, 100.0),
             watchdog: SimWatchdog::new(WATCHDOG_TIMEOUT),
             reset_by_watchdog: false,
+            boot_time: Duration::from_ticks(0),
         }
     }
 
@@ -101,13 +107,12 @@ impl VirtualRobot {
     pub fn run<T>(&self, script: impl AsyncFnOnce(&Pc) -> T) -> T {
         let (hardware, pc) = self.boot();
         let channels = Channels::new();
+        let firmware = async {
+            Timer::after(self.boot_time).await;
+            base_runtime::run(hardware, self.settings, &channels).await
+        };
         block_on(async {
-            match select(
-                base_runtime::run(hardware, self.settings, &channels),
-                script(&pc),
-            )
-            .await
-            {
+            match select(firmware, script(&pc)).await {
                 Either::First(never) => never,
                 Either::Second(result) => result,
             }

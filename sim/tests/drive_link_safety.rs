@@ -269,30 +269,35 @@ fn every_recovery_ends_with_the_drives_de_excited_and_the_status_reports_it() {
     });
 }
 
+/// The blind stop's broadcast: operation type 16, position 0, speed 0, `estop_decel`
+/// (4500) as both rates, torque limit 100 %, trigger, 32 bits each.
+const BLIND_ZERO_FIELDS: [u16; 14] = [0, 16, 0, 0, 0, 0, 0, 4_500, 0, 4_500, 0, 1_000, 0, 1];
+
 #[test]
-fn a_group_frame_that_keeps_failing_stops_the_wheels_by_unicast_and_raises_a_fault() {
+fn a_group_frame_that_keeps_failing_stops_the_wheels_blind_and_raises_a_fault() {
     let robot = VirtualRobot::new();
     robot.run(async |pc| {
         wait_ms(BOOT_MS).await;
         pc.drive(300, 0, 1_000).await;
-        // A marginal line: the 53-byte group frame fails, the short unicast frames
-        // (8..29 bytes) still pass.
-        let failing_from = Instant::now();
+        // A marginal line: the group's command write (41 bytes and more) fails, the
+        // short feedback read and unicast frames (8..29 bytes) still pass. At a
+        // constant speed the drives have their command and nothing needs the write.
         robot.drives.fail_requests_longer_than(Some(40));
         pc.drive(300, 0, 500).await;
-        // The PC stops too; nothing must depend on it reaching the drives.
+        // The PC stops: the write that carries the zero fails.
+        let stop_at = Instant::now();
         pc.enable();
         pc.velocity(0, 0);
-        for slave in [1, 2] {
-            let holds = writes(&robot, slave, DDO_OPERATION_TYPE, failing_from);
-            let (at, fields) = holds.first().expect("zero by unicast");
-            assert_eq!(fields[..], HOLD_FIELDS);
-            assert!(
-                *at - failing_from < Duration::from_millis(250),
-                "{:?}",
-                *at - failing_from
-            );
-        }
+        wait_ms(400).await;
+        // Zero to every drive at once, by broadcast (it needs no reply).
+        let holds = writes(&robot, 0, DDO_OPERATION_TYPE, stop_at);
+        let (at, fields) = holds.first().expect("zero by broadcast");
+        assert_eq!(fields[..], BLIND_ZERO_FIELDS);
+        assert!(
+            *at - stop_at < Duration::from_millis(250),
+            "{:?}",
+            *at - stop_at
+        );
         let status = pc
             .wait_for_status(1_000, |status| status.mode == Mode::Fault)
             .await
@@ -457,13 +462,16 @@ fn a_drive_that_reboots_unseen_does_not_make_the_pose_jump() {
     });
 }
 
-/// The largest gap between two control cycles (group frames) on the wire in `window`.
+/// The largest gap between two control cycles (the feedback reads to the group) on the
+/// wire in `window`.
 fn worst_cycle_gap(robot: &VirtualRobot, from: Instant, to: Instant) -> Duration {
     let cycles: Vec<Instant> = robot
         .drives
         .requests()
         .into_iter()
-        .filter(|request| request.bytes[1] == 0x17 && request.at >= from && request.at <= to)
+        .filter(|request| {
+            request.bytes[..2] == [15, 0x03] && request.at >= from && request.at <= to
+        })
         .map(|request| request.at)
         .collect();
     cycles
@@ -538,4 +546,98 @@ fn flash_erases_wait_for_standstill_and_never_stall_the_control_cycle() {
             })
     });
     assert_eq!(value, Some(750), "persisted at the standstill");
+}
+
+// ---------------------------------------------------------------------------------------
+// When the controller cannot hear the drives (issue 21, cases 1-3): the wheels stop
+// within 300 mm from 500 mm/s, whatever comes back, and stay stopped.
+// ---------------------------------------------------------------------------------------
+
+/// Drives at 500 mm/s, causes `fault`, and (with `then_stop`) has the PC stop at once;
+/// returns the farthest either wheel rolled from the fault on, once both stand, and
+/// the mode the status frame reports.
+fn run_on_after(fault: impl Fn(&VirtualRobot), then_stop: bool) -> (f64, Mode) {
+    run_on_after_on(VirtualRobot::new(), fault, then_stop)
+}
+
+fn run_on_after_on(
+    robot: VirtualRobot,
+    fault: impl Fn(&VirtualRobot),
+    then_stop: bool,
+) -> (f64, Mode) {
+    robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        pc.drive(500, 0, 2_000).await;
+        let before = revolutions(&robot);
+        fault(&robot);
+        if then_stop {
+            pc.enable();
+            pc.velocity(0, 0);
+        }
+        // The PC keeps its enable and its last command going, as a PC that noticed
+        // nothing would.
+        let speed = if then_stop { 0 } else { 500 };
+        pc.drive(speed, 0, 3_000).await;
+        for slave in [1, 2] {
+            let drive = robot.drives.drive(slave);
+            assert_eq!(drive.speed_rpm, 0.0, "drive {slave} still turns");
+        }
+        let run_on = run_on_mm(&robot, before);
+        // Never on without bound: still standing a while later.
+        pc.drive(speed, 0, 5_000).await;
+        let later = run_on_mm(&robot, before);
+        assert!(
+            later - run_on < 1.0,
+            "rolled on: {run_on:.0} → {later:.0} mm"
+        );
+        let mode = pc.status().expect("status").mode;
+        (run_on, mode)
+    })
+}
+
+fn assert_stops_within_300_mm(case: &str, (run_on, mode): (f64, Mode)) {
+    assert!(run_on <= 300.0, "{case}: {run_on:.0} mm");
+    assert_eq!(mode, Mode::Fault, "{case}");
+}
+
+#[test]
+fn replies_lost_while_driving_stop_both_wheels_within_300_mm() {
+    let result = run_on_after(|robot| robot.drives.lose_replies(true), false);
+    assert_stops_within_300_mm("receive path dead", result);
+}
+
+#[test]
+fn every_reply_garbled_while_driving_stops_both_wheels_within_300_mm() {
+    let garble_both = |robot: &VirtualRobot| {
+        robot.drives.garble_replies_of(1, true);
+        robot.drives.garble_replies_of(2, true);
+    };
+    assert_stops_within_300_mm("every reply garbled", run_on_after(garble_both, false));
+    let garble_right = |robot: &VirtualRobot| robot.drives.garble_replies_of(2, true);
+    assert_stops_within_300_mm("right replies garbled", run_on_after(garble_right, false));
+}
+
+#[test]
+fn a_drive_answering_busy_to_everything_stops_within_300_mm() {
+    let result = run_on_after(|robot| robot.drives.set_busy(1, true), false);
+    assert_stops_within_300_mm("left drive busy", result);
+}
+
+#[test]
+fn a_stop_through_a_line_that_fails_long_requests_stops_within_300_mm() {
+    let result = run_on_after(
+        |robot| robot.drives.fail_requests_longer_than(Some(25)),
+        true,
+    );
+    assert_stops_within_300_mm("requests over 25 bytes fail", result);
+    // With the drives' own timeout off (they keep their factory 0), only the link can
+    // stop them: the short S-OFF broadcast gets through where the zero does not.
+    let mut robot = VirtualRobot::new();
+    robot.settings.drives.drive_comm_timeout_ms = None;
+    let result = run_on_after_on(
+        robot,
+        |robot| robot.drives.fail_requests_longer_than(Some(25)),
+        true,
+    );
+    assert_stops_within_300_mm("requests over 25 bytes fail, timeout off", result);
 }

@@ -19,18 +19,19 @@
 //!   │            CheckingGroup ─────────────────────────────┘
 //!   │                  │ the group answers: DrivesReady
 //!   │                  ▼
-//!   │   ┌───────▶ cycle start ── S-ON or S-OFF due ──▶ Exciting(left, right)
-//!   │   │              │                                    │ done
-//!   │   │              ▼                                    │
-//!   │   │         Exchanging (one 17h) ◀────────────────────┘
-//!   │   │              │ answered, or fewer than N failed cycles in a row
-//!   │   │              ▼
-//!   │   └──────── CycleWait: the next cycle, or a new demand at once
+//!   │   ┌───────▶ CycleWait ── S-ON or S-OFF due ──▶ Exciting(left, right)
+//!   │   │   ▲  │  │                                     │ done, or failed
+//!   │   │   │  │  └── a command the drives do not have ──▶ Writing (one 10h)
+//!   │   │   │  │                                          │ done, or failed
+//!   │   │   │  └── the read's moment came ──▶ Reading (one 03h)
+//!   │   │   │                                     │ answered, or failed
+//!   │   └───┴─────────────────────────────────────┘ (fewer than N failed in a row)
 //!   │
-//!   ├── a setup request, at cycle start
+//!   ├── a setup request, in CycleWait
 //!   │
-//!   │   N failed cycles in a row (a failed S-ON or S-OFF counts as one):
-//!   │   Holding(Escalation) ──▶ Probing(left, right) ──▶ Holding(UntilSetupRequested)
+//!   │   N failed reads, or N failed writes (S-ON and S-OFF included), in a row:
+//!   │   StoppingBlind(zero ×3 [, braking, S-OFF ×3 when the drives' timeout is off],
+//!   │   silent) ──▶ Probing(left, right) ──▶ Holding(UntilSetupRequested)
 //!   │                                                         │        ▲
 //!   │                                                         ▼        │ poll_interval
 //!   └──────────── a setup request ◀─────────────── HoldPause(UntilSetupRequested)
@@ -46,12 +47,21 @@
 //! - The first request after boot is such a hold: a controller that restarts while the
 //!   base drives stops the wheels at once, before and during the drives' power-up wait,
 //!   whichever drive answers.
-//! - Only `Exchanging` sends a non-zero speed, and only while excited and after
+//! - Only `Writing` sends a non-zero speed, and only while excited and after
 //!   `excite_settle_ms` has passed since S-ON.
-//! - N = `failures_before_loss` failed cycles in a row (the group silent, a member
-//!   silent or reset, or the group frame alone failing while each drive answers
-//!   unicast) end the cycle: zero goes out by unicast at once, then each drive is
-//!   probed and the lost ones are reported ([`Input::DriveSilent`]; both when both
+//! - The cycle splits the line's work: the feedback read (FC 03h to the group: both
+//!   positions, speeds and alarms) goes out once per `loop_end_delay` on a fixed
+//!   schedule that commands never move, and a command (FC 10h to the group: both
+//!   wheels' speed, rates and trigger) goes out at the next free moment whenever the
+//!   controller wants something the drives do not have yet. A newer demand replaces
+//!   one that was not sent; one that was acknowledged is not sent again.
+//! - N = `failures_before_loss` failed reads, or failed writes, in a row (the group
+//!   silent, a member silent or reset, or the group frames alone failing while each
+//!   drive answers unicast) end the cycle (a failed write is tried again after the
+//!   next read, so it never starves the feedback). Nothing a drive says can be
+//!   trusted then, so the stop needs no reply: zero by broadcast, then silence until
+//!   every drive's communication timeout has surely tripped (with it off: S-OFF by
+//!   broadcast first). Then each drive is probed and the lost ones are reported ([`Input::DriveSilent`]; both when both
 //!   answer alone, because the commands cannot reach the wheels).
 //! - [`Input::DrivesReady`] comes only after boot or a setup request (the controller's
 //!   contract): drives that come back unasked stay held until the controller asks.
@@ -84,6 +94,10 @@ pub struct DriveDemand {
     pub cycle_ms: u16,
     /// `estop_decel`, (r/min)/s: how a held drive brakes to zero.
     pub stop_decel: u32,
+    /// When the controller sends its next position frame: the link times its feedback
+    /// read half a cycle before each one, so that every frame carries exactly one
+    /// fresh read whatever the commands in between do. `None`: any phase.
+    pub feedback_due_at: Option<Timestamp>,
 }
 
 impl DriveDemand {
@@ -98,6 +112,7 @@ impl DriveDemand {
             setup_requests: 0,
             cycle_ms,
             stop_decel,
+            feedback_due_at: None,
         }
     }
 }
@@ -123,7 +138,7 @@ pub struct Request {
 
 impl Request {
     fn new(frame: Frame, target: Target) -> Self {
-        // Every request the link builds has a reply; 0 would only end the read early.
+        // 0: a broadcast, which draws no reply (the master then waits for nothing).
         let expected_len = modbus::expected_reply_len(&frame, target).unwrap_or(0);
         Self {
             frame,
@@ -162,8 +177,6 @@ pub enum Hold {
     /// Boot, a setup request or a failed setup: the drives are set up once the
     /// power-up wait has passed and both answer.
     ForSetup,
-    /// N failed cycles: zero by unicast first, then each drive is probed.
-    Escalation,
     /// After a loss, until the controller asks for a setup.
     UntilSetupRequested,
 }
@@ -177,6 +190,33 @@ pub enum HoldWrite {
     Trigger,
     ServoOff,
 }
+
+/// The blind stop, in order. Broadcasts (address 0) reach every drive that hears
+/// the line and draw no reply, so they act even when no reply gets back.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum BlindStep {
+    /// Zero speed with `stop_decel` and the trigger, in one broadcast; the n-th of
+    /// [`BLIND_REPEATS`].
+    Zero(u8),
+    /// Only with the drives' timeout off: until `stop_decel` had [`STOP_TIME_MS`] to
+    /// stop the wheels.
+    Braking,
+    /// Only with the drives' timeout off: S-OFF by broadcast; the n-th of
+    /// [`BLIND_REPEATS`].
+    ServoOff(u8),
+    /// Nothing on the line, so that every drive's communication timeout trips
+    /// (alarm 85h: de-excited, brake applied) whatever it made of the frames above.
+    Silent,
+}
+
+/// How often each blind broadcast goes out: a frame lost to noise is not the end.
+pub const BLIND_REPEATS: u8 = 3;
+/// The time `estop_decel` is allowed to stop the wheels from `max_motor_vel` (the
+/// registers' rule), before the blind S-OFF.
+pub const STOP_TIME_MS: u64 = 300;
+/// Silence beyond the drives' communication timeout before the link talks again.
+pub const SILENCE_MARGIN_MS: u64 = 100;
 
 /// The setup of one drive, in order (docs/drives.md, What happens on the wire).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -209,16 +249,40 @@ pub struct HoldRound {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Cycle {
-    /// When the next cycle frame is due.
-    pub next_at: Timestamp,
-    /// Failed cycles in a row.
-    pub failures: u8,
+    /// When the next feedback read is due. It advances by whole periods from the read
+    /// before, whatever the commands in between do.
+    pub read_at: Timestamp,
+    /// Failed feedback reads in a row.
+    pub read_failures: u8,
+    /// Failed writes (command, S-ON or S-OFF) in a row.
+    pub write_failures: u8,
+    /// A write went out while the read was due: the read goes next, so commands at
+    /// any rate delay it by one write at most.
+    pub read_deferred: bool,
+    /// A write that failed is tried again only from this moment on, so a failing
+    /// write never starves the feedback read.
+    pub write_retry_at: Timestamp,
     /// No speed but zero before this moment: the drives settle after S-ON.
     pub settled_at: Timestamp,
-    /// The last exchange sent zero instead of the demanded speed, for the settle.
-    pub held_for_settle: bool,
+    /// The command both drives acknowledged last; `None` before the first.
+    pub written: Option<WheelCommand>,
     /// The last alarm code per wheel, so each alarm is reported once.
     pub alarms: [u32; 2],
+}
+
+impl Cycle {
+    fn start(now: Timestamp) -> Self {
+        Self {
+            read_at: now,
+            read_failures: 0,
+            write_failures: 0,
+            read_deferred: false,
+            write_retry_at: now,
+            settled_at: now,
+            written: None,
+            alarms: [0; 2],
+        }
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -242,11 +306,16 @@ pub enum State {
         excite: bool,
         cycle: Cycle,
     },
-    /// The cycle's 17h transaction is out.
-    Exchanging { cycle: Cycle },
-    /// Until the next cycle frame is due, or a new demand comes.
+    /// The command write (FC 10h to the group) is out.
+    Writing { cycle: Cycle, command: WheelCommand },
+    /// The feedback read (FC 03h to the group) is out.
+    Reading { cycle: Cycle },
+    /// Until the next read is due, or a new demand comes.
     CycleWait { wake_at: Timestamp, cycle: Cycle },
-    /// After escalation: the share control block of one drive is being read.
+    /// N failed reads or writes: the drives are stopped without needing a reply, then
+    /// the line stays silent until their communication timeout has surely tripped.
+    StoppingBlind { step: BlindStep, since: Timestamp },
+    /// After the blind stop: the share control block of one drive is being read.
     Probing { wheel: Wheel, lost: bool },
 }
 
@@ -303,15 +372,17 @@ impl DriveLink {
                         silent_rounds,
                         ..
                     } => self.begin_hold(hold, silent_rounds, settings, &mut effects),
-                    // A new demand goes out at once, not at the next cycle.
+                    // A new command goes out at once; the read keeps its schedule.
                     State::CycleWait { cycle, .. } => {
-                        self.begin_cycle(now, cycle, settings, &mut effects)
+                        self.next_in_cycle(now, cycle, settings, &mut effects)
                     }
                     State::Holding { .. }
                     | State::SettingUp { .. }
                     | State::CheckingGroup
                     | State::Exciting { .. }
-                    | State::Exchanging { .. }
+                    | State::Writing { .. }
+                    | State::Reading { .. }
+                    | State::StoppingBlind { .. }
                     | State::Probing { .. } => {}
                 }
             }
@@ -324,7 +395,7 @@ impl DriveLink {
                 Event::Timer,
             ) => self.begin_hold(hold, silent_rounds, settings, &mut effects),
             (State::CycleWait { cycle, .. }, Event::Timer) => {
-                self.begin_cycle(now, cycle, settings, &mut effects)
+                self.next_in_cycle(now, cycle, settings, &mut effects)
             }
             (State::Holding { hold, round }, Event::Reply(reply)) => {
                 self.on_hold_reply(now, hold, round, reply, settings, &mut effects)
@@ -343,11 +414,21 @@ impl DriveLink {
                 },
                 Event::Reply(reply),
             ) => self.on_excite_reply(now, wheel, excite, cycle, reply, settings, &mut effects),
-            (State::Exchanging { cycle }, Event::Reply(reply)) => {
-                self.on_exchange(now, cycle, reply, settings, &mut effects)
+            (State::Writing { cycle, command }, Event::Reply(reply)) => {
+                self.on_command_written(now, cycle, command, reply, settings, &mut effects)
+            }
+            (State::Reading { cycle }, Event::Reply(reply)) => {
+                self.on_feedback(now, cycle, reply, settings, &mut effects)
             }
             (State::Probing { wheel, lost }, Event::Reply(reply)) => {
                 self.on_probe(wheel, lost, reply, settings, &mut effects)
+            }
+            // A broadcast draws no reply; its "reply" says the frame is out.
+            (State::StoppingBlind { step, since }, Event::Reply(_)) => {
+                self.on_blind_sent(now, step, since, settings, &mut effects)
+            }
+            (State::StoppingBlind { step, since }, Event::Timer) => {
+                self.on_blind_timer(step, since, settings, &mut effects)
             }
             // The runtime sends a reply only for a request and a timer only for a wait:
             // anything else changes nothing.
@@ -359,7 +440,8 @@ impl DriveLink {
                 | State::SettingUp { .. }
                 | State::CheckingGroup
                 | State::Exciting { .. }
-                | State::Exchanging { .. }
+                | State::Writing { .. }
+                | State::Reading { .. }
                 | State::Probing { .. },
                 Event::Timer,
             ) => {}
@@ -507,7 +589,6 @@ impl DriveLink {
             Hold::ForSetup | Hold::UntilSetupRequested => {
                 self.pause(now, hold, round.silent_rounds, settings, effects)
             }
-            Hold::Escalation => self.send_probe(Wheel::Left, false, settings, effects),
         }
     }
 
@@ -673,31 +754,60 @@ impl DriveLink {
         info!("drives set up");
         self.excited = false;
         report(effects, Input::DrivesReady);
-        let cycle = Cycle {
-            next_at: now,
-            failures: 0,
-            settled_at: now,
-            held_for_settle: false,
-            alarms: [0; 2],
-        };
-        self.begin_cycle(now, cycle, settings, effects);
+        self.next_in_cycle(now, Cycle::start(now), settings, effects);
     }
 
-    /// One cycle: a setup request ends it; S-ON changes go first, then the exchange.
-    fn begin_cycle(
+    /// What the running cycle does next: a setup request ends it; otherwise a write
+    /// that is due (S-ON or S-OFF first, then a command the drives do not have yet) goes
+    /// out at once, then the feedback read once its moment came; else it waits.
+    fn next_in_cycle(
         &mut self,
         now: Timestamp,
-        cycle: Cycle,
+        mut cycle: Cycle,
         settings: &DriveSettings,
         effects: &mut Effects,
     ) {
         if self.setup_requested() {
             return self.begin_hold(Hold::ForSetup, [0; 2], settings, effects);
         }
-        if self.demand.excite != self.excited {
+        let read_due = now >= cycle.read_at;
+        // A due read waits for one write at most; after a failed write it goes first,
+        // so a line that fails long frames still brings the feedback and a failing
+        // write is retried once per period.
+        let read_first = read_due && (cycle.read_deferred || cycle.write_failures > 0);
+        let may_write = now >= cycle.write_retry_at && !read_first;
+        cycle.read_deferred |= read_due;
+        if may_write && self.demand.excite != self.excited {
             return self.send_excite(Wheel::Left, self.demand.excite, cycle, settings, effects);
         }
-        self.send_exchange(now, cycle, settings, effects);
+        let command = self.command_now(now, &cycle);
+        let write_pending = cycle.written != Some(command);
+        if may_write && write_pending {
+            return self.send_command(cycle, command, settings, effects);
+        }
+        if read_due {
+            return self.send_read(cycle, settings, effects);
+        }
+        let mut wake_at = cycle.read_at;
+        if write_pending || self.demand.excite != self.excited {
+            wake_at = wake_at.min(cycle.write_retry_at);
+        }
+        // A speed held back for the brake release goes out as soon as it may.
+        if self.excited && now < cycle.settled_at && self.demand.wheels.rpm != MotorRpm::ZERO {
+            wake_at = wake_at.min(cycle.settled_at);
+        }
+        self.state = State::CycleWait { wake_at, cycle };
+        effects.next = Some(Next::WaitUntil(wake_at));
+    }
+
+    /// The controller's command as the drives may have it now: zero while they are not
+    /// excited or still settle after S-ON.
+    fn command_now(&self, now: Timestamp, cycle: &Cycle) -> WheelCommand {
+        let mut command = self.demand.wheels;
+        if !(self.excited && now >= cycle.settled_at) {
+            command.rpm = MotorRpm::ZERO;
+        }
+        command
     }
 
     fn send_excite(
@@ -733,54 +843,120 @@ impl DriveLink {
             write_echo(bytes, slave(wheel, settings), reg::DRIVER_INPUT_COMMAND, 1).is_ok()
         });
         if !acknowledged {
-            return self.cycle_failed(now, cycle, settings, effects);
+            return self.write_failed(now, cycle, settings, effects);
         }
         if wheel == Wheel::Left {
             return self.send_excite(Wheel::Right, excite, cycle, settings, effects);
         }
         self.excited = excite;
+        cycle.write_failures = 0;
         if excite {
             cycle.settled_at = now.plus_millis(u64::from(settings.excite_settle_ms));
         }
-        self.send_exchange(now, cycle, settings, effects);
+        self.next_in_cycle(now, cycle, settings, effects);
     }
 
-    /// One 17h transaction that writes both wheels' command and reads both positions,
-    /// speeds and alarms.
-    fn send_exchange(
+    /// The command write: both wheels' speed and rates, and the trigger, in one FC 10h
+    /// to the group, short so that it never waits long behind anything.
+    fn send_command(
+        &mut self,
+        cycle: Cycle,
+        command: WheelCommand,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        let unit = settings.accel_unit;
+        let member = |speed: i32, accel: u32| {
+            let accel = unit.field(accel);
+            // Signed speeds go on the wire as two's complement.
+            [speed as u32, accel, accel, 1]
+        };
+        let left = member(command.rpm.left, command.left_accel);
+        let right = member(command.rpm.right, command.right_accel);
+        let frame = modbus::share_write(settings.share_group, 0, &[&left, &right]);
+        self.state = State::Writing { cycle, command };
+        effects.next = Some(Next::Send(Request::new(frame, Target::Share)));
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn on_command_written(
+        &mut self,
+        now: Timestamp,
+        mut cycle: Cycle,
+        command: WheelCommand,
+        reply: Result<&[u8], TransferError>,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        let registers = (2 * 2 * reg::SHARE_WRITE_LIST.len()) as u16;
+        let acknowledged = reply.is_ok_and(|bytes| {
+            modbus::parse_write_echo(bytes, settings.share_group, 0, registers).is_ok()
+        });
+        if !acknowledged {
+            return self.write_failed(now, cycle, settings, effects);
+        }
+        cycle.written = Some(command);
+        cycle.write_failures = 0;
+        self.next_in_cycle(now, cycle, settings, effects);
+    }
+
+    /// A write that did not reach both drives is counted and tried again after the
+    /// next read; N in a row end the cycle.
+    fn write_failed(
         &mut self,
         now: Timestamp,
         mut cycle: Cycle,
         settings: &DriveSettings,
         effects: &mut Effects,
     ) {
-        let command = self.demand.wheels;
-        let rpm = if self.excited && now >= cycle.settled_at {
-            command.rpm
-        } else {
-            MotorRpm::ZERO
-        };
-        cycle.held_for_settle = self.excited && rpm != command.rpm;
-        let unit = settings.accel_unit;
-        let member = |speed: i32, accel: u32| {
-            let accel = unit.field(accel);
-            // Signed speeds go on the wire as two's complement.
-            [settings.operation_type, speed as u32, accel, accel, 1]
-        };
-        let left = member(rpm.left, command.left_accel);
-        let right = member(rpm.right, command.right_accel);
-        let frame = modbus::share_read_write(
+        report(effects, Input::ModbusError);
+        cycle.write_failures = cycle.write_failures.saturating_add(1);
+        if cycle.write_failures >= settings.failures_before_loss {
+            return self.escalate(now, settings, effects);
+        }
+        cycle.write_retry_at = cycle.read_at.max(now);
+        self.next_in_cycle(now, cycle, settings, effects);
+    }
+
+    /// The read after the one due at `read_at`: whole periods on, or, when the
+    /// controller says when its position frames go out, half a period before the next
+    /// one (moved by at most half a period at a time, so never two reads within half a
+    /// period); after a stall, at once.
+    fn next_read_at(
+        &self,
+        now: Timestamp,
+        read_at: Timestamp,
+        settings: &DriveSettings,
+    ) -> Timestamp {
+        let period = u64::from(cycle_period_ms(self.demand.cycle_ms, settings));
+        let aligned = self
+            .demand
+            .feedback_due_at
+            .filter(|_| period == u64::from(self.demand.cycle_ms))
+            .map(|due| {
+                let half = period / 2;
+                let earliest = read_at.as_millis() + half;
+                // The reads' phase: half a period before each frame.
+                let phase = (due.as_millis() + period - half) % period;
+                let offset = (phase + period - earliest % period) % period;
+                Timestamp::from_millis(earliest + offset)
+            });
+        aligned.unwrap_or(read_at.plus_millis(period)).max(now)
+    }
+
+    /// The feedback read: positions, speeds and alarms of both drives in one FC 03h.
+    fn send_read(&mut self, cycle: Cycle, settings: &DriveSettings, effects: &mut Effects) {
+        let frame = modbus::share_read(
             settings.share_group,
             0,
             reg::SHARE_READ_LIST.len() as u16,
-            0,
-            &[&left, &right],
+            2,
         );
-        self.state = State::Exchanging { cycle };
+        self.state = State::Reading { cycle };
         effects.next = Some(Next::Send(Request::new(frame, Target::Share)));
     }
 
-    fn on_exchange(
+    fn on_feedback(
         &mut self,
         now: Timestamp,
         mut cycle: Cycle,
@@ -788,18 +964,25 @@ impl DriveLink {
         settings: &DriveSettings,
         effects: &mut Effects,
     ) {
+        cycle.read_at = self.next_read_at(now, cycle.read_at, settings);
+        cycle.read_deferred = false;
         let share = reply.ok().and_then(|bytes| {
             modbus::parse_share_reply(
                 bytes,
                 settings.share_group,
-                modbus::READ_WRITE_MULTIPLE,
+                modbus::READ_HOLDING,
                 2,
                 reg::SHARE_READ_LIST.len(),
             )
             .ok()
         });
         let Some(share) = share else {
-            return self.cycle_failed(now, cycle, settings, effects);
+            report(effects, Input::ModbusError);
+            cycle.read_failures = cycle.read_failures.saturating_add(1);
+            if cycle.read_failures >= settings.failures_before_loss {
+                return self.escalate(now, settings, effects);
+            }
+            return self.next_in_cycle(now, cycle, settings, effects);
         };
         let (left, right) = (share.member(0), share.member(1));
         report(
@@ -831,44 +1014,109 @@ impl DriveLink {
             }
             cycle.alarms[index] = code;
         }
-        cycle.failures = 0;
-        self.wait_for_next_cycle(now, cycle, settings, effects);
+        cycle.read_failures = 0;
+        self.next_in_cycle(now, cycle, settings, effects);
     }
 
-    /// A cycle whose frames did not reach both drives is counted; N in a row end it.
-    fn cycle_failed(
+    /// N failed reads or writes in a row: no command reached the drives or no feedback
+    /// came for that long, so nothing the drives say can be trusted. Stop them in a
+    /// way that needs no reply, fall silent, then find out why.
+    fn escalate(&mut self, now: Timestamp, settings: &DriveSettings, effects: &mut Effects) {
+        warn!("drive link lost: blind stop, then silence");
+        self.send_blind(BlindStep::Zero(1), now, settings, effects);
+    }
+
+    fn send_blind(
         &mut self,
-        now: Timestamp,
-        mut cycle: Cycle,
+        step: BlindStep,
+        since: Timestamp,
         settings: &DriveSettings,
         effects: &mut Effects,
     ) {
-        report(effects, Input::ModbusError);
-        cycle.failures = cycle.failures.saturating_add(1);
-        if cycle.failures >= settings.failures_before_loss {
-            // No command reached the drives for N cycles: zero by unicast first, then
-            // find out why.
-            return self.begin_hold(Hold::Escalation, [0; 2], settings, effects);
-        }
-        self.wait_for_next_cycle(now, cycle, settings, effects);
+        const BROADCAST: u8 = 0;
+        let frame = match step {
+            BlindStep::Zero(_) => {
+                let decel = settings.accel_unit.field(self.demand.stop_decel);
+                // Operation type, position, speed 0, rates, torque limit 100 % (the
+                // drives' own default), trigger: the trigger comes last and applies
+                // the rest in the same frame.
+                let fields = [settings.operation_type, 0, 0, decel, decel, 1_000, 1];
+                modbus::write_items(BROADCAST, reg::DDO_OPERATION_TYPE, &fields)
+            }
+            BlindStep::ServoOff(_) => {
+                modbus::write_items(BROADCAST, reg::DRIVER_INPUT_COMMAND, &[0])
+            }
+            BlindStep::Braking | BlindStep::Silent => return,
+        };
+        self.state = State::StoppingBlind { step, since };
+        effects.next = Some(Next::Send(Request::new(frame, Target::Unicast)));
     }
 
-    fn wait_for_next_cycle(
+    fn on_blind_sent(
         &mut self,
         now: Timestamp,
-        mut cycle: Cycle,
+        step: BlindStep,
+        since: Timestamp,
         settings: &DriveSettings,
         effects: &mut Effects,
     ) {
-        let period = u64::from(cycle_period_ms(self.demand.cycle_ms, settings));
-        cycle.next_at = cycle.next_at.plus_millis(period).max(now);
-        let mut wake_at = cycle.next_at;
-        // A speed held back for the brake release goes out as soon as it may.
-        if self.excited && cycle.held_for_settle {
-            wake_at = wake_at.min(cycle.settled_at.max(now));
+        match step {
+            BlindStep::Zero(sent) if sent < BLIND_REPEATS => {
+                self.send_blind(BlindStep::Zero(sent + 1), since, settings, effects)
+            }
+            // With the drives' timeout on, silence now: it trips in every drive, the
+            // one that executes nothing too, and de-excites it; a drive that took the
+            // zero brakes meanwhile.
+            BlindStep::Zero(_) if comm_timeout_ms(settings) > 0 => {
+                self.fall_silent(now, since, settings, effects)
+            }
+            // Without it only the drives' S-OFF can end the excitation: once the
+            // zero had its time.
+            BlindStep::Zero(_) => {
+                let wake_at = since.plus_millis(STOP_TIME_MS).max(now);
+                self.state = State::StoppingBlind {
+                    step: BlindStep::Braking,
+                    since,
+                };
+                effects.next = Some(Next::WaitUntil(wake_at));
+            }
+            BlindStep::ServoOff(sent) if sent < BLIND_REPEATS => {
+                self.send_blind(BlindStep::ServoOff(sent + 1), since, settings, effects)
+            }
+            BlindStep::ServoOff(_) => self.fall_silent(now, since, settings, effects),
+            BlindStep::Braking | BlindStep::Silent => {}
         }
-        self.state = State::CycleWait { wake_at, cycle };
+    }
+
+    /// Nothing on the line until the drives' timeout has surely tripped.
+    fn fall_silent(
+        &mut self,
+        now: Timestamp,
+        since: Timestamp,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        self.excited = false;
+        let wake_at = now.plus_millis(comm_timeout_ms(settings) + SILENCE_MARGIN_MS);
+        self.state = State::StoppingBlind {
+            step: BlindStep::Silent,
+            since,
+        };
         effects.next = Some(Next::WaitUntil(wake_at));
+    }
+
+    fn on_blind_timer(
+        &mut self,
+        step: BlindStep,
+        since: Timestamp,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        match step {
+            BlindStep::Braking => self.send_blind(BlindStep::ServoOff(1), since, settings, effects),
+            BlindStep::Silent => self.send_probe(Wheel::Left, false, settings, effects),
+            BlindStep::Zero(_) | BlindStep::ServoOff(_) => {}
+        }
     }
 
     fn send_probe(
@@ -970,6 +1218,11 @@ pub fn cycle_period_ms(cycle_ms: u16, settings: &DriveSettings) -> u32 {
         Some(timeout) if timeout > 0 => cycle.min((u32::from(timeout) / 3).max(1)),
         _ => cycle,
     }
+}
+
+/// The drives' communication timeout the link set, ms; 0 when off or left alone.
+fn comm_timeout_ms(settings: &DriveSettings) -> u64 {
+    u64::from(settings.drive_comm_timeout_ms.unwrap_or(0))
 }
 
 /// Oriental alarm codes are one byte (e.g. 84h); the register is 32 bits wide.

@@ -23,6 +23,13 @@ pub struct LineSettings {
     pub parity: Parity,
     /// 1 by default.
     pub stop_bits: u8,
+    /// The shortest silence the master keeps between two frames, µs. The frame gap is
+    /// 3.5 characters and at least this. 0 (the default) trusts the drives' "C3.5
+    /// silent interval" set to auto, 3.5 characters at any baud rate (0.34 ms at
+    /// 115200); 1750 is the fixed gap Modbus recommends above 19200 baud, for slaves
+    /// that need it (it adds 1.4 ms to every transaction at 115200, and to the
+    /// latency of a command that waits for one).
+    pub min_silent_interval_us: u32,
 }
 
 impl LineSettings {
@@ -40,15 +47,11 @@ impl LineSettings {
         (self.bits_per_char() as u64 * 1_000_000).div_ceil(self.baud as u64)
     }
 
-    /// The Modbus-RTU frame gap: 3.5 characters, and at least 1750 µs above 19200 baud
-    /// as the standard fixes it for fast lines.
+    /// The Modbus-RTU frame gap: 3.5 characters, and at least `min_silent_interval_us`.
     pub const fn silent_interval_us(&self) -> u64 {
         let gap = (self.char_time_us() * 7).div_ceil(2);
-        if self.baud > 19_200 && gap < 1_750 {
-            1_750
-        } else {
-            gap
-        }
+        let floor = self.min_silent_interval_us as u64;
+        if gap < floor { floor } else { gap }
     }
 }
 
@@ -88,7 +91,8 @@ pub struct DriveSettings {
     pub right_slave: u8,
     /// The share group address (must not equal a slave address).
     pub share_group: u8,
-    /// DDO operation type written every cycle: 16 = continuous operation (speed control).
+    /// DDO operation type, written with every hold (so before every setup): 16 =
+    /// continuous operation (speed control).
     pub operation_type: u32,
     pub accel_unit: AccelUnit,
     /// Wait after the drives get power before the first query (the BLH manual asks ≥ 1 s).
@@ -124,6 +128,7 @@ impl DriveSettings {
             baud: 115_200,
             parity: Parity::Even,
             stop_bits: 1,
+            min_silent_interval_us: 0,
         },
         left_slave: 1,
         right_slave: 2,
@@ -150,11 +155,16 @@ mod tests {
     use super::*;
 
     #[test]
-    fn an_8e1_character_at_115200_takes_96_us_and_the_gap_is_the_fixed_1750_us() {
+    fn an_8e1_character_at_115200_takes_96_us_and_the_gap_three_and_a_half() {
         let line = DriveSettings::DEFAULT.line;
         assert_eq!(line.bits_per_char(), 11);
         assert_eq!(line.char_time_us(), 96);
-        assert_eq!(line.silent_interval_us(), 1_750);
+        assert_eq!(line.silent_interval_us(), 336);
+        let fixed = LineSettings {
+            min_silent_interval_us: 1_750,
+            ..line
+        };
+        assert_eq!(fixed.silent_interval_us(), 1_750);
     }
 
     #[test]
@@ -163,6 +173,7 @@ mod tests {
             baud: 9_600,
             parity: Parity::None,
             stop_bits: 2,
+            min_silent_interval_us: 1_750,
         };
         assert_eq!(line.char_time_us(), 1_146);
         assert_eq!(line.silent_interval_us(), 4_011);

@@ -11,6 +11,9 @@ use base_core::drives::settings::LineSettings;
 /// Extra silence after a failed transaction, so that a slave still answering late
 /// has finished before the next query (Oriental's own master waits 5 ms).
 const AFTER_FAILURE_US: u64 = 5_000;
+/// Extra silence after a broadcast, which nobody answers: the drives' manual asks
+/// for C3.5 + 5 ms before the next query, the time every drive needs to act on it.
+const AFTER_BROADCAST_US: u64 = 5_000;
 
 pub struct Master<P> {
     port: P,
@@ -32,7 +35,8 @@ impl<P: Rs485> Master<P> {
         }
     }
 
-    /// Sends `request` and collects the reply into `reply`.
+    /// Sends `request` and collects the reply into `reply`. An `expected_len` of 0 is a
+    /// broadcast: nothing is awaited, and the line stays quiet a little longer.
     ///
     /// The reply ends when `expected_len` bytes arrived (and then up to two more, the
     /// optional trailer of an ID-share reply), when it is a complete exception reply,
@@ -49,6 +53,11 @@ impl<P: Rs485> Master<P> {
         Timer::at(self.quiet_from).await;
         self.drain_stale_input().await;
         self.write(request).await?;
+        if expected_len == 0 {
+            self.quiet_from =
+                Instant::now() + self.silent_interval + Duration::from_micros(AFTER_BROADCAST_US);
+            return Ok(());
+        }
         let received = self.receive(expected_len.min(MAX_FRAME), reply).await;
         let pause = match received {
             Ok(()) => self.silent_interval,

@@ -125,7 +125,7 @@ impl Bench {
     fn set_up(&mut self, now: u64) -> Effects {
         for _ in 0..40 {
             let effects = self.step(now, Answer);
-            if matches!(self.link.state(), State::Exchanging { .. }) {
+            if matches!(self.link.state(), State::Writing { .. }) {
                 return effects;
             }
         }
@@ -191,9 +191,10 @@ impl Bench {
 
     /// A share group reply: each member's items followed by the CRC so far.
     fn share_reply(&self, function: u8) -> std::vec::Vec<u8> {
-        let mut reply = vec![GROUP, function, 2 * (4 * 4 + 2)];
+        let items = reg::SHARE_READ_LIST.len();
+        let mut reply = vec![GROUP, function, 2 * (4 * items as u8 + 2)];
         for member in self.feedback {
-            for value in member {
+            for value in &member[..items] {
                 reply.extend_from_slice(&value.to_be_bytes());
             }
             reply = with_crc(reply);
@@ -237,6 +238,7 @@ fn demand(rpm: i32, excite: bool, setup_requests: u32) -> DriveDemand {
         setup_requests,
         cycle_ms: 50,
         stop_decel: 4_500,
+        feedback_due_at: None,
     }
 }
 
@@ -249,18 +251,11 @@ fn written_items(request: &Request) -> std::vec::Vec<u32> {
         .collect()
 }
 
-/// The speeds of a 17h frame: member 1's and member 2's second item.
-fn exchanged_speeds(request: &Request) -> (i32, i32) {
-    let items = &request.frame[11..request.frame.len() - 2];
-    let item = |k: usize| {
-        i32::from_be_bytes([
-            items[4 * k],
-            items[4 * k + 1],
-            items[4 * k + 2],
-            items[4 * k + 3],
-        ])
-    };
-    (item(1), item(6))
+/// The speeds of a command write to the group: member 1's and member 2's first item.
+fn command_speeds(request: &Request) -> (i32, i32) {
+    let items = written_items(request);
+    let per_member = reg::SHARE_WRITE_LIST.len();
+    (items[0] as i32, items[per_member] as i32)
 }
 
 const HOLD_LEFT: [Then; 3] = [
@@ -269,7 +264,10 @@ const HOLD_LEFT: [Then; 3] = [
     Send(1, WRITE, reg::DRIVER_INPUT_COMMAND),
 ];
 const HOLD_RIGHT_ZERO: Then = Send(2, WRITE, reg::DDO_OPERATION_TYPE);
-const EXCHANGE: Then = Send(GROUP, READ_WRITE_MULTIPLE, 0);
+const COMMAND: Then = Send(GROUP, WRITE, 0);
+const BLIND_ZERO: Then = Send(0, WRITE, reg::DDO_OPERATION_TYPE);
+const BLIND_S_OFF: Then = Send(0, WRITE, reg::DRIVER_INPUT_COMMAND);
+const READ_FEEDBACK: Then = Send(GROUP, READ, 0);
 
 #[test]
 fn the_first_request_after_boot_is_zero_speed_with_stop_decel_to_the_left_drive() {
@@ -421,10 +419,10 @@ fn the_setup_writes_share_control_lists_comm_timeout_checks_the_alarm_and_leaves
             &[],
         ),
         (1_010, Answer, Send(GROUP, READ, 0), &[]),
-        // The group answers: ready, and the first exchange goes out at once, at zero.
-        (1_011, Answer, EXCHANGE, &[Input::DrivesReady]),
+        // The group answers: ready, and the first command goes out at once, at zero.
+        (1_011, Answer, COMMAND, &[Input::DrivesReady]),
     ]);
-    assert_eq!(exchanged_speeds(bench.request()), (0, 0));
+    assert_eq!(command_speeds(bench.request()), (0, 0));
 }
 
 #[test]
@@ -534,30 +532,82 @@ fn a_group_that_does_not_answer_the_check_fails_the_setup() {
     ]);
 }
 
+fn feedback_of(bench: &Bench) -> Input {
+    let [left, right] = bench.feedback;
+    Input::DriveFeedback {
+        counts: EncoderCounts {
+            left: left[0] as i32,
+            right: right[0] as i32,
+        },
+        rpm: MotorRpm {
+            left: left[1] as i32,
+            right: right[1] as i32,
+        },
+    }
+}
+
 #[test]
-fn the_cycle_sends_one_exchange_per_loop_end_delay_and_reports_the_feedback() {
+fn the_cycle_reads_the_feedback_once_per_loop_end_delay_and_reports_it() {
     let mut bench = Bench::cycling();
     bench.feedback = [
         [1_000, 30, 0, 0],
         [(-1_000i32) as u32, (-30i32) as u32, 0, 0],
     ];
-    let feedback = Input::DriveFeedback {
-        counts: EncoderCounts {
-            left: 1_000,
-            right: -1_000,
-        },
-        rpm: MotorRpm {
-            left: 30,
-            right: -30,
-        },
-    };
+    let feedback = feedback_of(&bench);
     bench.run(&[
-        (1_002, Answer, WaitUntil(1_050), &[feedback]),
-        (1_050, Timer, EXCHANGE, &[]),
-        // A late reply does not shift the schedule; a late wake does not pile up.
+        // The first command (zero) was written; the first read follows at once.
+        (1_002, Answer, READ_FEEDBACK, &[]),
+        (1_004, Answer, WaitUntil(1_050), &[feedback]),
+        (1_050, Timer, READ_FEEDBACK, &[]),
+        // A late reply does not shift the schedule.
         (1_060, Answer, WaitUntil(1_100), &[feedback]),
-        (1_100, Timer, EXCHANGE, &[]),
-        (1_180, Answer, WaitUntil(1_180), &[feedback]),
+        (1_100, Timer, READ_FEEDBACK, &[]),
+        // A stall: the next read goes out at once and the schedule restarts from it.
+        (1_180, Answer, READ_FEEDBACK, &[feedback]),
+        (1_182, Answer, WaitUntil(1_230), &[feedback]),
+    ]);
+}
+
+/// The old rule "a new demand sends a cycle at once" moved the next cycle a full period
+/// on with every demand: a PC changing its speed every 20 ms pushed the cycle seconds
+/// ahead, the line went quiet when it stopped, and the drives' timeout tripped.
+#[test]
+fn commands_at_any_rate_go_out_at_once_and_never_move_the_read() {
+    let mut bench = Bench::cycling();
+    bench.step(1_002, Answer);
+    bench.step(1_004, Answer);
+    bench.step(1_005, Line::Demand(demand(0, true, 0)));
+    bench.step(1_006, Answer);
+    // Excited at 1007, settled from 1057; the zero with the new rates is written.
+    bench.step(1_007, Answer);
+    bench.step(1_008, Answer);
+    let feedback = feedback_of(&bench);
+    let mut next_read = 1_050;
+    // A new speed every 20 ms (100 and 110 in turn) for a second.
+    for k in 0..50 {
+        let now = 1_065 + 20 * k;
+        if now >= next_read {
+            bench.run(&[
+                (next_read, Timer, READ_FEEDBACK, &[]),
+                (
+                    next_read + 2,
+                    Answer,
+                    WaitUntil(next_read + 50),
+                    &[feedback],
+                ),
+            ]);
+            next_read += 50;
+        }
+        let rpm = if k % 2 == 0 { 100 } else { 110 };
+        bench.run(&[(now, Line::Demand(demand(rpm, true, 0)), COMMAND, &[])]);
+        assert_eq!(command_speeds(bench.request()), (rpm, -rpm));
+        bench.run(&[(now + 2, Answer, WaitUntil(next_read), &[])]);
+    }
+    // After the last command the reads go on at their period.
+    assert_eq!(next_read, 2_050);
+    bench.run(&[
+        (2_050, Timer, READ_FEEDBACK, &[]),
+        (2_052, Answer, WaitUntil(2_100), &[feedback]),
     ]);
 }
 
@@ -565,7 +615,8 @@ fn the_cycle_sends_one_exchange_per_loop_end_delay_and_reports_the_feedback() {
 fn a_new_alarm_in_the_cycle_is_reported_once() {
     let mut bench = Bench::cycling();
     bench.feedback[1][2] = 0x30;
-    let effects = bench.step(1_002, Answer);
+    bench.step(1_002, Answer);
+    let effects = bench.step(1_004, Answer);
     assert_eq!(
         effects.reports[1..],
         [Input::DriveAlarm {
@@ -587,6 +638,7 @@ fn a_new_alarm_in_the_cycle_is_reported_once() {
 fn a_new_demand_goes_out_at_once_and_waits_for_the_settle_after_s_on() {
     let mut bench = Bench::cycling();
     bench.step(1_002, Answer);
+    bench.step(1_004, Answer);
     bench.run(&[
         // Excite and drive: S-ON to both first.
         (
@@ -597,27 +649,56 @@ fn a_new_demand_goes_out_at_once_and_waits_for_the_settle_after_s_on() {
         ),
     ]);
     assert_eq!(written_items(bench.request()), [reg::S_ON]);
-    bench.run(&[(
-        1_012,
-        Answer,
-        Send(2, WRITE, reg::DRIVER_INPUT_COMMAND),
-        &[],
-    )]);
-    bench.run(&[(1_014, Answer, EXCHANGE, &[])]);
-    // Excited at 1014: zero until 1064, however often the cycle runs.
-    assert_eq!(exchanged_speeds(bench.request()), (0, 0));
+    bench.run(&[
+        (
+            1_012,
+            Answer,
+            Send(2, WRITE, reg::DRIVER_INPUT_COMMAND),
+            &[],
+        ),
+        // Excited at 1014: zero (with the new rates) until 1064.
+        (1_014, Answer, COMMAND, &[]),
+    ]);
+    assert_eq!(command_speeds(bench.request()), (0, 0));
     assert!(bench.link.excited());
-    // The held-back speed goes out at the settle, before the next cycle (1100).
-    let effects = bench.step(1_016, Answer);
-    assert_eq!(describe(&effects.next), WaitUntil(1_064));
-    bench.run(&[(1_064, Timer, EXCHANGE, &[])]);
-    assert_eq!(exchanged_speeds(bench.request()), (600, -600));
+    // The read keeps its moment; the held-back speed goes out at the settle.
+    bench.run(&[
+        (1_016, Answer, WaitUntil(1_050), &[]),
+        (1_050, Timer, READ_FEEDBACK, &[]),
+        (1_052, Answer, WaitUntil(1_064), &[feedback_of(&bench)]),
+        (1_064, Timer, COMMAND, &[]),
+    ]);
+    assert_eq!(command_speeds(bench.request()), (600, -600));
+    // Once written, the same demand again writes nothing.
+    bench.run(&[
+        (1_066, Answer, WaitUntil(1_100), &[]),
+        (
+            1_070,
+            Line::Demand(demand(600, true, 0)),
+            WaitUntil(1_100),
+            &[],
+        ),
+    ]);
 }
 
 #[test]
-fn dropping_the_excitation_writes_s_off_to_both_before_the_exchange() {
+fn a_command_that_comes_while_the_read_is_out_goes_out_right_after_it() {
     let mut bench = Bench::cycling();
     bench.step(1_002, Answer);
+    bench.step(1_004, Answer);
+    bench.run(&[
+        (1_050, Timer, READ_FEEDBACK, &[]),
+        (1_051, Line::Demand(demand(0, false, 0)), CarryOn, &[]),
+        (1_053, Answer, COMMAND, &[feedback_of(&bench)]),
+        (1_055, Answer, WaitUntil(1_100), &[]),
+    ]);
+}
+
+#[test]
+fn dropping_the_excitation_writes_s_off_to_both_before_the_command() {
+    let mut bench = Bench::cycling();
+    bench.step(1_002, Answer);
+    bench.step(1_004, Answer);
     bench.step(1_010, Line::Demand(demand(0, true, 0)));
     bench.step(1_010, Answer);
     bench.step(1_010, Answer);
@@ -636,15 +717,16 @@ fn dropping_the_excitation_writes_s_off_to_both_before_the_exchange() {
             Send(2, WRITE, reg::DRIVER_INPUT_COMMAND),
             &[],
         ),
-        (1_024, Answer, EXCHANGE, &[]),
+        (1_024, Answer, WaitUntil(1_050), &[]),
     ]);
     assert!(!bench.link.excited());
 }
 
 #[test]
-fn a_failed_s_on_write_is_a_failed_cycle_and_the_drives_stay_de_excited() {
+fn a_failed_s_on_write_is_retried_after_the_next_read_and_the_drives_stay_de_excited() {
     let mut bench = Bench::cycling();
     bench.step(1_002, Answer);
+    bench.step(1_004, Answer);
     bench.step(1_010, Line::Demand(demand(600, true, 0)));
     bench.run(&[
         (
@@ -653,70 +735,94 @@ fn a_failed_s_on_write_is_a_failed_cycle_and_the_drives_stay_de_excited() {
             Send(2, WRITE, reg::DRIVER_INPUT_COMMAND),
             &[],
         ),
-        (1_037, Silent, WaitUntil(1_100), &[Input::ModbusError]),
-        // Next cycle: both again.
-        (1_100, Timer, Send(1, WRITE, reg::DRIVER_INPUT_COMMAND), &[]),
+        (1_037, Silent, WaitUntil(1_050), &[Input::ModbusError]),
+        (1_050, Timer, READ_FEEDBACK, &[]),
+        // Then both again.
+        (
+            1_052,
+            Answer,
+            Send(1, WRITE, reg::DRIVER_INPUT_COMMAND),
+            &[feedback_of(&bench)],
+        ),
     ]);
     assert!(!bench.link.excited());
 }
 
 #[test]
-fn failed_cycles_below_n_are_counted_and_a_good_one_clears_the_count() {
+fn failed_reads_below_n_are_counted_and_a_good_one_clears_the_count() {
     let mut bench = Bench::cycling();
+    bench.step(1_002, Answer);
     bench.run(&[
-        (1_025, Silent, WaitUntil(1_050), &[Input::ModbusError]),
-        (1_050, Timer, EXCHANGE, &[]),
+        (1_027, Silent, WaitUntil(1_050), &[Input::ModbusError]),
+        (1_050, Timer, READ_FEEDBACK, &[]),
         (1_075, Garbled, WaitUntil(1_100), &[Input::ModbusError]),
-        (1_100, Timer, EXCHANGE, &[]),
-    ]);
-    let effects = bench.step(1_102, Answer);
-    assert_eq!(describe(&effects.next), WaitUntil(1_150));
-    bench.run(&[
-        (1_150, Timer, EXCHANGE, &[]),
+        (1_100, Timer, READ_FEEDBACK, &[]),
+        (1_102, Answer, WaitUntil(1_150), &[feedback_of(&bench)]),
+        (1_150, Timer, READ_FEEDBACK, &[]),
         (1_175, Silent, WaitUntil(1_200), &[Input::ModbusError]),
-        (1_200, Timer, EXCHANGE, &[]),
+        (1_200, Timer, READ_FEEDBACK, &[]),
         (1_225, Silent, WaitUntil(1_250), &[Input::ModbusError]),
     ]);
 }
 
+/// Without replies an echo-based hold would never send its trigger, and its valid
+/// frames would keep the drives' own timeout from ever tripping: the blind stop needs
+/// no reply and ends in silence.
 #[test]
-fn the_nth_failed_cycle_holds_both_drives_by_unicast_at_once() {
+fn the_nth_failed_read_stops_both_drives_blind_then_falls_silent() {
     let mut bench = Bench::cycling();
     bench.step(1_002, Answer);
+    bench.run(&[
+        (1_027, Silent, WaitUntil(1_050), &[Input::ModbusError]),
+        (1_050, Timer, READ_FEEDBACK, &[]),
+        (1_075, Silent, WaitUntil(1_100), &[Input::ModbusError]),
+        (1_100, Timer, READ_FEEDBACK, &[]),
+        (1_125, Garbled, BLIND_ZERO, &[Input::ModbusError]),
+    ]);
+    blind_stop_from(&mut bench, 1_125);
+    // Demands change nothing until the silence is over.
+    bench.run(&[
+        (1_500, Line::Demand(demand(600, true, 0)), CarryOn, &[]),
+        (1_560, Timer, Send(1, READ, reg::SHARE_CONTROL), &[]),
+    ]);
+}
+
+#[test]
+fn the_nth_failed_command_write_stops_both_drives_blind_while_the_reads_pass() {
+    let mut bench = Bench::cycling();
+    bench.step(1_002, Answer);
+    bench.step(1_004, Answer);
     // Driving, excited.
     bench.step(1_010, Line::Demand(demand(600, true, 0)));
     bench.step(1_010, Answer);
     bench.step(1_010, Answer);
     bench.run(&[
-        // The speed held back for the settle would go out at 1060.
-        (1_035, Garbled, WaitUntil(1_060), &[Input::ModbusError]),
-        (1_060, Timer, EXCHANGE, &[]),
-        (1_085, Garbled, WaitUntil(1_150), &[Input::ModbusError]),
-        (1_150, Timer, EXCHANGE, &[]),
-        (1_175, Garbled, HOLD_LEFT[0], &[Input::ModbusError]),
+        // The zero for the settle fails; the read goes first, then the write again.
+        (1_035, Garbled, WaitUntil(1_050), &[Input::ModbusError]),
+        (1_050, Timer, READ_FEEDBACK, &[]),
+        (1_052, Answer, COMMAND, &[feedback_of(&bench)]),
+        (1_077, Silent, WaitUntil(1_100), &[Input::ModbusError]),
+        (1_100, Timer, READ_FEEDBACK, &[]),
+        (1_102, Answer, COMMAND, &[feedback_of(&bench)]),
+        (1_127, Silent, BLIND_ZERO, &[Input::ModbusError]),
     ]);
-    assert_eq!(written_items(bench.request()), [16, 0, 0, 4_500, 4_500]);
-    // Still wanted excited (the supervisor brakes to a stop first): no S-OFF.
-    bench.run(&[
-        (1_136, Answer, HOLD_LEFT[1], &[]),
-        (1_137, Answer, HOLD_RIGHT_ZERO, &[]),
-        (1_138, Answer, Send(2, WRITE, reg::DDO_TRIGGER), &[]),
-        (1_139, Answer, Send(1, READ, reg::SHARE_CONTROL), &[]),
-    ]);
+    blind_stop_from(&mut bench, 1_127);
 }
 
-/// A bench whose cycle failed N times; the escalation's hold round is answered and the
-/// left drive's probe is out.
+/// A bench whose cycle failed N times; after the blind stop and the silence the left
+/// drive's probe is out.
 fn probing() -> Bench {
     let mut bench = Bench::cycling();
-    bench.step(1_025, Silent);
-    bench.step(1_050, Timer);
-    bench.step(1_075, Silent);
-    bench.step(1_100, Timer);
-    bench.step(1_125, Silent);
-    for _ in 0..6 {
-        bench.step(1_130, Answer);
-    }
+    bench.step(1_002, Answer);
+    bench.run(&[
+        (1_027, Silent, WaitUntil(1_050), &[Input::ModbusError]),
+        (1_050, Timer, READ_FEEDBACK, &[]),
+        (1_075, Silent, WaitUntil(1_100), &[Input::ModbusError]),
+        (1_100, Timer, READ_FEEDBACK, &[]),
+        (1_125, Silent, BLIND_ZERO, &[Input::ModbusError]),
+    ]);
+    blind_stop_from(&mut bench, 1_125);
+    bench.run(&[(1_560, Timer, Send(1, READ, reg::SHARE_CONTROL), &[])]);
     assert_eq!(
         bench.link.state(),
         State::Probing {
@@ -725,6 +831,55 @@ fn probing() -> Bench {
         }
     );
     bench
+}
+
+/// The blind stop that starts at `since` with the first zero out: zero three times,
+/// then silence for the drives' timeout (300 ms) and 100 ms more; the wait for it is
+/// out at the end, at `since` + 435.
+fn blind_stop_from(bench: &mut Bench, since: u64) {
+    let fields = [16, 0, 0, 4_500, 4_500, 1_000, 1];
+    assert_eq!(written_items(bench.request()), fields);
+    bench.run(&[
+        (since + 5, Answer, BLIND_ZERO, &[]),
+        (since + 10, Answer, BLIND_ZERO, &[]),
+        (since + 35, Silent, WaitUntil(since + 435), &[]),
+    ]);
+    assert!(!bench.link.excited());
+}
+
+/// With the drives' timeout off, silence stops nothing: after the zero had its time
+/// S-OFF goes out by broadcast too, and only then the line falls silent.
+#[test]
+fn without_the_drives_timeout_the_blind_stop_adds_s_off_by_broadcast() {
+    let settings = DriveSettings {
+        drive_comm_timeout_ms: None,
+        ..SETTINGS
+    };
+    let (mut bench, _) = Bench::boot_at(0, settings);
+    for _ in 0..6 {
+        bench.step(0, Answer);
+    }
+    bench.step(1_000, Timer);
+    bench.set_up(1_000);
+    bench.step(1_002, Answer);
+    bench.run(&[
+        (1_027, Silent, WaitUntil(1_050), &[Input::ModbusError]),
+        (1_050, Timer, READ_FEEDBACK, &[]),
+        (1_075, Silent, WaitUntil(1_100), &[Input::ModbusError]),
+        (1_100, Timer, READ_FEEDBACK, &[]),
+        (1_125, Silent, BLIND_ZERO, &[Input::ModbusError]),
+        (1_130, Answer, BLIND_ZERO, &[]),
+        (1_135, Answer, BLIND_ZERO, &[]),
+        (1_140, Answer, WaitUntil(1_425), &[]),
+        (1_425, Timer, BLIND_S_OFF, &[]),
+    ]);
+    assert_eq!(written_items(bench.request()), [0]);
+    bench.run(&[
+        (1_430, Answer, BLIND_S_OFF, &[]),
+        (1_435, Answer, BLIND_S_OFF, &[]),
+        (1_440, Answer, WaitUntil(1_540), &[]),
+        (1_540, Timer, Send(1, READ, reg::SHARE_CONTROL), &[]),
+    ]);
 }
 
 #[test]
@@ -819,6 +974,7 @@ fn drives_that_come_back_stay_held_until_the_controller_asks_for_a_setup() {
 fn a_setup_request_while_cycling_ends_the_cycle_with_a_hold_and_a_new_setup() {
     let mut bench = Bench::cycling();
     bench.step(1_002, Answer);
+    bench.step(1_004, Answer);
     bench.run(&[(1_010, Line::Demand(demand(0, false, 1)), HOLD_LEFT[0], &[])]);
     for _ in 0..5 {
         bench.step(1_010, Answer);
@@ -826,8 +982,10 @@ fn a_setup_request_while_cycling_ends_the_cycle_with_a_hold_and_a_new_setup() {
     bench.run(&[(1_010, Answer, Send(1, WRITE, reg::SHARE_CONTROL), &[])]);
     bench.set_up(1_010);
     // Served: the next cycles go on.
-    let effects = bench.step(1_012, Answer);
-    assert_eq!(describe(&effects.next), WaitUntil(1_060));
+    bench.run(&[
+        (1_012, Answer, READ_FEEDBACK, &[]),
+        (1_014, Answer, WaitUntil(1_060), &[feedback_of(&bench)]),
+    ]);
 }
 
 #[test]
@@ -837,7 +995,10 @@ fn the_cycle_never_waits_longer_than_a_third_of_the_drives_comm_timeout() {
     slow.cycle_ms = 500;
     bench.step(1_002, Answer);
     bench.step(1_010, Line::Demand(slow));
-    assert_eq!(describe(&bench.step(1_012, Answer).next), WaitUntil(1_150));
+    bench.run(&[
+        (1_012, Answer, COMMAND, &[feedback_of(&bench)]),
+        (1_014, Answer, WaitUntil(1_100), &[]),
+    ]);
     assert_eq!(cycle_period_ms(500, &SETTINGS), 100);
     let off = DriveSettings {
         drive_comm_timeout_ms: None,
@@ -874,4 +1035,51 @@ fn a_timer_while_a_request_is_out_and_a_reply_while_waiting_change_nothing() {
     assert_eq!(describe(&effects.next), CarryOn);
     assert!(effects.reports.is_empty());
     assert_eq!(bench.link.state(), waiting);
+}
+
+fn with_accel(accel: u32) -> DriveDemand {
+    let mut demand = demand(0, false, 0);
+    demand.wheels.left_accel = accel;
+    demand.wheels.right_accel = accel;
+    demand
+}
+
+#[test]
+fn a_due_read_waits_for_one_write_at_most() {
+    let mut bench = Bench::cycling();
+    bench.step(1_002, Answer);
+    bench.step(1_004, Answer);
+    bench.run(&[
+        (1_049, Line::Demand(with_accel(700)), COMMAND, &[]),
+        (1_051, Line::Demand(with_accel(800)), CarryOn, &[]),
+        // The read is due: one more command may go first, not two.
+        (1_053, Answer, COMMAND, &[]),
+        (1_054, Line::Demand(with_accel(900)), CarryOn, &[]),
+        (1_055, Answer, READ_FEEDBACK, &[]),
+        (1_057, Answer, COMMAND, &[feedback_of(&bench)]),
+        (1_059, Answer, WaitUntil(1_100), &[]),
+    ]);
+}
+
+#[test]
+fn the_read_moves_to_half_a_cycle_before_the_controllers_position_frame() {
+    let mut bench = Bench::cycling();
+    bench.step(1_002, Answer);
+    let mut timed = with_accel(700);
+    timed.feedback_due_at = Some(at(1_130));
+    bench.run(&[
+        (1_003, Line::Demand(timed), CarryOn, &[]),
+        (1_004, Answer, COMMAND, &[feedback_of(&bench)]),
+        // Frames at 1080, 1130, ...: reads at 1055, 1105, ...
+        (1_006, Answer, WaitUntil(1_055), &[]),
+        (1_055, Timer, READ_FEEDBACK, &[]),
+        (1_057, Answer, WaitUntil(1_105), &[feedback_of(&bench)]),
+    ]);
+    // A frame phase that moves is followed by at most half a cycle at a time.
+    timed.feedback_due_at = Some(at(1_105));
+    bench.run(&[
+        (1_060, Line::Demand(timed), WaitUntil(1_105), &[]),
+        (1_105, Timer, READ_FEEDBACK, &[]),
+        (1_107, Answer, WaitUntil(1_130), &[feedback_of(&bench)]),
+    ]);
 }
