@@ -88,6 +88,17 @@ impl PadKind {
         }
     }
 
+    /// The kind whose full report this is (`payload` with its 0xA1 header): how the
+    /// host tells the pads apart without asking for their Device ID, once they send
+    /// full reports. `None` for anything else, the short report included.
+    pub fn from_full_report(payload: &[u8]) -> Option<PadKind> {
+        match payload {
+            [HEADER_INPUT, 0x11, ..] => Some(PadKind::DualShock4),
+            [HEADER_INPUT, 0x31, ..] => Some(PadKind::DualSense),
+            _ => None,
+        }
+    }
+
     /// The ID of this pad's full input and output report.
     pub const fn full_report_id(self) -> u8 {
         match self {

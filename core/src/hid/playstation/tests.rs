@@ -485,6 +485,22 @@ fn the_pad_kind_comes_from_the_device_ids() {
     }
 }
 
+#[test]
+fn the_pad_kind_comes_from_the_full_report_id() {
+    assert_eq!(
+        PadKind::from_full_report(&full(PadKind::DualShock4)),
+        Some(PadKind::DualShock4)
+    );
+    assert_eq!(
+        PadKind::from_full_report(&full(PadKind::DualSense)),
+        Some(PadKind::DualSense)
+    );
+    let short_report = short([0x80; 4], [0x08, 0, 0], [0, 0]);
+    assert_eq!(PadKind::from_full_report(&short_report), None);
+    assert_eq!(PadKind::from_full_report(&[0xA2, 0x11]), None);
+    assert_eq!(PadKind::from_full_report(&[]), None);
+}
+
 proptest! {
     #[test]
     fn any_bytes_decode_in_range_or_are_refused(
