@@ -169,7 +169,9 @@ pub struct Counters {
     pub controller_errors: u32,
 }
 
-/// One step's answer. Packets are in the order they must reach the controller.
+/// One step's answer. Packets are in the order they must reach the controller. What
+/// does not fit, or waits for the controller's credits or buffers, goes out with a
+/// later step: the runtime steps the host on every packet and on a periodic `Tick`.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Effects {
@@ -486,8 +488,17 @@ impl ClassicHost {
                 self.command_credits = *credits;
             }
             HciEvent::NumberOfCompletedPackets(completed) => {
-                for (_, packets) in completed {
-                    self.acl_out.completed(*packets);
+                // Only our link's: another host's handles (BLE, behind a splitter)
+                // free buffers that are not ours.
+                let ours = match self.state {
+                    State::Securing(link, _) | State::Ready { link, .. } => Some(link.handle),
+                    State::Disconnecting { handle, .. } => Some(handle),
+                    _ => None,
+                };
+                for (handle, packets) in completed {
+                    if Some(*handle) == ours {
+                        self.acl_out.completed(*packets);
+                    }
                 }
                 return;
             }

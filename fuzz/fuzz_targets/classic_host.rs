@@ -1,6 +1,6 @@
 //! Any bytes as a stream of HCI events and ACL packets into the Classic host, with
-//! the pairing window open or closed: no panic, no packet longer than its type allows,
-//! and no pairing (IO capability or confirmation reply) while the window is closed.
+//! the pairing window open or closed: no panic, and no pairing (IO capability or
+//! confirmation reply) while the window is closed.
 //! Each input is split into packets by a length byte; its top bit picks ACL or HCI,
 //! the next marks a tick of 1 s before the packet.
 #![no_main]

@@ -810,6 +810,10 @@ fn acl_packets_wait_for_the_controllers_buffers() {
     }
     assert_eq!(sent, 8);
     assert_eq!(h.hci(1_010, ev::completed_packets(2)).data.len(), 2);
+    // Completions for another handle (a BLE link, say) free none of ours.
+    let mut other = ev::completed_packets(2);
+    other[3] = 0x43;
+    assert_eq!(h.hci(1_020, other).data.len(), 0);
 }
 
 #[test]
