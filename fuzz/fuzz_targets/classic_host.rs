@@ -40,11 +40,17 @@ fuzz_target!(|input: &[u8]| {
         } else {
             Event::Hci(packet)
         };
-        let effects = host.step(Timestamp::from_millis(now), event, &params);
-        for packet in effects.packets {
+        let mut packets = host.step(Timestamp::from_millis(now), event, &params).packets;
+        // The controller answers each command with a Command Status, as a real one
+        // does, so that queued commands go out and are checked too.
+        while let Some(packet) = packets.pop() {
             if let Packet::Command(bytes) = packet {
                 let opcode = u16::from_le_bytes([bytes[0], bytes[1]]);
                 assert!(params.pairing_window_open || !forbidden.contains(&opcode));
+                let [o0, o1] = opcode.to_le_bytes();
+                let status = [0x0F, 4, 0, 1, o0, o1];
+                let answer = host.step(Timestamp::from_millis(now), Event::Hci(&status), &params);
+                packets.extend(answer.packets);
             }
         }
         let _ = HciEvent::decode(packet);
