@@ -457,7 +457,7 @@ fn centred(field: &Field, value: i64) -> Option<f32> {
 }
 
 /// Zero within [`STICK_DEAD_ZONE`] of centre, then rescaled to reach ±1 at full travel.
-fn with_dead_zone(x: f32) -> f32 {
+pub(super) fn with_dead_zone(x: f32) -> f32 {
     let scale = 1.0 - STICK_DEAD_ZONE;
     if x > STICK_DEAD_ZONE {
         (x - STICK_DEAD_ZONE) / scale
@@ -472,12 +472,18 @@ fn with_dead_zone(x: f32) -> f32 {
 /// Stadia, 1 on Xbox). Anything outside the range is the null state: centred. Hats
 /// with other than eight positions are not supported and read as centred.
 fn hat_direction(field: &Field, value: i64) -> Dpad {
-    let centred = Dpad::default();
     if field.logical_max - field.logical_min != 7 {
-        return centred;
+        return Dpad::default();
     }
+    hat_position(value - field.logical_min)
+}
+
+/// A hat's position 0 … 7 clockwise from up; anything else is centred (PlayStation
+/// pads send 8 for a released D-pad).
+pub(super) fn hat_position(position: i64) -> Dpad {
+    let centred = Dpad::default();
     let (up, right, down, left) = (true, true, true, true);
-    match value - field.logical_min {
+    match position {
         0 => Dpad { up, ..centred },
         1 => Dpad {
             up,

@@ -1,7 +1,8 @@
 //! BLE gamepads (HID over GATT): the pad's Report Map parsed into input fields
 //! ([`ReportMap`]), and its input reports decoded into a [`GamepadState`] by usage
 //! ([`GamepadLayout`]). The BLE task feeds it the Report Map and each notification; the
-//! remote mapping reads the states. No I/O, no time, no allocation.
+//! remote mapping reads the states. No I/O, no time, no allocation. The PlayStation
+//! pads over Bluetooth Classic have fixed layouts instead: [`playstation`].
 //!
 //! Hand-written rather than taken from a crate: the HID report descriptor parsers on
 //! crates.io need `alloc` (hidreport, hidparser, hid-report) or `std` (hid-decode), and
@@ -12,6 +13,7 @@
 
 mod descriptor;
 mod layout;
+pub mod playstation;
 #[cfg(test)]
 mod test_data;
 
