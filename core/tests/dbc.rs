@@ -11,8 +11,7 @@ use base_core::calibration::scale::ScaleCalibrationError;
 use base_core::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
 use base_core::can::{
     Command, ControlSource, Faults, FrameError, Mode, RawFrame, ReadEcho, Rejection, Report,
-    Status,
-    StatusFlags, id,
+    Status, StatusFlags, id,
 };
 use base_core::plausibility::Finding;
 use base_core::registers::{self, Reg, RegisterError, TABLE};
