@@ -199,8 +199,10 @@ pub struct Controller {
     remote: Remote,
     pairing: PairingWindow,
     modbus_errors: u8,
-    /// When the last drive feedback arrived, for the odometry's plausibility check.
-    last_feedback_at: Option<Timestamp>,
+    /// When the last drive feedback arrived and the speeds it reported: for the
+    /// odometry's plausibility check, and to carry the pose to the moment of each
+    /// position frame.
+    last_feedback: Option<(Timestamp, MotorRpm)>,
     /// Whether each drive's position counter and reported speed agree.
     feedback_check: FeedbackCheck,
     /// Register values wait for the flash (the runtime's store says so).
@@ -233,7 +235,7 @@ impl Controller {
             remote: Remote::new(),
             pairing: PairingWindow::Closed,
             modbus_errors: 0,
-            last_feedback_at: None,
+            last_feedback: None,
             feedback_check: FeedbackCheck::new(),
             persist_pending: false,
         }
@@ -618,8 +620,8 @@ impl Controller {
         out: &mut Output,
     ) {
         let params = self.odometry_params();
-        let elapsed_ms = self.last_feedback_at.map_or(0, |at| now.millis_since(at));
-        self.last_feedback_at = Some(now);
+        let elapsed_ms = self.last_feedback.map_or(0, |(at, _)| now.millis_since(at));
+        self.last_feedback = Some((now, rpm));
         let max_motor_rpm = u32::from(self.registers.get(Reg::MaxMotorVel));
         let jumped = self
             .odometry
@@ -776,7 +778,16 @@ impl Controller {
             .feedback
             .poll(now, &periods, self.supervisor.in_emergency());
         if due.odometry {
-            let pose = self.odometry.pose();
+            // The pose at this frame's moment: the last reading carried on by the speeds
+            // it reported, so that frames one cycle apart hold poses one cycle apart
+            // whenever the reading itself was taken. A reading older than a cycle (a
+            // silent drive) is reported as it is.
+            let pose = match self.last_feedback {
+                Some((at, rpm)) if now.millis_since(at) <= u64::from(periods.odometry_ms) => self
+                    .odometry
+                    .pose_ahead(&self.odometry_params(), rpm, now.millis_since(at)),
+                _ => self.odometry.pose(),
+            };
             push_frame(
                 out,
                 Report::Position {
@@ -1076,6 +1087,55 @@ mod tests {
             })
         );
         controller
+    }
+
+    /// A reading's moment moves by a few ms from cycle to cycle (a command write may hold
+    /// the line when the read is due); a PC takes the position frames as one cycle
+    /// apart. Before, each frame held the pose of its reading, so at 500 mm/s a
+    /// reading 6 ms late every other cycle made the frames step 22 and 28 mm: ±12 %
+    /// of speed that was never driven.
+    #[test]
+    fn position_frames_one_cycle_apart_step_evenly_when_the_readings_jitter() {
+        let mut controller = driving_forward();
+        // 336 r/min with 36000 counts per revolution; the right motor is mirrored.
+        let counts_at = |ms: u64| {
+            let counts = (201.6 * ms as f64).round() as i32;
+            EncoderCounts {
+                left: counts,
+                right: -counts,
+            }
+        };
+        let rpm = MotorRpm {
+            left: 336,
+            right: -336,
+        };
+        let mut xs = std::vec::Vec::new();
+        for cycle in 1..=20u64 {
+            let late_ms = if cycle % 2 == 0 { 6 } else { 0 };
+            let read_at = 50 * cycle - 25 + late_ms;
+            controller.handle(
+                at(read_at),
+                Input::DriveFeedback {
+                    counts: counts_at(read_at),
+                    rpm,
+                },
+            );
+            let out = controller.handle(at(50 * cycle), Input::Tick);
+            for frame in &out.frames {
+                if let Ok(Some(Report::Position { x_mm, .. })) =
+                    Report::decode(frame.id(), frame.data())
+                {
+                    xs.push(x_mm);
+                }
+            }
+        }
+        assert!(xs.len() >= 18, "a position frame every cycle: {xs:?}");
+        // The first reading only sets the baseline; from the third frame on, every
+        // step is one cycle at 500 mm/s (x f_lin), give or take the 1 mm rounding.
+        let steps: std::vec::Vec<i32> = xs[2..].windows(2).map(|w| w[1] - w[0]).collect();
+        let (min, max) = (steps.iter().min().unwrap(), steps.iter().max().unwrap());
+        assert!(max - min <= 1, "steps between frames: {steps:?}");
+        assert!((24..=26).contains(min), "steps between frames: {steps:?}");
     }
 
     fn write(reg: Reg, value: u16) -> Input {

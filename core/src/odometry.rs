@@ -7,6 +7,7 @@
 //! All arithmetic is f64, and the pose sums are compensated (double-double) so that
 //! rounding does not grow with the distance travelled or the number of samples.
 
+use crate::kinematics::MotorRpm;
 use core::f64::consts::TAU;
 
 /// Geometry, scaling and calibration factors, from the registers.
@@ -160,6 +161,34 @@ impl Odometry {
         let jumped = |now: i32, before: i32| f64::from(now.wrapping_sub(before)).abs() > allowed;
         u8::from(jumped(counts.left, previous.left))
             | u8::from(jumped(counts.right, previous.right)) << 1
+    }
+
+    /// The pose `ahead_ms` after the last sample, had both motors kept turning at `rpm`
+    /// (the drives' own reading, in their raw sense like the counters) since: the pose
+    /// at the moment a position frame goes out rather than at the moment of the
+    /// reading. The reading's moment moves by a few ms from cycle to cycle (a command
+    /// write may hold the line when the read is due), and a PC that takes the frames
+    /// as one cycle apart would see those ms as speed. Without a baseline it is the
+    /// pose itself.
+    pub fn pose_ahead(&self, params: &OdometryParams, rpm: MotorRpm, ahead_ms: u64) -> Pose {
+        let Some(baseline) = self.baseline else {
+            return self.pose();
+        };
+        let counts_ahead = |rpm: i32| {
+            let counts = f64::from(rpm) * params.counts_per_motor_rev * ahead_ms as f64 / 60_000.0;
+            // Saturating: a huge step is then dropped by `update` as non-finite motion
+            // only if the parameters are broken; a real one is a few thousand counts.
+            libm::round(counts) as i32
+        };
+        let mut ahead = self.clone();
+        ahead.update(
+            params,
+            EncoderCounts {
+                left: baseline.left.wrapping_add(counts_ahead(rpm.left)),
+                right: baseline.right.wrapping_add(counts_ahead(rpm.right)),
+            },
+        );
+        ahead.pose()
     }
 
     /// After a drive reconnect its counter restarts: the next sample is a new baseline,
