@@ -220,6 +220,21 @@ impl Pc {
             .collect()
     }
 
+    /// Reads a register over CAN as the manual's untagged request and waits 50 ms for
+    /// the first value reply after it (`None`: refused or no reply).
+    pub async fn read_register(&self, address: u8) -> Option<u16> {
+        let before = self.reports(id::REGISTER_READ).len();
+        self.command(Command::RegisterRead { address, tag: 0 });
+        wait_ms(50).await;
+        self.reports(id::REGISTER_READ)
+            .into_iter()
+            .skip(before)
+            .find_map(|(_, report)| match report {
+                Report::RegisterValue { value, .. } => Some(value),
+                _ => None,
+            })
+    }
+
     /// The newest report with this ID that `pick` accepts.
     fn last<T>(&self, frame_id: u16, pick: impl Fn(Report) -> Option<T>) -> Option<T> {
         self.reports(frame_id)

@@ -5,7 +5,7 @@
 //! for 5 m), and a speed register reading 0 let a radius write and S-OFF through at
 //! over 300 r/min.
 
-use base_core::can::{Command, Mode, Report, id};
+use base_core::can::{Command, Mode};
 use base_core::registers::Reg;
 use embassy_time::Instant;
 use virtual_robot::drives::FeedbackFault;
@@ -103,22 +103,6 @@ fn a_speed_register_stale_at_zero_while_driving_stops_the_base() {
     );
 }
 
-async fn read_register(pc: &Pc, reg: Reg) -> Option<u16> {
-    let before = pc.reports(id::REGISTER_READ).len();
-    pc.command(Command::RegisterRead {
-        address: reg.address(),
-        tag: 0,
-    });
-    wait_ms(50).await;
-    pc.reports(id::REGISTER_READ)
-        .into_iter()
-        .skip(before)
-        .find_map(|(_, report)| match report {
-            Report::RegisterValue { value, .. } => Some(value),
-            _ => None,
-        })
-}
-
 /// Both speed registers read 0 from the moment the PC stops the base at 500 mm/s
 /// (`CAN_accel` 700: 480 ms to stand): a radius written at once is refused, no S-OFF
 /// and no flash write happens while a wheel still turns.
@@ -167,7 +151,7 @@ fn speeds_stale_at_zero_during_a_stop_let_no_motion_register_s_off_or_flash_writ
         }
         pc.enable();
         (
-            read_register(pc, Reg::RadL).await,
+            pc.read_register(Reg::RadL.address()).await,
             s_off_at_rpm,
             flash_while_rolling,
         )

@@ -4,7 +4,7 @@
 //! way or due. Before, they took effect at once: an `estop_decel` of 100 written at
 //! 500 mm/s made the next e-stop roll for seconds.
 
-use base_core::can::{Command, Report, id};
+use base_core::can::Command;
 use base_core::registers::Reg;
 use virtual_robot::robot::{Pc, VirtualRobot, wait_ms};
 
@@ -12,22 +12,6 @@ const BOOT_MS: u64 = 1_500;
 
 fn wheel_mm(revolutions: f64) -> f64 {
     revolutions / 10.0 * 2.0 * std::f64::consts::PI * 142.0
-}
-
-async fn read_register(pc: &Pc, reg: Reg) -> Option<u16> {
-    let before = pc.reports(id::REGISTER_READ).len();
-    pc.command(Command::RegisterRead {
-        address: reg.address(),
-        tag: 0,
-    });
-    wait_ms(50).await;
-    pc.reports(id::REGISTER_READ)
-        .into_iter()
-        .skip(before)
-        .find_map(|(_, report)| match report {
-            Report::RegisterValue { value, .. } => Some(value),
-            _ => None,
-        })
 }
 
 fn write(pc: &Pc, reg: Reg, value: u16) {
@@ -65,7 +49,10 @@ fn an_estop_decel_written_while_driving_is_refused_and_the_estop_stops_as_before
             robot.drives.drive(1).command.map(|c| c.decel_rpm_per_s),
             Some(4_500)
         );
-        assert_eq!(read_register(pc, Reg::EstopDecel).await, Some(4_500));
+        assert_eq!(
+            pc.read_register(Reg::EstopDecel.address()).await,
+            Some(4_500)
+        );
     });
 }
 
@@ -118,7 +105,7 @@ fn every_stop_shaping_register_is_refused_while_moving_and_accepted_at_rest() {
             write(pc, reg, value);
             pc.drive(300, 0, 100).await;
             assert_eq!(
-                read_register(pc, reg).await,
+                pc.read_register(reg.address()).await,
                 Some(default),
                 "{reg:?} refused while driving"
             );
@@ -130,7 +117,7 @@ fn every_stop_shaping_register_is_refused_while_moving_and_accepted_at_rest() {
             write(pc, reg, value);
             wait_ms(20).await;
             assert_eq!(
-                read_register(pc, reg).await,
+                pc.read_register(reg.address()).await,
                 Some(value),
                 "{reg:?} accepted at rest"
             );

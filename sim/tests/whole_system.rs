@@ -233,21 +233,8 @@ fn a_register_written_over_can_survives_a_reboot() {
         });
         wait_ms(200).await;
     });
-    let value = robot.run(async |pc| read_register(pc, 11).await);
+    let value = robot.run(async |pc| pc.read_register(11).await);
     assert_eq!(value, Some(750));
-}
-
-async fn read_register(pc: &Pc, address: u8) -> Option<u16> {
-    let before = pc.reports(id::REGISTER_READ).len();
-    pc.command(Command::RegisterRead { address, tag: 0 });
-    wait_ms(50).await;
-    pc.reports(id::REGISTER_READ)
-        .into_iter()
-        .skip(before)
-        .find_map(|(_, report)| match report {
-            Report::RegisterValue { value, .. } => Some(value),
-            _ => None,
-        })
 }
 
 #[test]
@@ -274,7 +261,7 @@ fn a_power_cut_during_a_register_write_leaves_the_old_or_the_new_value() {
         });
         robot.flash.restore_power();
         let value = robot
-            .run(async |pc| read_register(pc, 11).await)
+            .run(async |pc| pc.read_register(11).await)
             .expect("register 11 reads");
         assert!(
             value == 500 || value == 900,
@@ -306,7 +293,7 @@ fn a_corrupt_store_boots_with_defaults_and_reports_the_flash_fault() {
     let size = robot.flash.size() as u32;
     robot.flash.corrupt(0, &vec![0x5A; size as usize]);
     let (value, status) = robot.run(async |pc| {
-        let value = read_register(pc, 11).await;
+        let value = pc.read_register(11).await;
         let status = pc.wait_for_status(1_500, |_| true).await;
         (value, status)
     });
@@ -384,14 +371,14 @@ fn the_odometry_calibration_over_can_is_persisted() {
             OdometryCalibrationCommand::Store,
         ));
         wait_ms(200).await;
-        (wheel_mm, read_register(pc, 18).await)
+        (wheel_mm, pc.read_register(18).await)
     });
     assert!(raw_x > 700.0);
     // The wheels' travel is measured from the test's side, a sample apart from the
     // controller's: 0.1 % tolerance.
     let f_lin = f_lin.expect("f_lin reads");
     assert!((10_290..=10_310).contains(&f_lin), "f_lin = {f_lin}");
-    let after_reboot = robot.run(async |pc| read_register(pc, 18).await);
+    let after_reboot = robot.run(async |pc| pc.read_register(18).await);
     assert_eq!(after_reboot, Some(f_lin));
 }
 
@@ -673,7 +660,7 @@ fn flooded_enable_lapse(flood: Duration) -> Flood {
             stood_after,
             reads_sent,
             reads_answered,
-            replies_dropped: read_register(pc, 43).await,
+            replies_dropped: pc.read_register(43).await,
             feeds,
             bitten_after,
         }
@@ -775,14 +762,14 @@ fn motor_dir_written_while_driving_is_refused_and_the_base_drives_on_straight() 
             })
             .await;
         assert!(refused.is_some(), "the refusal is in the status frame");
-        assert_eq!(read_register(pc, 28).await, Some(2));
+        assert_eq!(pc.read_register(28).await, Some(2));
         stop_and_settle(pc).await;
         pc.command(Command::RegisterWrite {
             address: 28,
             value: 0,
         });
         wait_ms(100).await;
-        assert_eq!(read_register(pc, 28).await, Some(0), "accepted at rest");
+        assert_eq!(pc.read_register(28).await, Some(0), "accepted at rest");
     });
 }
 
@@ -871,7 +858,7 @@ fn a_burst_of_20_register_reads_is_answered_in_full() {
             assert_eq!(values, expected);
         }
         // Nothing was dropped on the way.
-        assert_eq!(read_register(pc, 43).await, Some(0));
+        assert_eq!(pc.read_register(43).await, Some(0));
     });
 }
 
@@ -883,7 +870,7 @@ fn transmit_drops_are_counted_in_can_tx_dropped() {
         // Far more replies at once than the transmit queue holds.
         let answered = burst_of_reads(pc, 200).await.len();
         assert!(answered < 200, "{answered} of 200 answered");
-        let dropped = read_register(pc, 43).await.expect("can_tx_dropped reads");
+        let dropped = pc.read_register(43).await.expect("can_tx_dropped reads");
         // Every reply not answered was dropped (periodic frames may be dropped too).
         assert!(
             usize::from(dropped) >= 200 - answered,
@@ -927,9 +914,9 @@ fn a_tare_beyond_16_bits_works_and_register_19_reads_it_clamped() {
                 Some(Report::Weight { grams: 2_000 }),
                 "{empty}"
             );
-            assert_eq!(read_register(pc, 19).await, Some(reads_19));
-            assert_eq!(read_register(pc, 44).await, Some(high));
-            assert_eq!(read_register(pc, 45).await, Some(low));
+            assert_eq!(pc.read_register(19).await, Some(reads_19));
+            assert_eq!(pc.read_register(44).await, Some(high));
+            assert_eq!(pc.read_register(45).await, Some(low));
         });
     }
 }
