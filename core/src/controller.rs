@@ -207,6 +207,8 @@ pub struct Controller {
     feedback_check: FeedbackCheck,
     /// Register values wait for the flash (the runtime's store says so).
     persist_pending: bool,
+    /// Both drives confirmed de-excited (the drive link's word).
+    drive_brakes_confirmed: bool,
 }
 
 impl Controller {
@@ -238,6 +240,7 @@ impl Controller {
             last_feedback: None,
             feedback_check: FeedbackCheck::new(),
             persist_pending: false,
+            drive_brakes_confirmed: false,
         }
     }
 
@@ -262,6 +265,20 @@ impl Controller {
     /// writes only at standstill), for the status frame.
     pub fn set_persist_pending(&mut self, pending: bool) {
         self.persist_pending = pending;
+    }
+
+    /// The drive link's word on whether both drives confirmed they are de-excited
+    /// ([`crate::drives::link::DriveLink::brakes_confirmed`]).
+    pub fn set_drive_brakes_confirmed(&mut self, confirmed: bool) {
+        self.drive_brakes_confirmed = confirmed;
+    }
+
+    /// The brakes hold the base: the supervisor commanded S-OFF and both drives
+    /// confirmed it (a silent drive counts as turning until its own communication
+    /// timeout has surely tripped). The status frame says this, and flash is written
+    /// only then: nothing may stall the loop while a wheel may still turn.
+    pub fn brakes_applied(&self) -> bool {
+        self.supervisor.brakes_applied() && self.drive_brakes_confirmed
     }
 
     pub fn registers(&self) -> &Registers {
@@ -423,7 +440,7 @@ impl Controller {
                 remote_connected: self.remote_link.connected,
                 remote_in_control: supervisor.remote_in_control(),
                 estop_pressed: supervisor.estop_pressed(),
-                brakes_applied: supervisor.brakes_applied(),
+                brakes_applied: self.brakes_applied(),
             },
             faults: Faults {
                 left_drive_silent: drive.left_silent,

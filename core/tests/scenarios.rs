@@ -348,11 +348,16 @@ impl HonestDrives {
 
 fn run(registers: Registers, rows: &[Row]) -> Controller {
     let mut controller = Controller::new(Timestamp::BOOT, registers);
+    // The setup's S-OFF was answered; so is every later S-ON and S-OFF, at once.
+    controller.set_drive_brakes_confirmed(true);
     controller.handle(Timestamp::BOOT, Input::DrivesReady);
     let mut drives = HonestDrives::default();
     for (index, (ms, input, checks)) in rows.iter().enumerate() {
         let now = Timestamp::from_millis(*ms);
         let out = controller.handle(now, drives.feed(*ms, *input));
+        if let Some(excite) = out.excite {
+            controller.set_drive_brakes_confirmed(!excite);
+        }
         for check in checks.iter() {
             self::check(&controller, now, &out, *check, index);
         }

@@ -16,7 +16,7 @@ use base_core::controller::Input;
 use crate::ble::{RemoteEnds, RemoteRequest};
 use crate::can::FrameQueue;
 use crate::control::ControlEnds;
-use crate::drive_link::{DriveDemand, DriveLinkEnds};
+use crate::drive_link::{DriveBrakes, DriveDemand, DriveLinkEnds};
 use crate::liveness::Liveness;
 use crate::store::PendingWrites;
 
@@ -42,6 +42,9 @@ pub struct Channels {
     /// state, not an event: only the newest setpoint matters, and the link must never
     /// work through stale ones.
     pub drive_demand: Signal<RawMutex, DriveDemand>,
+    /// Drive link → controller: both drives confirmed de-excited. A flag, because it
+    /// is a state the controller reads before each input (status frame, flash gate).
+    pub drive_brakes: DriveBrakes,
     /// Controller → register store. Coalescing dirty marks, because flash writes are
     /// slow (an erase takes tens of ms) and the controller must never wait for them,
     /// yet no change may be lost: a value written twice is stored once, with its
@@ -62,6 +65,7 @@ impl Channels {
             inputs: Channel::new(),
             can_tx: FrameQueue::new(),
             drive_demand: Signal::new(),
+            drive_brakes: DriveBrakes::new(),
             pending_writes: PendingWrites::new(),
             liveness: Liveness::new(),
             remote_requests: Signal::new(),
@@ -75,6 +79,7 @@ impl Channels {
             can_tx: &self.can_tx,
             drive_demand: &self.drive_demand,
             pending_writes: &self.pending_writes,
+            drive_brakes: &self.drive_brakes,
             remote_requests: &self.remote_requests,
             liveness: &self.liveness,
         }
@@ -85,6 +90,7 @@ impl Channels {
         DriveLinkEnds {
             drive_demand: &self.drive_demand,
             inputs: self.inputs.sender(),
+            drive_brakes: &self.drive_brakes,
             liveness: &self.liveness,
         }
     }

@@ -15,7 +15,7 @@ use base_core::time;
 use crate::ble::RemoteRequest;
 use crate::can::FrameQueue;
 use crate::channels::{InputReceiver, RawMutex};
-use crate::drive_link::DriveDemand;
+use crate::drive_link::{DriveBrakes, DriveDemand};
 use crate::hw::OutputPin;
 use crate::liveness::{CriticalTask, Liveness};
 use crate::store::PendingWrites;
@@ -34,6 +34,7 @@ pub struct ControlEnds<'a> {
     pub can_tx: &'a FrameQueue,
     pub drive_demand: &'a Signal<RawMutex, DriveDemand>,
     pub pending_writes: &'a PendingWrites,
+    pub drive_brakes: &'a DriveBrakes,
     pub remote_requests: &'a Signal<RawMutex, RemoteRequest>,
     pub liveness: &'a Liveness,
 }
@@ -73,6 +74,7 @@ pub async fn run<S: OutputPin>(
             Input::Tick
         });
         controller.set_persist_pending(channels.pending_writes.persist_pending());
+        controller.set_drive_brakes_confirmed(channels.drive_brakes.confirmed());
         // The drops so far, for `can_tx_dropped`: a read of it answers the count
         // up to the input before it.
         controller.set_can_tx_dropped(channels.can_tx.dropped());
@@ -127,10 +129,11 @@ fn dispatch<S: OutputPin>(
             SwitchLevel::Open => pc_switch.set_low(),
         };
     }
-    // Flash waits for the brakes: an erase must never stall the loop while driving.
+    // Flash waits for the brakes, confirmed by both drives: an erase must never stall
+    // the loop while a wheel may turn.
     channels
         .pending_writes
-        .set_at_rest(controller.supervisor().brakes_applied());
+        .set_at_rest(controller.brakes_applied());
     channels.pending_writes.record(&out.persist);
 
     let mut remote = state.remote;

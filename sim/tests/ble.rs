@@ -44,8 +44,12 @@ fn write_register(pc: &Pc, reg: Reg, value: u16) {
 }
 
 async fn open_pairing_window(pc: &Pc) {
-    // The controller is up once it sends status frames.
-    status(pc, 5_000, "the controller is up", |_| true).await;
+    // Flash (the bond too) waits until both drives confirmed their brakes, which the
+    // setup does: a controller that just booted cannot know whether the wheels turn.
+    status(pc, 5_000, "the drives are set up", |s| {
+        s.mode != Mode::Starting
+    })
+    .await;
     write_register(pc, Reg::Command, OPEN_PAIRING_WINDOW_KEY);
 }
 

@@ -641,3 +641,118 @@ fn a_stop_through_a_line_that_fails_long_requests_stops_within_300_mm() {
     );
     assert_stops_within_300_mm("requests over 25 bytes fail, timeout off", result);
 }
+
+// ---------------------------------------------------------------------------------------
+// Nothing goes to the flash and no brake is reported applied while a wheel may still
+// turn (issue 21, case 6): a silent drive counts as turning until its own
+// communication timeout has certainly tripped, and for ever with that timeout off.
+// ---------------------------------------------------------------------------------------
+
+/// Flash operations and status frames seen while some wheel still turned or was
+/// excited.
+#[derive(Debug, Default)]
+struct WhileTurning {
+    flash_operations: u64,
+    brakes_reported_applied: usize,
+}
+
+fn flash_operations(robot: &VirtualRobot) -> u64 {
+    let stats = robot.flash.stats();
+    stats.writes + stats.erases
+}
+
+/// A wheel turns, or its drive is excited (S-ON and no alarm: an alarm de-excites it
+/// and closes its brake whatever the S-ON input says).
+fn some_wheel_may_turn(robot: &VirtualRobot) -> bool {
+    [1, 2].into_iter().any(|slave| {
+        let drive = robot.drives.drive(slave);
+        drive.speed_rpm != 0.0 || (drive.servo_on && drive.alarm == 0)
+    })
+}
+
+/// Drives at 500 mm/s, cuts the right drive from the line and, for `watch_ms`, keeps
+/// a register write pending (`disable_time`, changed every 20 ms) while the PC goes on
+/// driving; counts what happened while a wheel turned.
+async fn watch_a_silent_drive(
+    robot: &VirtualRobot,
+    pc: &virtual_robot::robot::Pc,
+    watch_ms: u64,
+) -> WhileTurning {
+    wait_ms(BOOT_MS).await;
+    pc.drive(500, 0, 2_000).await;
+    robot.drives.set_silent(2, true);
+    let mut seen = WhileTurning::default();
+    let mut last_status = Instant::now();
+    let mut operations = flash_operations(robot);
+    let mut turning = some_wheel_may_turn(robot);
+    for step in 0..watch_ms / 10 {
+        pc.enable();
+        pc.velocity(500, 0);
+        if step % 2 == 0 {
+            pc.command(base_core::can::Command::RegisterWrite {
+                address: 11,
+                value: 300 + (step / 2 % 2) as u16,
+            });
+        }
+        wait_ms(10).await;
+        let turning_now = some_wheel_may_turn(robot);
+        let operations_now = flash_operations(robot);
+        if turning || turning_now {
+            seen.flash_operations += operations_now - operations;
+            seen.brakes_reported_applied += pc
+                .reports(base_core::can::id::STATUS)
+                .into_iter()
+                .filter(|(at, report)| {
+                    *at > last_status
+                        && matches!(report, base_core::can::Report::Status(status)
+                            if status.flags.brakes_applied)
+                })
+                .count();
+        }
+        last_status = Instant::now();
+        operations = operations_now;
+        turning = turning_now;
+    }
+    seen
+}
+
+#[test]
+fn no_flash_write_and_no_brake_reported_while_a_silent_drive_may_turn() {
+    let robot = VirtualRobot::new();
+    robot.run(async |pc| {
+        let seen = watch_a_silent_drive(&robot, pc, 3_000).await;
+        assert_eq!(seen.flash_operations, 0, "{seen:?}");
+        assert_eq!(seen.brakes_reported_applied, 0, "{seen:?}");
+        // The silent drive's own timeout stopped it: the values reach the flash.
+        assert_eq!(robot.drives.drive(2).alarm, 0x85);
+        let status = next_status(pc, 1_500, |status| !status.persist_pending).await;
+        assert!(status.is_some(), "persisted once both wheels surely stand");
+    });
+}
+
+#[test]
+fn with_the_drives_timeout_off_a_silent_drive_keeps_the_flash_closed_until_it_answers() {
+    let mut robot = VirtualRobot::new();
+    robot.settings.drives.drive_comm_timeout_ms = None;
+    robot.run(async |pc| {
+        let seen = watch_a_silent_drive(&robot, pc, 4_000).await;
+        assert!(
+            robot.drives.drive(2).forward_rpm() > 300.0,
+            "nothing can stop the cut drive"
+        );
+        assert_eq!(seen.flash_operations, 0, "{seen:?}");
+        assert_eq!(seen.brakes_reported_applied, 0, "{seen:?}");
+        let status = pc.status().expect("status");
+        assert!(status.persist_pending && !status.flags.brakes_applied);
+        // Back on the line: the hold stops it and its S-OFF is answered; only then
+        // the values go to the flash and the brakes are reported applied.
+        robot.drives.set_silent(2, false);
+        let status = next_status(pc, 3_000, |status| {
+            !status.persist_pending && status.flags.brakes_applied
+        })
+        .await
+        .expect("persisted once the drive answered de-excited");
+        assert_eq!(status.mode, Mode::Fault);
+        assert!(!some_wheel_may_turn(&robot));
+    });
+}

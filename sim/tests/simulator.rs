@@ -123,8 +123,9 @@ fn a_register_written_over_slcan_is_still_there_after_a_restart() {
     let (mut port, lines) = connect(&simulator);
     // Register 9, sec_lin_vel, to 321 mm/s (0x0141).
     send(&mut port, &["O", "t0033090141"]);
-    // The store writes the flash within a moment; give it a second.
-    thread::sleep(Duration::from_secs(1));
+    // The store writes the flash once both drives confirmed their brakes (the virtual
+    // drives answer 1 s after power-on), then within a moment; give it two seconds.
+    thread::sleep(Duration::from_secs(2));
     drop(lines);
     drop(port);
     quit(simulator);

@@ -231,7 +231,9 @@ fn a_register_written_over_can_survives_a_reboot() {
             address: 11,
             value: 750,
         });
-        wait_ms(200).await;
+        // Flash waits until both drives confirmed S-OFF: they answer 1 s after
+        // power-on (a controller that boots cannot know whether the wheels turn).
+        wait_ms(1_200).await;
     });
     let value = robot.run(async |pc| pc.read_register(11).await);
     assert_eq!(value, Some(750));
@@ -245,7 +247,8 @@ fn a_power_cut_during_a_register_write_leaves_the_old_or_the_new_value() {
             address: 11,
             value: 500,
         });
-        wait_ms(100).await;
+        // Stored once the drives, powered on with the robot, confirmed S-OFF.
+        wait_ms(1_200).await;
     });
     let mut outcomes = std::collections::BTreeMap::new();
     // Every flash step of the write, and then some: the cut lands before, inside and

@@ -330,6 +330,11 @@ pub struct DriveLink {
     excited: bool,
     /// Nothing is set up before the drives had this long to power up.
     powered_up_at: Timestamp,
+    /// Per wheel: the drive is known de-excited, its brake holding. Only an answered
+    /// S-OFF, or the silence after a blind stop that its own communication timeout
+    /// cannot have survived, says so; an S-ON (answered or not) unsays it, and a drive
+    /// that is silent with that timeout off stays unknown until it answers an S-OFF.
+    brakes_confirmed: [bool; 2],
 }
 
 impl DriveLink {
@@ -346,6 +351,8 @@ impl DriveLink {
             served_setups: 0,
             excited: false,
             powered_up_at: now.plus_millis(u64::from(settings.power_up_wait_ms)),
+            // A controller that restarts cannot know what the drives do.
+            brakes_confirmed: [false; 2],
         };
         let mut effects = Effects::default();
         link.begin_hold(Hold::ForSetup, [0; 2], settings, &mut effects);
@@ -359,6 +366,12 @@ impl DriveLink {
     /// Whether the drives were last told S-ON (and acknowledged it).
     pub fn excited(&self) -> bool {
         self.excited
+    }
+
+    /// Both drives confirmed de-excited (brakes holding): see `brakes_confirmed`. The
+    /// status frame's `brakes_applied` and the flash wait for this.
+    pub fn brakes_confirmed(&self) -> bool {
+        self.brakes_confirmed == [true, true]
     }
 
     pub fn step(&mut self, now: Timestamp, event: Event<'_>, settings: &DriveSettings) -> Effects {
@@ -531,7 +544,12 @@ impl DriveLink {
                 HoldWrite::Trigger if !(self.excited && self.demand.excite) => {
                     Some(HoldWrite::ServoOff)
                 }
-                HoldWrite::Trigger | HoldWrite::ServoOff => {
+                HoldWrite::Trigger => {
+                    round.answering[index] = true;
+                    None
+                }
+                HoldWrite::ServoOff => {
+                    self.brakes_confirmed[index] = true;
                     round.answering[index] = true;
                     None
                 }
@@ -696,6 +714,7 @@ impl DriveLink {
                     warn!("{} drive setup: {}", wheel, error);
                     return self.setup_failed(now, settings, effects);
                 }
+                self.brakes_confirmed[wheel_index(wheel)] = true;
                 return match wheel {
                     Wheel::Left => {
                         self.send_setup(Wheel::Right, SetupStep::ShareControl, settings, effects)
@@ -818,7 +837,13 @@ impl DriveLink {
         settings: &DriveSettings,
         effects: &mut Effects,
     ) {
-        let word = if excite { reg::S_ON } else { 0 };
+        let word = if excite {
+            // From the moment it may arrive the drive may release its brake.
+            self.brakes_confirmed[wheel_index(wheel)] = false;
+            reg::S_ON
+        } else {
+            0
+        };
         let frame = modbus::write_items(slave(wheel, settings), reg::DRIVER_INPUT_COMMAND, &[word]);
         self.state = State::Exciting {
             wheel,
@@ -844,6 +869,9 @@ impl DriveLink {
         });
         if !acknowledged {
             return self.write_failed(now, cycle, settings, effects);
+        }
+        if !excite {
+            self.brakes_confirmed[wheel_index(wheel)] = true;
         }
         if wheel == Wheel::Left {
             return self.send_excite(Wheel::Right, excite, cycle, settings, effects);
@@ -1114,7 +1142,15 @@ impl DriveLink {
     ) {
         match step {
             BlindStep::Braking => self.send_blind(BlindStep::ServoOff(1), since, settings, effects),
-            BlindStep::Silent => self.send_probe(Wheel::Left, false, settings, effects),
+            BlindStep::Silent => {
+                // Only `fall_silent` waits here, and with the timeout on it waited
+                // beyond it: every drive tripped (alarm 85h, de-excited, brake closed),
+                // the one that heard nothing long before. With it off nothing is known.
+                if comm_timeout_ms(settings) > 0 {
+                    self.brakes_confirmed = [true; 2];
+                }
+                self.send_probe(Wheel::Left, false, settings, effects)
+            }
             BlindStep::Zero(_) | BlindStep::ServoOff(_) => {}
         }
     }

@@ -5,6 +5,8 @@
 //! zero, the setup, the cycle, when a drive counts as lost) is made in the core and
 //! tested there with tables; this task knows bytes and time.
 
+use core::sync::atomic::{AtomicBool, Ordering};
+
 use embassy_futures::select::{Either, select};
 use embassy_sync::signal::Signal;
 use embassy_time::{Instant, Timer};
@@ -28,7 +30,34 @@ use master::Master;
 pub struct DriveLinkEnds<'a> {
     pub drive_demand: &'a Signal<RawMutex, DriveDemand>,
     pub inputs: InputSender<'a>,
+    pub drive_brakes: &'a DriveBrakes,
     pub liveness: &'a Liveness,
+}
+
+/// Drive link → controller: whether both drives confirmed they are de-excited
+/// ([`DriveLink::brakes_confirmed`]). A state, read before every controller input, so
+/// one flag suffices (load and store only: the ESP32-C3 has no atomic swap).
+pub struct DriveBrakes(AtomicBool);
+
+impl DriveBrakes {
+    /// Unknown at boot: not confirmed.
+    pub const fn new() -> Self {
+        Self(AtomicBool::new(false))
+    }
+
+    pub fn confirmed(&self) -> bool {
+        self.0.load(Ordering::Relaxed)
+    }
+
+    fn set(&self, confirmed: bool) {
+        self.0.store(confirmed, Ordering::Relaxed);
+    }
+}
+
+impl Default for DriveBrakes {
+    fn default() -> Self {
+        Self::new()
+    }
 }
 
 /// Runs the drive link forever. Every step checks in with the watchdog: the longest
@@ -42,6 +71,7 @@ pub async fn run<P: Rs485>(port: P, settings: DriveSettings, channels: DriveLink
     let mut next = Next::WaitUntil(Timestamp::BOOT);
     loop {
         channels.liveness.check_in(CriticalTask::DriveLink);
+        channels.drive_brakes.set(link.brakes_confirmed());
         for input in effects.reports {
             channels.inputs.send(input).await;
         }

@@ -1083,3 +1083,72 @@ fn the_read_moves_to_half_a_cycle_before_the_controllers_position_frame() {
         (1_107, Answer, WaitUntil(1_130), &[feedback_of(&bench)]),
     ]);
 }
+
+/// Drives set up and excited at 1010 ms, then nothing answers any more: returns once
+/// the blind stop fell silent, with the time.
+fn excited_then_the_line_dies(settings: DriveSettings) -> (Bench, u64) {
+    let (mut bench, _) = Bench::boot_at(0, settings);
+    for _ in 0..6 {
+        bench.step(0, Answer);
+    }
+    bench.step(1_000, Timer);
+    bench.set_up(1_000);
+    assert!(
+        bench.link.brakes_confirmed(),
+        "the setup's S-OFF was answered"
+    );
+    bench.step(1_002, Answer);
+    bench.step(1_004, Answer);
+    bench.step(1_010, Line::Demand(demand(600, true, 0)));
+    assert!(!bench.link.brakes_confirmed(), "S-ON is out: unknown");
+    bench.step(1_012, Answer);
+    bench.step(1_014, Answer);
+    assert!(bench.link.excited());
+    for now in (1_020..3_000).step_by(5) {
+        if let State::StoppingBlind {
+            step: BlindStep::Silent,
+            ..
+        } = bench.link.state()
+        {
+            return (bench, now);
+        }
+        let line = if bench.out.is_some() { Silent } else { Timer };
+        bench.step(now, line);
+        assert!(!bench.link.brakes_confirmed(), "{now} ms: nothing answered");
+    }
+    panic!("no blind stop: {:?}", bench.link.state());
+}
+
+/// A drive that cannot be heard counts as excited, its wheel as turning, until its
+/// own communication timeout has surely tripped; with that timeout off, until it
+/// answers an S-OFF.
+#[test]
+fn brakes_are_confirmed_by_an_answered_s_off_or_by_silence_beyond_the_drives_timeout() {
+    let (mut bench, silent_at) = excited_then_the_line_dies(SETTINGS);
+    assert!(!bench.link.brakes_confirmed(), "silence only started");
+    bench.step(silent_at + 400, Timer);
+    assert!(
+        bench.link.brakes_confirmed(),
+        "every drive's 300 ms tripped"
+    );
+
+    let settings = DriveSettings {
+        drive_comm_timeout_ms: None,
+        ..SETTINGS
+    };
+    let (mut bench, silent_at) = excited_then_the_line_dies(settings);
+    bench.step(silent_at + 100, Timer);
+    assert!(
+        !bench.link.brakes_confirmed(),
+        "a blind S-OFF proves nothing"
+    );
+    // Both probes unanswered, then the hold: its S-OFF answered by the left drive
+    // alone confirms only that one.
+    bench.step(silent_at + 110, Silent);
+    bench.step(silent_at + 120, Silent);
+    for write in 0..3 {
+        bench.step(silent_at + 130 + write, Answer);
+    }
+    bench.step(silent_at + 140, Silent);
+    assert_eq!(bench.link.brakes_confirmed, [true, false]);
+}
