@@ -797,12 +797,14 @@ impl Controller {
         if due.odometry {
             // The pose at this frame's moment: the last reading carried on by the speeds
             // it reported, so that frames one cycle apart hold poses one cycle apart
-            // whenever the reading itself was taken. A reading older than a cycle (a
-            // silent drive) is reported as it is.
+            // whenever the reading itself was taken (on a loaded host a read may even
+            // land just after its frame). A reading older than two cycles (a silent
+            // drive) is reported as it is.
             let pose = match self.last_feedback {
-                Some((at, rpm)) if now.millis_since(at) <= u64::from(periods.odometry_ms) => self
-                    .odometry
-                    .pose_ahead(&self.odometry_params(), rpm, now.millis_since(at)),
+                Some((at, rpm)) if now.millis_since(at) <= 2 * u64::from(periods.odometry_ms) => {
+                    self.odometry
+                        .pose_ahead(&self.odometry_params(), rpm, now.millis_since(at))
+                }
                 _ => self.odometry.pose(),
             };
             push_frame(

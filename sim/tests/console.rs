@@ -462,8 +462,12 @@ fn after_a_reboot_the_paired_remote_reconnects_encrypted_with_the_bond_from_flas
     let hci = format!("tcp:{hci}");
     let mut simulator = Simulator::start_with(&["--hci", &hci]);
     let mut pc = Pc::connect(simulator.port);
-    pc.wait_for_status(Duration::from_secs(5), |_| true)
-        .expect("the controller is up");
+    // The bond goes to flash only once both drives confirmed their brakes, which the
+    // setup does: pair a base that is up, as a user would.
+    pc.wait_for_status(Duration::from_secs(5), |status| {
+        status.mode != Mode::Starting
+    })
+    .expect("the drives are set up");
     block_on_realtime(async {
         pad.cmd("pad pad C1:11:22:33:44:55").await;
         pad.cmd("advertise pad").await;
