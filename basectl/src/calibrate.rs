@@ -72,7 +72,7 @@ pub struct OdometryPlan {
 }
 
 /// Enable refresh period while basectl drives: well inside the default 500 ms timeout.
-const ENABLE_PERIOD: Duration = Duration::from_millis(100);
+pub(crate) const ENABLE_PERIOD: Duration = Duration::from_millis(100);
 
 #[derive(Clone, Copy)]
 enum Motion {
@@ -177,9 +177,10 @@ fn ask_u16(person: &mut dyn Person, question: &str) -> Result<u16, Error> {
     })
 }
 
-fn current_pose(base: &mut Base) -> Result<Pose, Error> {
-    // The position frame comes every `loop_end_delay` (50 ms by default).
-    base.wait_for("a position frame 0x0EC", Duration::from_secs(2), |report| {
+/// The pose of the next complete odometry report: the heading frame follows the
+/// position frame every `loop_end_delay` (50 ms by default).
+pub(crate) fn current_pose(base: &mut Base) -> Result<Pose, Error> {
+    base.wait_for("a heading frame 0x0ED", Duration::from_secs(2), |report| {
         matches!(report, base_core::can::Report::Heading { .. }).then_some(())
     })?;
     Ok(base.pose().unwrap_or_default())
@@ -239,7 +240,7 @@ fn drive_until(
 
 /// Commands standstill and keeps the enable until the pose stops changing, so the
 /// base ramps down under control, then withdraws the enable.
-fn stop(base: &mut Base) -> Result<(), Error> {
+pub(crate) fn stop(base: &mut Base) -> Result<(), Error> {
     let mut last = current_pose(base)?;
     let mut still_since = Instant::now();
     while still_since.elapsed() < Duration::from_millis(500) {
@@ -259,7 +260,7 @@ fn stop(base: &mut Base) -> Result<(), Error> {
 }
 
 /// Reads reports for `duration`, keeping the latest pose and status current.
-fn pause(base: &mut Base, duration: Duration) -> Result<(), Error> {
+pub(crate) fn pause(base: &mut Base, duration: Duration) -> Result<(), Error> {
     let until = Instant::now() + duration;
     while base
         .next_report(until.saturating_duration_since(Instant::now()))?

@@ -14,11 +14,11 @@ use std::fmt;
 use std::io::Write;
 use std::time::{Duration, Instant};
 
-use base_core::can::{Command, Mode, Report};
+use base_core::can::{Command, Mode};
 use base_core::registers::{MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, Reg};
 
-use crate::base::{Base, Error, Pose};
-use crate::calibrate::Person;
+use crate::base::{Base, Error};
+use crate::calibrate::{ENABLE_PERIOD, Person, current_pose, pause, stop};
 
 /// How the wheels are turned.
 #[derive(Debug, Clone, Copy)]
@@ -202,9 +202,6 @@ pub fn diagnose(left_command: Seen, right_command: Seen, motor_dir: u16) -> Diag
     }
 }
 
-/// Enable refresh period while basectl drives: well inside the default 500 ms timeout.
-const ENABLE_PERIOD: Duration = Duration::from_millis(100);
-
 /// Runs the check; `Ok` only when both wheels turned as told. A wrong wiring ends in
 /// [`Error::Aborted`] with the [`Diagnosis`].
 pub fn wheels(
@@ -321,45 +318,6 @@ fn turn_alone(
     stop(base)?;
     let after = current_pose(base)?;
     Ok(i64::from(after.heading_mrad) - i64::from(before.heading_mrad))
-}
-
-/// Commands standstill and keeps the enable until the pose stops changing, then
-/// withdraws the enable.
-fn stop(base: &mut Base) -> Result<(), Error> {
-    let mut last = current_pose(base)?;
-    let mut still_since = Instant::now();
-    while still_since.elapsed() < Duration::from_millis(500) {
-        base.send(Command::Enable { refresh: true })?;
-        base.send(Command::Velocity {
-            linear_mm_s: 0,
-            rotation_mrad_s: 0,
-        })?;
-        pause(base, ENABLE_PERIOD)?;
-        let now = current_pose(base)?;
-        if now != last {
-            last = now;
-            still_since = Instant::now();
-        }
-    }
-    base.send(Command::Enable { refresh: false })
-}
-
-fn current_pose(base: &mut Base) -> Result<Pose, Error> {
-    // The heading frame follows the position frame every `loop_end_delay`.
-    base.wait_for("a heading frame 0x0ED", Duration::from_secs(2), |report| {
-        matches!(report, Report::Heading { .. }).then_some(())
-    })?;
-    Ok(base.pose().unwrap_or_default())
-}
-
-/// Reads reports for `duration`, keeping the latest pose and status current.
-fn pause(base: &mut Base, duration: Duration) -> Result<(), Error> {
-    let until = Instant::now() + duration;
-    while base
-        .next_report(until.saturating_duration_since(Instant::now()))?
-        .is_some()
-    {}
-    Ok(())
 }
 
 #[cfg(test)]
