@@ -12,8 +12,10 @@ fn main() {
         println!("cargo:rustc-link-arg=-Wl,-Tlinkall.x");
         // esp-radio's calls of these two land in board/esp32.rs's `__wrap_…`
         // functions, which call the controller library's own as `__real_…`.
-        println!("cargo:rustc-link-arg=-Wl,--wrap=btdm_controller_init");
-        println!("cargo:rustc-link-arg=-Wl,--wrap=btdm_controller_enable");
+        if std::env::var_os("CARGO_FEATURE_BLE_ONLY").is_none() {
+            println!("cargo:rustc-link-arg=-Wl,--wrap=btdm_controller_init");
+            println!("cargo:rustc-link-arg=-Wl,--wrap=btdm_controller_enable");
+        }
     } else {
         println!("cargo:rustc-link-arg=-Tlinkall.x");
     }

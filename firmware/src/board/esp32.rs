@@ -98,7 +98,10 @@ pub fn reset_by_software(reason: Option<SocResetReason>) -> bool {
 /// from the same `esp-wifi-sys-esp32` bindings (one version in the build; check
 /// `firmware/Cargo.lock` when esp-radio moves). docs/decisions.md says why this way
 /// and docs/remote.md what only a board can prove.
+#[cfg(not(feature = "ble-only"))]
 mod bt_dual_mode {
+    use core::sync::atomic::{AtomicBool, Ordering};
+
     use esp_wifi_sys_esp32::include::{
         esp_bt_controller_config_t, esp_bt_mode_t, esp_bt_mode_t_ESP_BT_MODE_BLE,
         esp_bt_mode_t_ESP_BT_MODE_BTDM,
@@ -136,7 +139,13 @@ mod bt_dual_mode {
         }
     }
 
-    /// esp-radio's `btdm_controller_init`, after `--wrap`.
+    /// Whether the controller was started in dual mode, for the enable that follows.
+    static DUAL_MODE: AtomicBool = AtomicBool::new(false);
+
+    /// esp-radio's `btdm_controller_init`, after `--wrap`. Should the controller refuse
+    /// dual mode, it is started again with esp-radio's BLE-only configuration: esp-radio
+    /// panics on a failed start, and a panic at every boot would keep the base from
+    /// driving over CAN too.
     ///
     /// # Safety
     ///
@@ -149,24 +158,36 @@ mod bt_dual_mode {
     ) -> i32 {
         // SAFETY: esp-radio passes its own, filled configuration; it is only read, and
         // the controller copies ours during the call (esp-radio's is a local too).
-        let mut config = dual_mode(unsafe { config.read() });
-        defmt::info!(
-            "Bluetooth controller in dual mode: BLE and {} Classic links",
-            CLASSIC_LINKS
-        );
+        let mut ble_only = unsafe { config.read() };
+        let mut dual = dual_mode(ble_only);
         // SAFETY: the library's own function with a valid configuration.
-        unsafe { __real_btdm_controller_init(config_mask, &mut config) }
+        let result = unsafe { __real_btdm_controller_init(config_mask, &mut dual) };
+        if result == 0 {
+            DUAL_MODE.store(true, Ordering::Relaxed);
+            defmt::info!(
+                "Bluetooth controller in dual mode: BLE and {} Classic links",
+                CLASSIC_LINKS
+            );
+            return result;
+        }
+        defmt::error!(
+            "Bluetooth controller refused dual mode ({}): BLE only, no PlayStation pads",
+            result
+        );
+        // SAFETY: as above, with esp-radio's own configuration.
+        unsafe { __real_btdm_controller_init(config_mask, &mut ble_only) }
     }
 
     /// esp-radio's `btdm_controller_enable(BLE)`, after `--wrap`: the controller must be
-    /// enabled with the mode it was initialised with.
+    /// enabled with the mode it was started with.
     ///
     /// # Safety
     ///
     /// Only the linker calls this, in place of the library's function.
     #[unsafe(no_mangle)]
     unsafe extern "C" fn __wrap_btdm_controller_enable(mode: esp_bt_mode_t) -> i32 {
-        let mode = if mode == esp_bt_mode_t_ESP_BT_MODE_BLE {
+        let mode = if mode == esp_bt_mode_t_ESP_BT_MODE_BLE && DUAL_MODE.load(Ordering::Relaxed)
+        {
             esp_bt_mode_t_ESP_BT_MODE_BTDM
         } else {
             mode
