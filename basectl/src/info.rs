@@ -1,12 +1,12 @@
 //! `info`: the controller in one shot: firmware and register-map versions, mode,
 //! control source, flags, faults (flash among them), drive alarm, error counters,
-//! battery and pose.
+//! battery, pose, and the connected remote with its battery.
 
 use std::io::Write;
 use std::time::{Duration, Instant};
 
-use base_core::registers::Reg;
-use serde_json::json;
+use base_core::registers::{Charge, Reg, RemoteBattery, RemoteInfo, RemoteKind};
+use serde_json::{Value, json};
 
 use crate::base::{Base, Error};
 use crate::config::version_text;
@@ -16,9 +16,18 @@ use crate::rejection;
 /// The longest `info` waits for the battery report (it comes every `volt_time`).
 const LONGEST_LISTEN: Duration = Duration::from_secs(10);
 
+/// The register map that brought `remote_kind` and `remote_battery` (34, 35): an
+/// older firmware would refuse to read them.
+const REMOTE_REGMAP: u16 = 4;
+
 pub fn info(base: &mut Base, json_output: bool, out: &mut dyn Write) -> Result<(), Error> {
     let [firmware, regmap, volt_time] =
         base.read_registers([Reg::FwVersion, Reg::RegmapVersion, Reg::VoltTime])?;
+    let remote = if regmap >= REMOTE_REGMAP {
+        Some(base.read_registers([Reg::RemoteKind, Reg::RemoteBattery])?)
+    } else {
+        None
+    };
     let status = base.next_status()?;
     // The battery report comes every volt_time (5 s by default): wait for one.
     let listen = (Duration::from_millis(u64::from(volt_time)) + Duration::from_millis(500))
@@ -57,6 +66,7 @@ pub fn info(base: &mut Base, json_output: bool, out: &mut dyn Write) -> Result<(
             "battery_mv": battery.map(|(_, millivolts)| millivolts),
             "pose": pose.map(|pose| json!({"x_mm": pose.x_mm, "y_mm": pose.y_mm, "heading_mrad": pose.heading_mrad})),
             "weight_g": base.weight_g(),
+            "remote": remote_json(remote),
         });
         writeln!(out, "{object}")?;
         return Ok(());
@@ -134,5 +144,114 @@ pub fn info(base: &mut Base, json_output: bool, out: &mut dyn Write) -> Result<(
             listen.as_millis()
         )?,
     }
+    writeln!(out, "remote          {}", remote_text(remote, regmap))?;
     Ok(())
+}
+
+fn kind_name(kind: RemoteKind) -> &'static str {
+    match kind {
+        RemoteKind::None => "none",
+        RemoteKind::BlePad => "BLE pad",
+        RemoteKind::DualShock4 => "DualShock 4",
+        RemoteKind::DualSense => "DualSense",
+    }
+}
+
+fn charge_name(charge: Charge) -> &'static str {
+    match charge {
+        Charge::LevelOnly => "",
+        Charge::Discharging => " (on battery)",
+        Charge::Charging => " (charging)",
+        Charge::Full => " (charged)",
+        Charge::Fault => " (CHARGING FAULT)",
+    }
+}
+
+/// The `remote` line from `remote_kind` and `remote_battery`; `registers` is `None` when
+/// the firmware's register map (`regmap`) has no such registers.
+fn remote_text(registers: Option<[u16; 2]>, regmap: u16) -> String {
+    let Some([kind, battery]) = registers else {
+        return format!("not reported (register map {regmap}, needs {REMOTE_REGMAP})");
+    };
+    let Some(remote) = RemoteInfo::from_registers(kind, battery) else {
+        return format!("unknown kind {kind} (a newer firmware?)");
+    };
+    match (remote.kind, remote.battery) {
+        (RemoteKind::None, _) => "none connected".to_owned(),
+        (kind, None) => format!("{}, battery not known", kind_name(kind)),
+        (kind, Some(RemoteBattery { percent, charge })) => format!(
+            "{}, battery {percent} %{}",
+            kind_name(kind),
+            charge_name(charge)
+        ),
+    }
+}
+
+/// `info --json`'s `remote`: `null` when the firmware does not report it, else the
+/// kind (`None`, `BlePad`, `DualShock4`, `DualSense`, or the unknown code) and the
+/// battery (`null` when not known).
+fn remote_json(registers: Option<[u16; 2]>) -> Value {
+    let Some([kind, battery]) = registers else {
+        return Value::Null;
+    };
+    let Some(remote) = RemoteInfo::from_registers(kind, battery) else {
+        return json!({ "kind": kind, "battery": null });
+    };
+    json!({
+        "kind": format!("{:?}", remote.kind),
+        "battery": remote.battery.map(|battery| json!({
+            "percent": battery.percent,
+            "charge": format!("{:?}", battery.charge),
+        })),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_remote_line_names_the_pad_and_its_battery() {
+        // (remote_kind, remote_battery) → the line
+        let table = [
+            ([0, 0], "none connected"),
+            ([1, 0], "BLE pad, battery not known"),
+            ([1, 0x0137], "BLE pad, battery 55 %"),
+            ([2, 0x0250], "DualShock 4, battery 80 % (on battery)"),
+            ([3, 0x0323], "DualSense, battery 35 % (charging)"),
+            ([3, 0x0464], "DualSense, battery 100 % (charged)"),
+            ([3, 0x0500], "DualSense, battery 0 % (CHARGING FAULT)"),
+            // A battery value the firmware never writes reads as not known.
+            ([2, 0x0900], "DualShock 4, battery not known"),
+            ([9, 0], "unknown kind 9 (a newer firmware?)"),
+        ];
+        for (registers, line) in table {
+            assert_eq!(remote_text(Some(registers), 4), line, "{registers:04X?}");
+        }
+        assert_eq!(
+            remote_text(None, 3),
+            "not reported (register map 3, needs 4)"
+        );
+    }
+
+    #[test]
+    fn the_remote_in_json_has_kind_and_battery_or_null() {
+        assert_eq!(remote_json(None), Value::Null);
+        assert_eq!(
+            remote_json(Some([0, 0])),
+            json!({"kind": "None", "battery": null})
+        );
+        assert_eq!(
+            remote_json(Some([3, 0x0323])),
+            json!({"kind": "DualSense", "battery": {"percent": 35, "charge": "Charging"}})
+        );
+        assert_eq!(
+            remote_json(Some([1, 0x0137])),
+            json!({"kind": "BlePad", "battery": {"percent": 55, "charge": "LevelOnly"}})
+        );
+        assert_eq!(
+            remote_json(Some([7, 0])),
+            json!({"kind": 7, "battery": null})
+        );
+    }
 }

@@ -18,7 +18,7 @@ use crate::plausibility::{self, FeedbackCheck};
 use crate::power::{self, PowerControl, SwitchLevel};
 use crate::registers::{
     MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, RESTORE_DEFAULTS_KEY, Reg, RegisterError,
-    Registers, WriteOutcome,
+    Registers, RemoteInfo, RemoteKind, WriteOutcome,
 };
 use crate::remote::{self, Control, PairingWindow, Remote};
 use crate::scale::{self, RawAverage};
@@ -59,6 +59,12 @@ pub enum Input {
     },
     /// The BLE task bonded a new pad: the pairing window closes, one new pad per opening.
     RemotePaired,
+    /// The connected remote's kind and battery, for the PC (`remote_kind`,
+    /// `remote_battery`). The Classic task sends it once it knows the pad's kind (best
+    /// before its `RemoteLink` connect) and again when the battery reading changes, not
+    /// on every report. A `RemoteLink` connect without it reads as the BLE pad; a
+    /// disconnect clears it.
+    RemoteInfo(RemoteInfo),
     /// One cycle of drive feedback: raw position counters and measured motor speeds.
     DriveFeedback {
         counts: EncoderCounts,
@@ -324,6 +330,7 @@ impl Controller {
             }
             Input::RemoteLink { bonded, connected } => {
                 self.remote_link = RemoteLink { bonded, connected };
+                self.note_remote_link(connected);
                 let event = if connected {
                     remote::Event::Connected
                 } else {
@@ -340,6 +347,7 @@ impl Controller {
                     warn!("a gamepad was paired while the pairing window was closed");
                 }
             }
+            Input::RemoteInfo(remote) => self.registers.set_remote_info(remote),
             Input::DriveFeedback { counts, rpm } => self.drive_feedback(now, counts, rpm, &mut out),
             Input::DrivesReady => {
                 // The counters restarted with the drives' power: the next sample is a
@@ -746,6 +754,24 @@ impl Controller {
         out.setup_drives |= effects.setup_drives;
     }
 
+    /// `remote_kind`/`remote_battery` follow the link: a disconnect clears them, and a
+    /// link that comes up with no kind reported is the BLE pad's (its task reports no
+    /// kind; the Classic task does).
+    fn note_remote_link(&mut self, connected: bool) {
+        let remote = match self.registers.remote_info() {
+            _ if !connected => RemoteInfo::NONE,
+            RemoteInfo {
+                kind: RemoteKind::None,
+                ..
+            } => RemoteInfo {
+                kind: RemoteKind::BlePad,
+                battery: None,
+            },
+            known => known,
+        };
+        self.registers.set_remote_info(remote);
+    }
+
     /// Runs the remote and gives the supervisor what it asks for. `otherwise` is the
     /// supervisor step the caller needs anyway (a tick); a remote event replaces it,
     /// since every step checks the timeouts, and a second step for the same input would
@@ -1083,6 +1109,68 @@ mod tests {
             ),
             (1, 4_464)
         );
+    }
+
+    #[test]
+    fn the_remote_registers_follow_the_link_and_what_the_bluetooth_tasks_report() {
+        use crate::hid::playstation::{Battery, BatteryState, PadKind};
+        use crate::registers::{Charge, RemoteBattery, RemoteInfo, RemoteKind};
+        let link = |connected| Input::RemoteLink {
+            bonded: true,
+            connected,
+        };
+        let dual_shock = RemoteInfo::playstation(
+            PadKind::DualShock4,
+            Some(Battery {
+                percent: 80,
+                state: BatteryState::Charging,
+            }),
+        );
+        let ble_pad = RemoteInfo {
+            kind: RemoteKind::BlePad,
+            battery: None,
+        };
+        // (input) → what `remote_kind`/`remote_battery` hold afterwards
+        let table = [
+            (link(false), RemoteInfo::NONE),
+            // A link that comes up without a kind reported is the BLE pad's.
+            (link(true), ble_pad),
+            (link(false), RemoteInfo::NONE),
+            // The Classic task reports the kind first, then the link: it stays.
+            (Input::RemoteInfo(dual_shock), dual_shock),
+            (link(true), dual_shock),
+            // The kind reported after the link replaces the BLE guess.
+            (link(false), RemoteInfo::NONE),
+            (link(true), ble_pad),
+            (Input::RemoteInfo(dual_shock), dual_shock),
+            (
+                Input::RemoteInfo(RemoteInfo {
+                    battery: Some(RemoteBattery {
+                        percent: 100,
+                        charge: Charge::Full,
+                    }),
+                    ..dual_shock
+                }),
+                RemoteInfo {
+                    battery: Some(RemoteBattery {
+                        percent: 100,
+                        charge: Charge::Full,
+                    }),
+                    ..dual_shock
+                },
+            ),
+            // A lost link never leaves a stale pad or battery behind.
+            (link(false), RemoteInfo::NONE),
+        ];
+        let mut controller = Controller::new(at(0), Registers::defaults());
+        for (ms, (input, expected)) in (0..).step_by(10).zip(table) {
+            controller.handle(at(ms), input);
+            assert_eq!(
+                controller.registers().remote_info(),
+                expected,
+                "after {input:?}"
+            );
+        }
     }
 
     /// Drives ready, CAN enabled and driving forward at 500 mm/s since 0 ms.

@@ -13,6 +13,7 @@
 
 mod descriptor;
 mod layout;
+pub mod light_bar;
 pub mod playstation;
 #[cfg(test)]
 mod test_data;

@@ -14,12 +14,14 @@
 //! raise `estop_decel` before `max_motor_vel`).
 
 mod record;
+mod remote_info;
 mod table;
 
 pub use record::{
     RECORD_LEN, RecordError, SCHEMA_VERSION, STORE_SCHEMA, decode_record, encode_record,
     encode_store_record, migrate,
 };
+pub use remote_info::{Charge, RemoteBattery, RemoteInfo, RemoteKind};
 pub use table::{
     ADDRESS_COUNT, Access, FW_VERSION, LAST_MANUAL_ADDRESS, MOTOR_DIR_INVERT_LEFT,
     MOTOR_DIR_INVERT_RIGHT, OPEN_PAIRING_WINDOW_KEY, REGMAP_VERSION, RESTORE_DEFAULTS_KEY, Reg,
@@ -32,9 +34,10 @@ pub use table::{
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum RegisterError {
-    /// No register at this address (34–37, 41–47 and 50–255).
+    /// No register at this address (36–37, 41–42 and 50–255).
     UnknownAddress = 0x10,
-    /// The register is read-only (`fw_version`, `regmap_version`).
+    /// The register is read-only (`fw_version`, `regmap_version`, the counters and the
+    /// remote's kind and battery).
     ReadOnly = 0x11,
     /// The value is outside the register's range, or not a known key for `command`.
     OutOfRange = 0x12,
@@ -227,6 +230,20 @@ impl Registers {
         }
     }
 
+    /// Sets `remote_kind` and `remote_battery` (34, 35), the remote the Bluetooth
+    /// tasks report.
+    pub fn set_remote_info(&mut self, remote: RemoteInfo) {
+        let (kind, battery) = remote.registers();
+        self.values[usize::from(Reg::RemoteKind.address())] = kind;
+        self.values[usize::from(Reg::RemoteBattery.address())] = battery;
+    }
+
+    /// What `remote_kind` and `remote_battery` hold.
+    pub fn remote_info(&self) -> RemoteInfo {
+        RemoteInfo::from_registers(self.get(Reg::RemoteKind), self.get(Reg::RemoteBattery))
+            .unwrap_or_default()
+    }
+
     /// A CAN register read. `command` reads 0.
     pub fn read(&self, address: u8) -> Result<u16, RegisterError> {
         let reg = Reg::from_address(address).ok_or(RegisterError::UnknownAddress)?;
@@ -247,7 +264,10 @@ impl Registers {
             // `command`: `accepts` let only its keys through.
             return match value {
                 RESTORE_DEFAULTS_KEY => {
+                    // The remote is still connected: what the tasks reported stays.
+                    let remote = self.remote_info();
                     *self = Self::defaults();
+                    self.set_remote_info(remote);
                     Ok(WriteOutcome::DefaultsRestored)
                 }
                 OPEN_PAIRING_WINDOW_KEY => Ok(WriteOutcome::PairingWindowRequested),

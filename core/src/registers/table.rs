@@ -1,10 +1,10 @@
 //! The register map: every address, its name, unit, default, valid range and access.
-//! Addresses 0–23 are the manual's (§10) and never move; 24–33, 38–40 and 43–49 are
+//! Addresses 0–23 are the manual's (§10) and never move; 24–35, 38–40 and 43–49 are
 //! this firmware's extensions. `docs/registers.md` is this table in prose.
 
 /// Every register by its manual name, in CamelCase; the discriminant is the CAN address.
 ///
-/// 34–37 are deliberately absent: they are kept free for the Bluetooth remote, and
+/// 36–37 are deliberately absent: they are kept free for the Bluetooth remote, and
 /// reading or writing them answers [`super::RegisterError::UnknownAddress`]; so are
 /// 41–42, kept for the next extensions.
 #[repr(u8)]
@@ -79,6 +79,12 @@ pub enum Reg {
     PcBootGrace = 32,
     /// (ext) `pc_switch_pulse`, ms: how long the PC power switch is closed.
     PcSwitchPulse = 33,
+    /// (ext) `remote_kind`, read-only: the connected remote
+    /// ([`super::RemoteKind`]: 0 none, 1 BLE pad, 2 DualShock 4, 3 DualSense).
+    RemoteKind = 34,
+    /// (ext) `remote_battery`, read-only: the remote's battery
+    /// ([`super::RemoteBattery`]: level in bits 0–7, charge state in 8–15; 0 unknown).
+    RemoteBattery = 35,
     /// (ext) `fw_version`, read-only: `(major << 8) | minor`.
     FwVersion = 38,
     /// (ext) `regmap_version`, read-only: version of this register map.
@@ -105,7 +111,7 @@ pub enum Reg {
 
 impl Reg {
     /// Every register, in address order.
-    pub const ALL: [Reg; 44] = [
+    pub const ALL: [Reg; 46] = [
         Reg::RadR,
         Reg::RadL,
         Reg::WheelDist,
@@ -140,6 +146,8 @@ impl Reg {
         Reg::StatusTime,
         Reg::PcBootGrace,
         Reg::PcSwitchPulse,
+        Reg::RemoteKind,
+        Reg::RemoteBattery,
         Reg::FwVersion,
         Reg::RegmapVersion,
         Reg::Command,
@@ -257,8 +265,8 @@ pub const MOTOR_DIR_INVERT_RIGHT: u16 = 0b10;
 /// 1: the first map. 2: `command` also takes [`OPEN_PAIRING_WINDOW_KEY`]. 3: the CAN
 /// transmit drops (43), the full 24-bit scale offset (44, 45), the store's erase count
 /// (46, 47), `stop_decel` (48) and `sec_motor_vel` (49); motion registers only at
-/// standstill.
-pub const REGMAP_VERSION: u16 = 3;
+/// standstill. 4: the remote's kind (34) and battery (35).
+pub const REGMAP_VERSION: u16 = 4;
 
 /// [`Reg::FwVersion`]: `(major << 8) | minor` of the crate version, fixed at compile time.
 pub const FW_VERSION: u16 = ((parse_version_part(env!("CARGO_PKG_VERSION_MAJOR")) as u16) << 8)
@@ -365,12 +373,13 @@ const fn or_off(mut info: RegisterInfo) -> RegisterInfo {
     info
 }
 
+use super::remote_info::{RemoteBattery, RemoteKind};
 use Access::{ReadOnly, ReadWrite, WriteOnly};
 
-/// Every register in address order (34–37 and 41–42 are not assigned). Why each range is what it
+/// Every register in address order (36–37 and 41–42 are not assigned). Why each range is what it
 /// is: `docs/registers.md`.
 #[rustfmt::skip]
-pub static TABLE: [RegisterInfo; 44] = [
+pub static TABLE: [RegisterInfo; 46] = [
     row(Reg::RadR, "rad_r", "mm", 142, (10, 1000), ReadWrite, "right wheel radius"),
     row(Reg::RadL, "rad_l", "mm", 142, (10, 1000), ReadWrite, "left wheel radius"),
     row(Reg::WheelDist, "wheel_dist", "mm", 250, (50, 2000), ReadWrite, "distance between the wheels"),
@@ -405,6 +414,8 @@ pub static TABLE: [RegisterInfo; 44] = [
     or_off(row(Reg::StatusTime, "status_time", "ms", 1000, (100, 60000), ReadWrite, "status frame period (0 = off)")),
     row(Reg::PcBootGrace, "pc_boot_grace", "s", 120, (10, 600), ReadWrite, "a PC switched on counts as on this long before its first heartbeat"),
     row(Reg::PcSwitchPulse, "pc_switch_pulse", "ms", 500, (50, 2000), ReadWrite, "how long the PC power switch is closed"),
+    row(Reg::RemoteKind, "remote_kind", "kind", 0, (0, RemoteKind::MAX_CODE), ReadOnly, "the connected remote: 0 none, 1 BLE pad, 2 DualShock 4, 3 DualSense"),
+    row(Reg::RemoteBattery, "remote_battery", "state<<8 | %", 0, (0, RemoteBattery::MAX_REGISTER), ReadOnly, "the remote's battery: bits 0-7 percent, bits 8-15 1 level only, 2 discharging, 3 charging, 4 full, 5 fault; 0 unknown"),
     row(Reg::FwVersion, "fw_version", "major.minor", FW_VERSION, (FW_VERSION, FW_VERSION), ReadOnly, "firmware version"),
     row(Reg::RegmapVersion, "regmap_version", "", REGMAP_VERSION, (REGMAP_VERSION, REGMAP_VERSION), ReadOnly, "register map version"),
     row(Reg::Command, "command", "key", 0, (OPEN_PAIRING_WINDOW_KEY, RESTORE_DEFAULTS_KEY), WriteOnly, "0xDEF0 restores every writable register to its default; 0xB1E0 opens the remote's pairing window"),

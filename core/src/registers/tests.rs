@@ -31,7 +31,7 @@ const MANUAL: [(u8, &str, u16); 24] = [
 ];
 
 /// The extensions as the lead fixed them: address, name, default, min, max, 0 = off.
-const EXTENSIONS: [(u8, &str, u16, u16, u16, bool); 17] = [
+const EXTENSIONS: [(u8, &str, u16, u16, u16, bool); 19] = [
     (24, "gear_ratio", 1000, 100, 10000, false),
     (25, "enable_timeout", 500, 50, 5000, false),
     (26, "estop_decel", 4500, 100, 30000, false),
@@ -42,6 +42,8 @@ const EXTENSIONS: [(u8, &str, u16, u16, u16, bool); 17] = [
     (31, "status_time", 1000, 100, 60000, true),
     (32, "pc_boot_grace", 120, 10, 600, false),
     (33, "pc_switch_pulse", 500, 50, 2000, false),
+    (34, "remote_kind", 0, 0, 3, false),
+    (35, "remote_battery", 0, 0, 0x0564, false),
     (43, "can_tx_dropped", 0, 0, 65535, false),
     (44, "weight_offset_hi", 0, 0, 255, false),
     (45, "weight_offset_lo", 20490, 0, 65535, false),
@@ -112,7 +114,7 @@ fn reg_enum_table_and_addresses_agree() {
         assert_eq!(Reg::from_address(reg as u8), Some(reg));
     }
     assert!(Reg::ALL.windows(2).all(|w| w[0] < w[1]));
-    for address in (34..=37).chain(41..=42).chain(50..=u8::MAX) {
+    for address in (36..=37).chain(41..=42).chain(50..=u8::MAX) {
         assert_eq!(Reg::from_address(address), None);
         assert_eq!(info(address), None);
     }
@@ -130,9 +132,8 @@ fn version_registers_read_the_build_and_map_versions() {
     let minor: u16 = parts.next().unwrap().parse().unwrap();
     let registers = Registers::defaults();
     assert_eq!(registers.read(38), Ok((major << 8) | minor));
-    // 3 since the full scale offset, the erase count, the transmit drops,
-    // `stop_decel` and `sec_motor_vel` came, and motion registers wait for standstill.
-    assert_eq!(registers.read(39), Ok(3));
+    // 4 since the remote's kind and battery came (34, 35).
+    assert_eq!(registers.read(39), Ok(4));
 }
 
 #[test]
@@ -195,12 +196,14 @@ fn bad_writes_are_rejected_and_change_nothing() {
         (8, 49, OutOfRange),     // PS_rel_max_vel below the lowest speed level
         (28, 4, OutOfRange),     // motor_dir has two bits
         (40, 1, OutOfRange),     // command: not the restore key
-        (34, 1, UnknownAddress),
+        (36, 1, UnknownAddress),
         (37, 1, UnknownAddress),
         (41, 1, UnknownAddress),
         (255, 1, UnknownAddress),
         (38, 0x0100, ReadOnly),
         (39, 1, ReadOnly),
+        (34, 1, ReadOnly),
+        (35, 0, ReadOnly),
         (29, 25500, Inconsistent), // batt_empty_mv = batt_full_mv
         (29, 30000, Inconsistent), // batt_empty_mv > batt_full_mv
         (30, 21000, Inconsistent), // batt_full_mv = batt_empty_mv
@@ -703,4 +706,140 @@ fn counters_are_read_only_and_set_by_the_firmware() {
     assert_eq!(registers.read(43), Ok(7));
     assert_eq!(registers.get(Reg::RadR), 142);
     assert_eq!(registers.write(43, 0), Err(RegisterError::ReadOnly));
+}
+
+#[test]
+fn the_remote_registers_read_what_the_bluetooth_tasks_report_and_refuse_writes() {
+    use crate::hid::playstation::{Battery, BatteryState, PadKind};
+    let mut registers = Registers::defaults();
+    assert_eq!((registers.read(34), registers.read(35)), (Ok(0), Ok(0)));
+    assert_eq!(registers.remote_info(), RemoteInfo::NONE);
+
+    // (what the task reports) → (remote_kind, remote_battery)
+    let table = [
+        (RemoteInfo::NONE, (0, 0)),
+        (
+            RemoteInfo {
+                kind: RemoteKind::BlePad,
+                battery: None,
+            },
+            (1, 0),
+        ),
+        (
+            RemoteInfo {
+                kind: RemoteKind::BlePad,
+                battery: Some(RemoteBattery {
+                    percent: 55,
+                    charge: Charge::LevelOnly,
+                }),
+            },
+            (1, 0x0137),
+        ),
+        (RemoteInfo::playstation(PadKind::DualShock4, None), (2, 0)),
+        (
+            RemoteInfo::playstation(
+                PadKind::DualShock4,
+                Some(Battery {
+                    percent: 80,
+                    state: BatteryState::Discharging,
+                }),
+            ),
+            (2, 0x0250),
+        ),
+        (
+            RemoteInfo::playstation(
+                PadKind::DualSense,
+                Some(Battery {
+                    percent: 35,
+                    state: BatteryState::Charging,
+                }),
+            ),
+            (3, 0x0323),
+        ),
+        (
+            RemoteInfo::playstation(
+                PadKind::DualSense,
+                Some(Battery {
+                    percent: 100,
+                    state: BatteryState::Full,
+                }),
+            ),
+            (3, 0x0464),
+        ),
+        (
+            RemoteInfo::playstation(
+                PadKind::DualSense,
+                Some(Battery {
+                    percent: 0,
+                    state: BatteryState::Fault,
+                }),
+            ),
+            (3, 0x0500),
+        ),
+    ];
+    for (remote, (kind, battery)) in table {
+        registers.set_remote_info(remote);
+        assert_eq!(
+            (registers.read(34), registers.read(35)),
+            (Ok(kind), Ok(battery)),
+            "{remote:?}"
+        );
+        assert_eq!(registers.remote_info(), remote, "decodes back");
+        for (address, value) in [(34, kind), (35, battery)] {
+            let info = info(address).unwrap();
+            assert!(
+                info.accepts(value),
+                "{} = {value:#06X} in its range",
+                info.name
+            );
+        }
+    }
+
+    let before = registers.clone();
+    assert_eq!(registers.write(34, 1), Err(RegisterError::ReadOnly));
+    assert_eq!(registers.write(35, 0), Err(RegisterError::ReadOnly));
+    assert_eq!(registers, before);
+    // Not persisted, and a stored record of them is refused at boot.
+    assert!(
+        registers
+            .iter()
+            .all(|(address, _)| address != 34 && address != 35)
+    );
+    let stored = [encode_record(34, 2), encode_record(35, 0x0250)];
+    let (loaded, report) = Registers::load(stored.iter().map(|record| &record[..]));
+    assert_eq!(report.rejected, 2);
+    assert_eq!(loaded.remote_info(), RemoteInfo::NONE);
+}
+
+#[test]
+fn remote_register_values_the_firmware_never_writes_decode_as_unknown() {
+    assert_eq!(RemoteKind::from_code(4), None);
+    assert_eq!(RemoteInfo::from_registers(4, 0), None);
+    // Charge code 0 and 6.., and a level above 100.
+    for battery in [0x0000, 0x0050, 0x0650, 0xFF64, 0x0265] {
+        assert_eq!(
+            RemoteBattery::from_register(battery),
+            None,
+            "{battery:#06X}"
+        );
+    }
+    // A level above 100 is never written.
+    let battery = RemoteBattery {
+        percent: 150,
+        charge: Charge::Discharging,
+    };
+    assert_eq!(battery.register(), 0x0264);
+}
+
+#[test]
+fn restoring_the_defaults_keeps_the_connected_remote() {
+    use crate::hid::playstation::PadKind;
+    let mut registers = Registers::defaults();
+    let remote = RemoteInfo::playstation(PadKind::DualSense, None);
+    registers.set_remote_info(remote);
+    assert_eq!(
+        registers.write(40, RESTORE_DEFAULTS_KEY),
+        Ok(WriteOutcome::DefaultsRestored)
+    );
+    assert_eq!(registers.remote_info(), remote);
 }
