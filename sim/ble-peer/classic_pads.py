@@ -35,7 +35,8 @@ from bumble.transport.common import AsyncPipeSink
 COMMANDS = """\
 ps NAME ds4|dualsense ADDRESS  create a PlayStation pad, on, connectable, not bonded
 pairing NAME            the pad's pairing mode (Share+PS): discoverable as a gamepad
-on NAME                 a bonded pad is switched on: it pages the host it paired with
+on NAME [ADDRESS]       the pad is switched on: it pages the host it paired with (or
+                        ADDRESS, the robot's being 00:B0:75:00:00:01) and opens its channels
 off NAME                the pad switches off: it closes its link
 press/release NAME B... buttons: CROSS CIRCLE SQUARE TRIANGLE L1 R1 L2 R2 SHARE OPTIONS
                         L3 R3 PS TOUCHPAD UP DOWN LEFT RIGHT
@@ -390,15 +391,17 @@ class PlayStationPad:
         if self.connection is connection:
             self.connection = None
         self.stop_streaming()
+        # Bumble closes no channel of a link that broke: forget them, so that nothing is
+        # sent on them on the next link.
+        self.hid.l2cap_ctrl_channel = None
+        self.hid.l2cap_intr_channel = None
         event("disconnected", self.name, int(reason))
 
-    async def page_host(self) -> None:
-        """Switched on: page the host we paired with, then open the HID channels."""
-        if self.host_address is None:
-            raise RuntimeError("not paired")
+    async def page_host(self, address) -> None:
+        """Switched on: page the host, then open the HID channels."""
         try:
             connection = await self.device.connect(
-                self.host_address, transport=PhysicalTransport.BR_EDR, timeout=10
+                address, transport=PhysicalTransport.BR_EDR, timeout=10
             )
         except Exception as error:  # page timeout, or the host rejected us
             event("page-failed", self.name, type(error).__name__)
@@ -477,11 +480,15 @@ class PlayStationPad:
     async def stream(self) -> None:
         while True:
             if not self.silent and self.hid.l2cap_intr_channel is not None:
-                self.hid.send_data(self.report())
+                try:
+                    self.hid.send_data(self.report())
+                except Exception as error:  # the link went meanwhile
+                    event("send-failed", self.name, type(error).__name__)
             await asyncio.sleep(REPORT_PERIOD_MS / 1000)
 
     def check_streaming(self) -> None:
-        if self.streaming is None and self.hid.l2cap_intr_channel is not None:
+        encrypted = self.connection is not None and self.connection.is_encrypted
+        if self.streaming is None and encrypted and self.hid.l2cap_intr_channel is not None:
             self.streaming = asyncio.get_running_loop().create_task(self.stream())
             event("streaming", self.name)
 
@@ -525,8 +532,15 @@ class ClassicPads:
         match words:
             case ["pairing", _]:
                 await pad.device.set_discoverable(True)
-            case ["on", _]:
-                asyncio.get_running_loop().create_task(pad.page_host())
+            case ["on", _, *address]:
+                host = (
+                    hci.Address(address[0], hci.Address.PUBLIC_DEVICE_ADDRESS)
+                    if address
+                    else pad.host_address
+                )
+                if host is None:
+                    raise RuntimeError("not paired: give the address to page")
+                asyncio.get_running_loop().create_task(pad.page_host(host))
             case ["off", _]:
                 pad.stop_streaming()
                 if pad.connection is not None:

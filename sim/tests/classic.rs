@@ -24,6 +24,7 @@ use virtual_robot::robot::Pc;
 const PAD_ADDRESS: &str = "A4:AE:12:00:00:01";
 const STRANGER_ADDRESS: &str = "A4:AE:12:00:00:02";
 /// A BLE pad's random static address.
+/// (used by the bonded-in-turn scenario)
 const BLE_PAD_ADDRESS: &str = "C1:11:22:33:44:55";
 
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
@@ -122,6 +123,29 @@ async fn wheels(robot: &RemoteRobot, timeout_ms: u64, forward: bool) {
     }
 }
 
+/// Switches a bonded pad on: it pages the robot until the robot answers (a real pad
+/// pages for a while; the robot's page scan is on once its controller is set up).
+async fn switch_on(peer: &mut Peer, name: &str) {
+    for _ in 0..3 {
+        let mark = peer.mark();
+        peer.cmd(&format!("on {name}")).await;
+        let deadline = Instant::now() + Duration::from_secs(12);
+        while Instant::now() < deadline {
+            if !peer
+                .events_since(mark, &["encrypted", name, "1"])
+                .is_empty()
+            {
+                return;
+            }
+            if !peer.events_since(mark, &["page-failed", name]).is_empty() {
+                break;
+            }
+            Timer::after_millis(10).await;
+        }
+    }
+    panic!("the robot never answered {name}'s page");
+}
+
 /// Pulls the left stick forward with the dead-man held: the robot drives.
 async fn drive_forward(peer: &mut Peer, robot: &RemoteRobot, pc: &Pc, name: &str) {
     take_control(peer, pc, name).await;
@@ -199,4 +223,234 @@ fn a_dualshock4_pairs_in_the_window_drives_with_r1_held_and_release_stops() {
         bond_stored_for(&robot, PAD_ADDRESS),
         "the link key is in the bonds partition"
     );
+}
+
+#[test]
+fn link_loss_with_r1_held_stops_within_the_supervision_timeout() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        status(pc, 5_000, "the controller is up", |_| true).await;
+        write_register(pc, Reg::ContrAccHigh, RELEASE_BRAKING);
+        pair(&mut peer, pc, "pad", "ds4", PAD_ADDRESS).await;
+        drive_forward(&mut peer, &robot, pc, "pad").await;
+        let mark = peer.mark();
+        let lost_at = Instant::now();
+        // Out of range: the dead-man stays held, nothing passes any more. The pad's
+        // stream stops with the link, so the silence watchdog may see it first.
+        peer.cmd("lose pad").await;
+        let zero = zero_on_the_wire(&robot, 2_000).await;
+        let stopped_after = zero - lost_at;
+        assert_eq!(last_decel(&robot), i32::from(RELEASE_BRAKING));
+        status(pc, 2_000, "the lost link is reported", |s| {
+            !s.flags.remote_connected && !s.flags.remote_in_control
+        })
+        .await;
+        // The supervision timeout the host set as central is the one played out.
+        let lost = peer.wait_for(mark, &["lost", "pad"], 3_000).await;
+        assert_eq!(lost.words[2], "500", "supervision timeout in ms");
+        assert!(
+            stopped_after < Duration::from_millis(600),
+            "{stopped_after:?}"
+        );
+        eprintln!("classic link loss to zero on the wire: {stopped_after:?}");
+    });
+}
+
+#[test]
+fn a_silent_pad_stops_the_base_within_the_report_watchdog() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        status(pc, 5_000, "the controller is up", |_| true).await;
+        write_register(pc, Reg::ContrAccHigh, RELEASE_BRAKING);
+        pair(&mut peer, pc, "pad", "ds4", PAD_ADDRESS).await;
+        drive_forward(&mut peer, &robot, pc, "pad").await;
+        let mark = peer.mark();
+        let silent_at = Instant::now();
+        // The link stays up; the reports stop (a hung pad).
+        peer.cmd("silent pad").await;
+        let zero = zero_on_the_wire(&robot, 2_000).await;
+        let stopped_after = zero - silent_at;
+        assert_eq!(last_decel(&robot), i32::from(RELEASE_BRAKING));
+        // 100 ms of silence, a 10 ms tick, the controller's cycle.
+        assert!(
+            stopped_after < Duration::from_millis(250),
+            "{stopped_after:?}"
+        );
+        eprintln!("classic report silence to zero on the wire: {stopped_after:?}");
+        // The silent link is dropped.
+        peer.wait_for(mark, &["disconnected", "pad"], 3_000).await;
+        status(pc, 1_000, "the link is reported down", |s| {
+            !s.flags.remote_connected
+        })
+        .await;
+    });
+}
+
+#[test]
+fn the_bonded_pad_reconnects_by_its_page_also_after_a_reboot_without_pairing() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        pair(&mut peer, pc, "pad", "ds4", PAD_ADDRESS).await;
+        // Switched off and on: the pad pages the robot.
+        peer.cmd("off pad").await;
+        status(pc, 3_000, "the switch-off is reported", |s| {
+            !s.flags.remote_connected
+        })
+        .await;
+        let mark = peer.mark();
+        let on_at = Instant::now();
+        peer.cmd("on pad").await;
+        peer.wait_for(mark, &["encrypted", "pad", "1"], 10_000)
+            .await;
+        status(pc, 5_000, "the pad is back", |s| s.flags.remote_connected).await;
+        eprintln!(
+            "classic reconnect (pad on to connected): {:?}",
+            on_at.elapsed()
+        );
+        assert!(
+            peer.events_since(mark, &["paired"]).is_empty(),
+            "a bonded pad is not paired again"
+        );
+        take_control(&mut peer, pc, "pad").await;
+        // At rest before the power goes, so that the next boot finds the drives well.
+        peer.cmd("release pad R1").await;
+        status(pc, 5_000, "the brakes close", |s| s.flags.brakes_applied).await;
+    });
+    // The chip lost power; it boots with the key from flash.
+    let mark = peer.mark();
+    robot.run(peer.controller(), async |pc| {
+        status(pc, 5_000, "the bond came back from flash", |s| {
+            s.flags.remote_bonded
+        })
+        .await;
+        peer.wait_for(0, &["disconnected", "pad"], 5_000).await;
+        switch_on(&mut peer, "pad").await;
+        status(pc, 5_000, "the pad is back", |s| s.flags.remote_connected).await;
+        assert!(peer.events_since(mark, &["paired"]).is_empty());
+        take_control(&mut peer, pc, "pad").await;
+    });
+}
+
+#[test]
+fn a_stranger_outside_the_window_and_an_impostor_at_the_bonded_address_are_refused() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        pair(&mut peer, pc, "pad", "ds4", PAD_ADDRESS).await;
+        peer.cmd("off pad").await;
+        status(pc, 3_000, "the switch-off is reported", |s| {
+            !s.flags.remote_connected
+        })
+        .await;
+        // A pad nobody paired pages the robot: rejected at once, by its address.
+        peer.cmd(&format!("ps stranger ds4 {STRANGER_ADDRESS}"))
+            .await;
+        let mark = peer.mark();
+        peer.cmd("on stranger 00:B0:75:00:00:01").await;
+        peer.wait_for(mark, &["page-failed", "stranger"], 10_000)
+            .await;
+        assert!(
+            peer.events_since(mark, &["connected", "stranger"])
+                .is_empty()
+        );
+        // The bonded address without the key (an impostor, or a pad reset): the link
+        // comes up, fails to authenticate, is dropped and never paired.
+        peer.cmd("forget pad").await;
+        let mark = peer.mark();
+        peer.cmd("on pad").await;
+        peer.wait_for(mark, &["classic-key-mismatch"], 10_000).await;
+        peer.wait_for(mark, &["disconnected", "pad"], 10_000).await;
+        Timer::after_millis(500).await;
+        assert!(
+            peer.events_since(mark, &["paired"]).is_empty(),
+            "no pairing outside the window"
+        );
+        assert!(
+            peer.events_since(mark, &["encrypted", "pad", "1"])
+                .is_empty()
+        );
+        let now = status(pc, 1_000, "the controller answers", |_| true).await;
+        assert!(!now.flags.remote_connected && now.flags.remote_bonded);
+    });
+}
+
+#[test]
+fn a_dualsense_pairs_and_drives_and_l2_with_ps_switches_it_off() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        pair(&mut peer, pc, "pad", "dualsense", PAD_ADDRESS).await;
+        drive_forward(&mut peer, &robot, pc, "pad").await;
+        peer.cmd("release pad R1").await;
+        peer.cmd("stick pad LY 0").await;
+        wheels(&robot, 3_000, false).await;
+        let mark = peer.mark();
+        peer.cmd("trigger pad L2 1.0").await;
+        Timer::after_millis(50).await;
+        peer.cmd("press pad PS").await;
+        peer.wait_for(mark, &["disconnected", "pad"], 3_000).await;
+        status(pc, 2_000, "the switch-off is reported", |s| {
+            s.flags.remote_bonded && !s.flags.remote_connected
+        })
+        .await;
+    });
+}
+
+#[test]
+fn a_ble_pad_and_a_playstation_pad_bonded_in_turn_both_drive() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        // The BLE pad first (HID over GATT, its dead-man RB).
+        peer.cmd(&format!("pad xbox {BLE_PAD_ADDRESS}")).await;
+        let mark = peer.mark();
+        peer.cmd("advertise xbox").await;
+        open_pairing_window(pc).await;
+        peer.wait_for(mark, &["paired", "xbox"], 20_000).await;
+        peer.wait_for(mark, &["subscribed", "xbox"], 10_000).await;
+        status(pc, 5_000, "the BLE pad is connected", |s| {
+            s.flags.remote_connected
+        })
+        .await;
+        peer.cmd("disconnect xbox").await;
+        status(pc, 3_000, "the BLE pad is off", |s| {
+            !s.flags.remote_connected
+        })
+        .await;
+        // Then the PlayStation pad, in the next window.
+        pair(&mut peer, pc, "ps", "ds4", PAD_ADDRESS).await;
+        drive_forward(&mut peer, &robot, pc, "ps").await;
+        peer.cmd("release ps R1").await;
+        wheels(&robot, 3_000, false).await;
+        peer.cmd("off ps").await;
+        status(pc, 3_000, "the PlayStation pad is off", |s| {
+            !s.flags.remote_connected
+        })
+        .await;
+        // Each kind keeps its bond: the BLE pad comes back and drives too.
+        let mark = peer.mark();
+        peer.cmd("advertise xbox").await;
+        peer.wait_for(mark, &["subscribed", "xbox"], 10_000).await;
+        status(pc, 3_000, "the BLE pad is back", |s| {
+            s.flags.remote_connected
+        })
+        .await;
+        drives_ready(pc).await;
+        peer.cmd("release xbox RB").await;
+        peer.cmd("press xbox RB").await;
+        status(pc, 2_000, "the BLE pad's dead-man gives it control", |s| {
+            s.flags.remote_in_control
+        })
+        .await;
+    });
+    assert!(bond_stored_for(&robot, PAD_ADDRESS));
 }
