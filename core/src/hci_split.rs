@@ -535,4 +535,52 @@ mod tests {
         assert_eq!(split.counters().links_overflow, 1);
         assert_eq!(split.route_acl(3), Route::Le);
     }
+
+    proptest::proptest! {
+        /// Whatever the controller sends, the splitter answers without a panic, and an
+        /// ACL packet goes to the Classic host exactly while a Classic Connection
+        /// Complete has opened its handle and no Disconnection Complete (or hardware
+        /// error) has closed it. The events are drawn mostly from the codes that open
+        /// and close links, on a few handles, so that links do open and close.
+        #[test]
+        fn any_event_stream_is_routed_without_a_panic(
+            events in proptest::collection::vec(
+                (
+                    proptest::sample::select(vec![
+                        CONNECTION_COMPLETE, DISCONNECTION_COMPLETE, HARDWARE_ERROR,
+                        COMMAND_COMPLETE, NUMBER_OF_COMPLETED_PACKETS, ENCRYPTION_CHANGE, 0x3E, 0xFF,
+                    ]),
+                    0u8..2,
+                    0u16..3,
+                    proptest::collection::vec(proptest::prelude::any::<u8>(), 0..12),
+                    proptest::prelude::any::<bool>(),
+                ),
+                0..60,
+            ),
+        ) {
+            // Room for every handle drawn: no link is refused for a full table.
+            let mut split = Splitter::<4, 8>::new();
+            let handle = 1;
+            let mut open = false;
+            for (code, status, event_handle, tail, whole) in &events {
+                let [lo, hi] = event_handle.to_le_bytes();
+                let mut params = std::vec![*status, lo, hi];
+                params.extend_from_slice(tail);
+                // Sometimes cut short, even below a handle.
+                let params = if *whole { &params[..] } else { &params[..tail.len().min(2)] };
+                split.command_sent(Sender::Classic, params);
+                split.route_event(*code, params);
+                let mut out = [0u8; 64];
+                split.completed_packets_for(params, Sender::Le, &mut out);
+                let names_handle = *status == 0 && params.len() >= 3 && *event_handle == handle;
+                match *code {
+                    CONNECTION_COMPLETE if names_handle => open = true,
+                    DISCONNECTION_COMPLETE if names_handle => open = false,
+                    HARDWARE_ERROR => open = false,
+                    _ => {}
+                }
+                proptest::prop_assert_eq!(split.route_acl(handle) == Route::Classic, open);
+            }
+        }
+    }
 }
