@@ -566,7 +566,8 @@ class ClassicPads:
                 else:
                     pad.held.discard(trigger)
             case ["lose", _]:
-                await self.lose(pad, server.controller)
+                # Answered at once: the link breaks now, the timeouts play out later.
+                asyncio.get_running_loop().create_task(self.lose(pad, server.controller))
             case ["silent", _]:
                 pad.silent = True
             case ["talk", _]:

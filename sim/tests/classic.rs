@@ -454,3 +454,27 @@ fn a_ble_pad_and_a_playstation_pad_bonded_in_turn_both_drive() {
     });
     assert!(bond_stored_for(&robot, PAD_ADDRESS));
 }
+
+#[test]
+fn a_streaming_pad_left_idle_is_switched_off() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        status(pc, 5_000, "the controller is up", |_| true).await;
+        // The shortest AFK time the register takes.
+        write_register(pc, Reg::PsAfkTime, 5_000);
+        let mark = peer.mark();
+        pair(&mut peer, pc, "pad", "ds4", PAD_ADDRESS).await;
+        // The pad streams all the time, but nothing changes: that is no input.
+        let streaming = peer.wait_for(mark, &["streaming", "pad"], 0).await;
+        let off = peer.wait_for(mark, &["disconnected", "pad"], 10_000).await;
+        let idle = off.at - streaming.at;
+        assert!(
+            (Duration::from_millis(5_000)..Duration::from_millis(7_000)).contains(&idle),
+            "switched off after {idle:?}"
+        );
+        // Remote user terminated connection: the robot closed the link.
+        assert_eq!(off.words[2], "19");
+    });
+}
