@@ -308,7 +308,7 @@ impl<const LINKS: usize, const PENDING: usize> Splitter<LINKS, PENDING> {
             return None;
         }
         let mut kept = 0;
-        for entry in entries.chunks_exact(4) {
+        for entry in entries.as_chunks::<4>().0 {
             let handle = u16::from_le_bytes([entry[0], entry[1]]) & 0x0FFF;
             let owner = if self.is_classic(handle) {
                 Sender::Classic
