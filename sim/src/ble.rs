@@ -22,9 +22,9 @@ use std::path::{Path, PathBuf};
 
 use base_runtime::ble as remote;
 use base_runtime::channels::Channels;
-use base_runtime::classic::{self, ClassicPort, LeTransport, Remote, RemoteFanout, SplitState};
+use base_runtime::classic;
 use bt_hci::cmd::le::LeSetScanParams;
-use bt_hci::controller::{ControllerCmdSync, ExternalController};
+use bt_hci::controller::ControllerCmdSync;
 use bt_hci_serial::SerialTransport;
 use embassy_futures::join::join;
 use embassy_futures::select::{Either, select};
@@ -119,32 +119,14 @@ pub async fn run_remotes<F: NorFlash + Clone>(
     bond_flash: F,
     channels: &Channels,
 ) -> ! {
-    let split = SplitState::new();
-    let transport = &controller.transport;
-    let ble_controller: ExternalController<_, HCI_SLOTS> =
-        ExternalController::new(LeTransport::new(transport, &split));
-    let fanout = RemoteFanout::new();
-    let ends = channels.remote_ends();
-    let ((never, _), _) = join(
-        join(
-            remote::run(
-                ble_controller,
-                remote::random_static_address(&ROBOT_MAC),
-                bond_flash.clone(),
-                0..BOND_FLASH_SIZE as u32,
-                fanout.ends(Remote::Ble, ends),
-            ),
-            classic::run(
-                ClassicPort::new(transport, &split),
-                bond_flash,
-                0..BOND_FLASH_SIZE as u32,
-                fanout.ends(Remote::Classic, ends),
-            ),
-        ),
-        fanout.run(ends),
+    classic::run_both::<_, _, HCI_SLOTS>(
+        &controller.transport,
+        remote::random_static_address(&ROBOT_MAC),
+        bond_flash,
+        0..BOND_FLASH_SIZE as u32,
+        channels.remote_ends(),
     )
-    .await;
-    never
+    .await
 }
 
 /// Bytes from the controller: a thread reads the socket and hands the chunks over.

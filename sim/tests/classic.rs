@@ -478,3 +478,34 @@ fn a_streaming_pad_left_idle_is_switched_off() {
         assert_eq!(off.words[2], "19");
     });
 }
+
+#[test]
+fn a_pad_stuck_on_the_short_report_still_drives_and_is_asked_again() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        // A clone that answers feature report 0x05 but never leaves the short report.
+        peer.cmd(&format!("ps pad ds4 {PAD_ADDRESS}")).await;
+        peer.cmd("short pad").await;
+        let mark = peer.mark();
+        peer.cmd("pairing pad").await;
+        open_pairing_window(pc).await;
+        peer.wait_for(mark, &["paired", "pad"], 20_000).await;
+        status(pc, 5_000, "the paired pad is connected", |s| {
+            s.flags.remote_connected
+        })
+        .await;
+        // The short report carries sticks and buttons: it drives.
+        drive_forward(&mut peer, &robot, pc, "pad").await;
+        peer.cmd("release pad R1").await;
+        wheels(&robot, 3_000, false).await;
+        // Asked again, once a second, a bounded number of times.
+        Timer::after_millis(1_500).await;
+        let asked = peer
+            .events_since(mark, &["feature-read", "pad", "0x05"])
+            .len();
+        assert!((2..=5).contains(&asked), "asked {asked} times");
+        assert_eq!(peer.cmd("state pad").await, "connected short");
+    });
+}

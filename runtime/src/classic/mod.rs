@@ -18,14 +18,63 @@ mod task;
 pub use split::{ClassicPacket, ClassicPort, LeTransport, PACKET_MAX, SplitState};
 pub use task::{REPORT_SILENCE_MS, SUPERVISION_TIMEOUT_MS, decode_bond, encode_bond, run};
 
+use core::convert::Infallible;
+use core::ops::Range;
+
+use bt_hci::ReadHciError;
+use bt_hci::controller::ExternalController;
+use bt_hci::transport::Transport;
+use embassy_futures::join::join3;
 use embassy_futures::select::{Either3, select3};
 use embassy_sync::channel::Channel;
 use embassy_sync::signal::Signal;
+use embedded_storage_async::nor_flash::NorFlash;
 
 use base_core::controller::Input;
 
 use crate::ble::{RemoteEnds, RemoteRequest};
 use crate::channels::{INPUT_QUEUE, RawMutex};
+
+/// Runs both remotes for ever on one controller reached through `transport`: the BLE
+/// central (`crate::ble::run`, with the random static `ble_address`) and the
+/// PlayStation pad host, through the HCI splitter, their bonds in `bond_flash` over
+/// `bond_range` (a clone per task: two records in one partition). `SLOTS` is the BLE
+/// host's number of commands in flight.
+pub async fn run_both<T, F, const SLOTS: usize>(
+    transport: &T,
+    ble_address: [u8; 6],
+    bond_flash: F,
+    bond_range: Range<u32>,
+    ends: RemoteEnds<'_>,
+) -> !
+where
+    T: Transport,
+    T::Error: From<ReadHciError<Infallible>>,
+    F: NorFlash + Clone,
+{
+    let split = SplitState::new();
+    let ble_controller: ExternalController<_, SLOTS> =
+        ExternalController::new(LeTransport::new(transport, &split));
+    let fanout = RemoteFanout::new();
+    let (never, _, _) = join3(
+        crate::ble::run(
+            ble_controller,
+            ble_address,
+            bond_flash.clone(),
+            bond_range.clone(),
+            fanout.ends(Remote::Ble, ends),
+        ),
+        run(
+            ClassicPort::new(transport, &split),
+            bond_flash,
+            bond_range,
+            fanout.ends(Remote::Classic, ends),
+        ),
+        fanout.run(ends),
+    )
+    .await;
+    never
+}
 
 /// The two remote tasks' channel ends, and the merge of what they report.
 pub struct RemoteFanout {
