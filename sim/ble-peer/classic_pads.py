@@ -46,6 +46,7 @@ lose NAME               the link breaks: both sides time out after the supervisi
 silent NAME             the pad stops sending reports; the link stays
 talk NAME               the pad sends reports again
 short NAME              the pad never leaves the short report (a clone's quirk)
+garble NAME             from now on the pad's full reports carry a wrong CRC
 forget NAME             the pad forgets its link key
 state NAME              connected / idle, and the report mode
 """
@@ -351,6 +352,7 @@ class PlayStationPad:
         self.host_address: hci.Address | None = None
         self.full_mode = False
         self.stuck_short = False
+        self.garbled = False
         self.silent = False
         self.streaming: asyncio.Task | None = None
         self.held: set[str] = set()
@@ -475,7 +477,10 @@ class PlayStationPad:
             report[6:8] = triggers
             report[9:12] = self.buttons()
             report[54] = 0x08
-        return bytes(report) + crc32(0xA1, bytes(report))
+        crc = crc32(0xA1, bytes(report))
+        if self.garbled:
+            crc = bytes(b ^ 0xFF for b in crc)
+        return bytes(report) + crc
 
     async def stream(self) -> None:
         while True:
@@ -574,6 +579,8 @@ class ClassicPads:
                 pad.silent = False
             case ["short", _]:
                 pad.stuck_short = True
+            case ["garble", _]:
+                pad.garbled = True
             case ["forget", _]:
                 await pad.device.keystore.delete_all()
             case ["state", _]:

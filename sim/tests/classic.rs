@@ -509,3 +509,31 @@ fn a_pad_stuck_on_the_short_report_still_drives_and_is_asked_again() {
         assert_eq!(peer.cmd("state pad").await, "connected short");
     });
 }
+
+#[test]
+fn reports_with_a_bad_crc_are_refused_and_stop_the_base_as_silence_does() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        status(pc, 5_000, "the controller is up", |_| true).await;
+        write_register(pc, Reg::ContrAccHigh, RELEASE_BRAKING);
+        pair(&mut peer, pc, "pad", "ds4", PAD_ADDRESS).await;
+        drive_forward(&mut peer, &robot, pc, "pad").await;
+        let garbled_at = Instant::now();
+        // The link stays and the stream goes on, but no report passes its CRC check.
+        peer.cmd("garble pad").await;
+        let zero = zero_on_the_wire(&robot, 2_000).await;
+        let stopped_after = zero - garbled_at;
+        assert_eq!(last_decel(&robot), i32::from(RELEASE_BRAKING));
+        assert!(
+            stopped_after < Duration::from_millis(250),
+            "{stopped_after:?}"
+        );
+        eprintln!("classic bad-CRC stream to zero on the wire: {stopped_after:?}");
+        status(pc, 2_000, "the link is reported down", |s| {
+            !s.flags.remote_connected
+        })
+        .await;
+    });
+}
