@@ -207,7 +207,30 @@ fn a_dualshock4_pairs_in_the_window_drives_with_r1_held_and_release_stops() {
         write_register(pc, Reg::ContrAccHigh, RELEASE_BRAKING);
         let took = pair(&mut peer, pc, "pad", "ds4", PAD_ADDRESS).await;
         eprintln!("classic pairing (window opened to connected): {took:?}");
-        drive_forward(&mut peer, &robot, pc, "pad").await;
+        take_control(&mut peer, pc, "pad").await;
+        // Stick forward → the first non-zero speed on the wire: the peer's command, the
+        // next report (every 4 ms), the splitter, the host, the controller's cycle.
+        let pushed_at = Instant::now();
+        peer.cmd("stick pad LY 1.0").await;
+        let deadline = pushed_at + Duration::from_secs(2);
+        while robot
+            .robot
+            .drives
+            .drive(1)
+            .command
+            .is_none_or(|c| c.speed_rpm == 0)
+        {
+            assert!(
+                Instant::now() < deadline,
+                "the stick never reached the drives"
+            );
+            Timer::after_millis(1).await;
+        }
+        eprintln!(
+            "classic stick to speed on the wire: {:?}",
+            pushed_at.elapsed()
+        );
+        wheels(&robot, 3_000, true).await;
         peer.cmd("release pad R1").await;
         wheels(&robot, 3_000, false).await;
         assert_eq!(last_decel(&robot), i32::from(RELEASE_BRAKING));
