@@ -91,6 +91,23 @@ const SETUP: [Command; 8] = [
     Command::WriteScanEnable(ScanEnable::PageScan),
 ];
 
+/// The setup in front of a controller that another host shares (the BLE host behind
+/// an HCI splitter): that host resets the controller and sets its event mask (which
+/// the splitter widens by [`hci::EVENT_MASK`]); this one only adds its own settings,
+/// after each of that host's resets ([`Event::ControllerReset`]).
+const SHARED_SETUP: [Command; 6] = [
+    Command::ReadBufferSize,
+    Command::WriteSimplePairingMode { enabled: true },
+    Command::WriteClassOfDevice(HOST_CLASS),
+    Command::WritePageTimeout {
+        slots: PAGE_TIMEOUT_SLOTS,
+    },
+    Command::WriteDefaultLinkPolicy {
+        settings: LINK_POLICY_ROLE_SWITCH,
+    },
+    Command::WriteScanEnable(ScanEnable::PageScan),
+];
+
 /// What the host reads from the registers and the bond store, on every step.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -119,6 +136,9 @@ pub enum Event<'a> {
     Disconnect,
     /// Time passed: deadlines and back-off are checked.
     Tick,
+    /// The controller was reset by the host it is shared with (see
+    /// [`ClassicHost::new_shared`]): every link is gone, the setup starts again.
+    ControllerReset,
 }
 
 /// A packet for the controller.
@@ -214,6 +234,8 @@ enum Setup {
     Awaiting { step: usize, since: Timestamp },
     /// A command failed or went unanswered: start over with Reset at this time.
     RetryAt(Timestamp),
+    /// A shared controller: waiting for the other host's Reset.
+    AwaitingReset,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -259,6 +281,8 @@ pub struct ClassicHost {
     acl_out: AclSender,
     acl_in: Reassembler,
     counters: Counters,
+    /// The controller is shared with another host, which resets it.
+    shared: bool,
 }
 
 impl Default for ClassicHost {
@@ -288,7 +312,21 @@ impl ClassicHost {
                 dropped_sends: 0,
                 controller_errors: 0,
             },
+            shared: false,
         }
+    }
+
+    /// A host for a controller shared with another host that resets it and sets its
+    /// event mask (see [`SHARED_SETUP`]): it waits for [`Event::ControllerReset`].
+    pub const fn new_shared() -> ClassicHost {
+        let mut host = ClassicHost::new();
+        host.state = State::Starting(Setup::AwaitingReset);
+        host.shared = true;
+        host
+    }
+
+    fn setup(&self) -> &'static [Command] {
+        if self.shared { &SHARED_SETUP } else { &SETUP }
     }
 
     pub fn counters(&self) -> Counters {
@@ -327,6 +365,16 @@ impl ClassicHost {
                 }
             }
             Event::Tick => {}
+            Event::ControllerReset => {
+                if let State::Ready {
+                    link,
+                    connected: true,
+                } = self.state
+                {
+                    let _ = effects.pad.push(PadEvent::Disconnected(link.addr));
+                }
+                self.restart_at(now);
+            }
         }
         self.deadlines(now, params);
         self.start_next(now, params);
@@ -395,7 +443,7 @@ impl ClassicHost {
     fn start_next(&mut self, now: Timestamp, params: &Params) {
         match self.state {
             State::Starting(Setup::Next(step)) => {
-                if let Some(command) = SETUP.get(step) {
+                if let Some(command) = self.setup().get(step) {
                     self.command(*command);
                     self.state = State::Starting(Setup::Awaiting { step, since: now });
                 }
@@ -524,7 +572,7 @@ impl ClassicHost {
                     acl_buffers,
                     ..
                 },
-            ) if SETUP.get(step).is_some_and(|c| c.opcode() == opcode) => {
+            ) if self.setup().get(step).is_some_and(|c| c.opcode() == opcode) => {
                 if status != status::SUCCESS {
                     error!(
                         "controller setup failed: opcode {=u16:#x}, status {=u8:#x}",
@@ -537,7 +585,7 @@ impl ClassicHost {
                 if let Some(buffers) = acl_buffers {
                     self.acl_out.set_buffers(buffers);
                 }
-                self.state = if step + 1 == SETUP.len() {
+                self.state = if step + 1 == self.setup().len() {
                     info!("Classic controller ready, page scan on");
                     self.failures = 0;
                     self.retry_at = now;

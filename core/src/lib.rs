@@ -42,6 +42,7 @@ pub mod drives;
 pub mod feedback;
 pub mod gamepad;
 pub mod hci_guard;
+pub mod hci_split;
 pub mod hid;
 pub mod kinematics;
 pub mod modbus;

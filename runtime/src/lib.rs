@@ -25,6 +25,8 @@ mod fmt;
 pub mod ble;
 pub mod can;
 pub mod channels;
+#[cfg(feature = "classic")]
+pub mod classic;
 pub mod control;
 pub mod drive_link;
 pub mod hw;

@@ -36,6 +36,9 @@ try:
     from bumble.link import LocalLink
     from bumble.pairing import PairingConfig, PairingDelegate
     from bumble.transport.common import AsyncPipeSink
+
+    from classic_pads import COMMANDS as CLASSIC_COMMANDS
+    from classic_pads import ROBOT_PUBLIC_ADDRESS, ClassicController, ClassicPads
 except ImportError as error:  # pragma: no cover - reported to the caller
     print(f"error bumble is not importable: {error}", flush=True)
     sys.exit(3)
@@ -72,6 +75,8 @@ back NAME               the pad is in range again (advertise it again)
 state NAME              print the pad's connection state
 quit                    end the program
 """
+# PlayStation pads over Bluetooth Classic (classic_pads.py); a pad's name selects it.
+COMMANDS += CLASSIC_COMMANDS
 
 UUID_HID = UUID.from_16_bits(0x1812)
 UUID_DEVICE_INFORMATION = UUID.from_16_bits(0x180A)
@@ -107,8 +112,9 @@ def read_hex(path: str) -> bytes:
 # -----------------------------------------------------------------------------
 # The robot's controller, with Bumble 0.0.236's defects fixed
 # -----------------------------------------------------------------------------
-class RobotController(Controller):
-    """The controller the Bluetooth host opens over TCP.
+class RobotController(ClassicController):
+    """The controller the Bluetooth host opens over TCP, with the Classic parts of
+    ClassicController (a fixed public address, so that a Classic pad's bond holds).
 
     (a) Bumble answers a legacy scan with extended advertising reports whenever the
         controller claims extended advertising; a host that scans with the legacy
@@ -124,7 +130,7 @@ class RobotController(Controller):
     """
 
     def __init__(self, name: str, link: LocalLink, sink) -> None:
-        super().__init__(name, host_sink=sink, link=link)
+        super().__init__(name, link, sink, ROBOT_PUBLIC_ADDRESS)
         self.le_features &= ~hci.LeFeatureMask.LE_EXTENDED_ADVERTISING  # (a)
         self.supervision_timeouts: dict[hci.Address, int] = {}
 
@@ -169,6 +175,7 @@ class RobotController(Controller):
     def on_hci_reset_command(self, command):
         self.drop_everything(hci.HCI_ErrorCode.REMOTE_USER_TERMINATED_CONNECTION_ERROR)
         self.le_scan_enable = False
+        self.classic_scan_enable = 0
         return super().on_hci_reset_command(command)
 
     def drop_everything(self, reason: int) -> None:
@@ -180,6 +187,7 @@ class RobotController(Controller):
             except Exception:  # the peer left the link already
                 pass
             del self.le_connections[connection.peer_address]
+        self.drop_classic(reason)
 
     def on_hci_le_create_connection_command(self, command):
         event("central-connect", command.peer_address, command.supervision_timeout * 10)
@@ -512,6 +520,7 @@ class Peer:
         self.server = HciServer(self.link)
         self.pads: dict[str, Pad] = {}
         self.report_map = report_map
+        self.classic = ClassicPads(self.link)
 
     def pad(self, name: str) -> Pad:
         if name not in self.pads:
@@ -519,7 +528,13 @@ class Peer:
         return self.pads[name]
 
     async def command(self, words: list[str]) -> str:
+        if len(words) > 1 and words[1] in self.classic.pads:
+            return await self.classic.command(words, self.server)
         match words:
+            case ["ps", name, kind, address]:
+                if name in self.pads:
+                    raise ValueError(f"pad {name} exists")
+                await self.classic.create(name, kind, address)
             case ["pad", name, address]:
                 if name in self.pads:
                     raise ValueError(f"pad {name} exists")

@@ -1,9 +1,12 @@
 //! The Bluetooth remote on the host: the firmware's own BLE central
-//! (`base_runtime::ble::run`, trouble-host) on a Bluetooth controller
-//! reached through an HCI transport, H4 over TCP.
+//! (`base_runtime::ble::run`, trouble-host) and its PlayStation pad host over
+//! Bluetooth Classic (`base_runtime::classic::run`) on one Bluetooth controller
+//! reached through an HCI transport, H4 over TCP, shared through the HCI splitter as
+//! on the ESP32.
 //!
 //! ```text
-//!   ble::run ─────── trouble-host ── ExternalController ── SerialTransport ──TCP── HCI controller
+//!   ble::run ─── trouble-host ── ExternalController ── LeTransport ──┐
+//!   classic::run ─── classic-host ──────────────────── ClassicPort ──┴─ SerialTransport ──TCP── HCI controller
 //!                                                                        (Bumble's virtual one, or a USB
 //!                                                                         dongle behind Bumble's HCI bridge)
 //! ```
@@ -19,12 +22,14 @@ use std::path::{Path, PathBuf};
 
 use base_runtime::ble as remote;
 use base_runtime::channels::Channels;
+use base_runtime::classic;
 use bt_hci::cmd::le::LeSetScanParams;
-use bt_hci::controller::{ControllerCmdSync, ExternalController};
+use bt_hci::controller::ControllerCmdSync;
 use bt_hci_serial::SerialTransport;
 use embassy_futures::join::join;
 use embassy_futures::select::{Either, select};
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
+use embedded_storage_async::nor_flash::NorFlash;
 
 use crate::file_flash::FileFlash;
 use crate::flash::{ERASE_SIZE, RamFlash};
@@ -40,9 +45,13 @@ pub const BOND_FLASH_SIZE: usize = 2 * ERASE_SIZE;
 /// The robot's own Bluetooth address (random static), as the chip derives it from its MAC.
 pub const ROBOT_MAC: [u8; 6] = [0x02, 0xB0, 0x75, 0x00, 0x00, 0x01];
 
-/// The Bluetooth controller as trouble-host drives it.
-pub type HostController =
-    ExternalController<SerialTransport<NoopRawMutex, HciReader, HciWriter>, HCI_SLOTS>;
+/// The controller's HCI transport (H4 over TCP).
+pub type HciTransport = SerialTransport<NoopRawMutex, HciReader, HciWriter>;
+
+/// The Bluetooth controller behind its transport, as the remotes share it.
+pub struct HostController {
+    transport: HciTransport,
+}
 
 /// Why a transport could not be opened or broke.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -98,9 +107,26 @@ pub fn open(spec: &HciSpec) -> io::Result<HostController> {
         stream: stream.try_clone()?,
     };
     let reader = HciReader::spawn(stream);
-    Ok(ExternalController::new(SerialTransport::new(
-        reader, writer,
-    )))
+    Ok(HostController {
+        transport: SerialTransport::new(reader, writer),
+    })
+}
+
+/// Runs both remote tasks on `controller` for ever: the BLE central and the
+/// PlayStation pad host, through the HCI splitter, their bonds in `bond_flash`.
+pub async fn run_remotes<F: NorFlash + Clone>(
+    controller: HostController,
+    bond_flash: F,
+    channels: &Channels,
+) -> ! {
+    classic::run_both::<_, _, HCI_SLOTS>(
+        &controller.transport,
+        remote::random_static_address(&ROBOT_MAC),
+        bond_flash,
+        0..BOND_FLASH_SIZE as u32,
+        channels.remote_ends(),
+    )
+    .await
 }
 
 /// Bytes from the controller: a thread reads the socket and hands the chunks over.
@@ -217,7 +243,18 @@ impl RemoteRobot {
     /// `script` beside them; the controller loses power when the script returns (the
     /// HCI connection closes with it).
     pub fn run<T>(&self, controller: HostController, script: impl AsyncFnOnce(&Pc) -> T) -> T {
-        block_on_realtime(self.boot(controller, script))
+        block_on_realtime(async {
+            let (hardware, pc) = self.robot.boot();
+            let channels = Channels::new();
+            let firmware = join(
+                base_runtime::run(hardware, self.robot.settings, &channels),
+                run_remotes(controller, self.bond_flash.clone(), &channels),
+            );
+            match select(firmware, script(&pc)).await {
+                Either::First((never, _)) => never,
+                Either::Second(result) => result,
+            }
+        })
     }
 
     /// [`Self::run`] on the virtual clock, for a controller that lives on the same
@@ -229,6 +266,7 @@ impl RemoteRobot {
         block_on(self.boot(controller, script))
     }
 
+    /// The BLE remote alone on `controller` (no splitter: a controller without Classic).
     async fn boot<C, T>(&self, controller: C, script: impl AsyncFnOnce(&Pc) -> T) -> T
     where
         C: trouble_host::Controller + ControllerCmdSync<LeSetScanParams>,
@@ -289,16 +327,7 @@ impl LiveRemote {
 /// without a remote, as a chip without its radio does).
 pub async fn run_live_remote(remote: Option<LiveRemote>, channels: &Channels) {
     match remote {
-        Some(remote) => {
-            remote::run(
-                remote.controller,
-                remote::random_static_address(&ROBOT_MAC),
-                remote.bond_flash,
-                0..BOND_FLASH_SIZE as u32,
-                channels.remote_ends(),
-            )
-            .await
-        }
+        Some(remote) => run_remotes(remote.controller, remote.bond_flash, channels).await,
         None => core::future::pending().await,
     }
 }

@@ -879,3 +879,43 @@ fn buffers_from_read_buffer_size_set_the_fragment_length() {
     let outcome = h.at(1_000, Event::SendInterrupt(&[0xA2; 79]));
     assert_eq!(outcome.data.len(), 1);
 }
+
+#[test]
+fn a_shared_controller_is_set_up_only_after_the_other_hosts_reset_and_never_reset_here() {
+    let mut harness = Harness {
+        host: ClassicHost::new_shared(),
+        now: 0,
+        params: BONDED,
+    };
+    // No setup before the other host reset the controller; a page meanwhile is refused.
+    assert_eq!(commands(&harness.raw(Event::Tick)), []);
+    assert_eq!(
+        commands(&harness.hci(5_000, ev::connection_request(PAD))),
+        [Command::RejectConnectionRequest {
+            addr: PAD,
+            reason: status::REJECTED_LIMITED_RESOURCES,
+        }]
+    );
+    // Then the setup, without Reset and Set Event Mask, one command per answer.
+    let mut sent = commands(&harness.raw(Event::ControllerReset)).to_vec();
+    let mut order = std::vec::Vec::new();
+    while let [command] = sent[..] {
+        order.push(command);
+        let answer = match command {
+            Command::ReadBufferSize => ev::command_complete(
+                command.opcode(),
+                &[0x00, 0xFD, 0x03, 0x00, 0x08, 0x00, 0x00, 0x00],
+            ),
+            _ => ev::command_complete(command.opcode(), &[0x00]),
+        };
+        sent = commands(&harness.raw(Event::Hci(&answer))).to_vec();
+    }
+    assert_eq!(order, SHARED_SETUP);
+    assert_eq!(harness.host.state, State::Idle);
+    // A connected pad is reported gone when the other host resets the controller again.
+    let mut harness = Harness::connected(BONDED);
+    harness.host.shared = true;
+    let outcome = harness.raw(Event::ControllerReset);
+    assert_eq!(outcome.pad, [PadEvent::Disconnected(PAD)]);
+    assert_eq!(commands(&outcome), [Command::ReadBufferSize]);
+}

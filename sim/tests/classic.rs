@@ -1,0 +1,562 @@
+//! The PlayStation pads end to end: the firmware's Classic host (`classic-host`, in
+//! `base_runtime::classic`) and its BLE host share one HCI transport (H4 over TCP)
+//! through the HCI splitter, to Google Bumble's virtual controllers, where a virtual
+//! DualShock 4 or DualSense (sim/ble-peer/classic_pads.py) streams its reports over
+//! Bluetooth Classic. The pad drives the virtual robot.
+//!
+//! As the BLE scenarios: each starts its own peer, one at a time on the wall clock;
+//! without Bumble they are skipped with a message, except in CI (CI=true).
+
+#[path = "ble/peer.rs"]
+mod peer;
+
+use std::sync::{Mutex, MutexGuard, PoisonError};
+use std::time::{Duration, Instant};
+
+use base_core::can::{Command, Mode, Status};
+use base_core::registers::{OPEN_PAIRING_WINDOW_KEY, Reg};
+use embassy_time::Timer;
+use peer::Peer;
+use virtual_robot::ble::{BOND_FLASH_SIZE, RemoteRobot};
+use virtual_robot::robot::Pc;
+
+/// The pads' public addresses (Sony's prefix).
+const PAD_ADDRESS: &str = "A4:AE:12:00:00:01";
+const STRANGER_ADDRESS: &str = "A4:AE:12:00:00:02";
+/// A BLE pad's random static address.
+/// (used by the bonded-in-turn scenario)
+const BLE_PAD_ADDRESS: &str = "C1:11:22:33:44:55";
+
+static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
+
+fn scenario() -> Option<MutexGuard<'static, ()>> {
+    let guard = ONE_AT_A_TIME.lock().unwrap_or_else(PoisonError::into_inner);
+    peer::bumble_available().then_some(guard)
+}
+
+fn write_register(pc: &Pc, reg: Reg, value: u16) {
+    pc.command(Command::RegisterWrite {
+        address: reg as u8,
+        value,
+    });
+}
+
+async fn status(pc: &Pc, timeout_ms: u64, what: &str, check: impl Fn(&Status) -> bool) -> Status {
+    match pc.wait_for_status(timeout_ms, check).await {
+        Some(status) => status,
+        None => panic!(
+            "within {timeout_ms} ms: {what}; last status {:?}",
+            pc.status()
+        ),
+    }
+}
+
+async fn drives_ready(pc: &Pc) {
+    status(pc, 5_000, "the drives are set up", |s| {
+        s.mode != Mode::Starting
+    })
+    .await;
+}
+
+async fn open_pairing_window(pc: &Pc) {
+    // Flash (the bond too) waits until the drives confirmed their brakes.
+    drives_ready(pc).await;
+    write_register(pc, Reg::Command, OPEN_PAIRING_WINDOW_KEY);
+}
+
+/// Creates PlayStation pad `name` of `kind` (ds4, dualsense), puts it in pairing mode,
+/// opens the pairing window and waits until it is paired, streaming full reports and
+/// counted as connected. Returns how long the pairing took from the window's opening.
+async fn pair(peer: &mut Peer, pc: &Pc, name: &str, kind: &str, address: &str) -> Duration {
+    peer.cmd(&format!("ps {name} {kind} {address}")).await;
+    let mark = peer.mark();
+    peer.cmd(&format!("pairing {name}")).await;
+    drives_ready(pc).await;
+    let opened = Instant::now();
+    open_pairing_window(pc).await;
+    peer.wait_for(mark, &["paired", name], 20_000).await;
+    peer.wait_for(mark, &["feature-read", name, "0x05"], 10_000)
+        .await;
+    status(pc, 5_000, "the paired pad is connected", |s| {
+        s.flags.remote_bonded && s.flags.remote_connected
+    })
+    .await;
+    opened.elapsed()
+}
+
+/// Holds the dead-man (R1) and waits until the controller hands control to the remote.
+async fn take_control(peer: &mut Peer, pc: &Pc, name: &str) {
+    drives_ready(pc).await;
+    peer.cmd(&format!("release {name} R1")).await;
+    Timer::after_millis(50).await;
+    peer.cmd(&format!("press {name} R1")).await;
+    status(pc, 2_000, "the dead-man gives the remote control", |s| {
+        s.flags.remote_in_control
+    })
+    .await;
+}
+
+/// Waits until both wheels turn forward (or, `forward == false`, stand still).
+async fn wheels(robot: &RemoteRobot, timeout_ms: u64, forward: bool) {
+    let deadline = Instant::now() + Duration::from_millis(timeout_ms);
+    loop {
+        let left = robot.robot.drives.drive(1).forward_rpm();
+        let right = robot.robot.drives.drive(2).forward_rpm();
+        let done = if forward {
+            left > 10.0 && right > 10.0
+        } else {
+            left.abs() < 0.5 && right.abs() < 0.5
+        };
+        if done {
+            return;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "wheels not {} within {timeout_ms} ms: {left:.1} / {right:.1} rpm",
+            if forward {
+                "turning forward"
+            } else {
+                "stopped"
+            }
+        );
+        Timer::after_millis(5).await;
+    }
+}
+
+/// Switches a bonded pad on: it pages the robot until the robot answers (a real pad
+/// pages for a while; the robot's page scan is on once its controller is set up).
+async fn switch_on(peer: &mut Peer, name: &str) {
+    for _ in 0..3 {
+        let mark = peer.mark();
+        peer.cmd(&format!("on {name}")).await;
+        let deadline = Instant::now() + Duration::from_secs(12);
+        while Instant::now() < deadline {
+            if !peer
+                .events_since(mark, &["encrypted", name, "1"])
+                .is_empty()
+            {
+                return;
+            }
+            if !peer.events_since(mark, &["page-failed", name]).is_empty() {
+                break;
+            }
+            Timer::after_millis(10).await;
+        }
+    }
+    panic!("the robot never answered {name}'s page");
+}
+
+/// Pulls the left stick forward with the dead-man held: the robot drives.
+async fn drive_forward(peer: &mut Peer, robot: &RemoteRobot, pc: &Pc, name: &str) {
+    take_control(peer, pc, name).await;
+    peer.cmd(&format!("stick {name} LY 1.0")).await;
+    wheels(robot, 3_000, true).await;
+}
+
+/// When the drives were last told to stand still (zero speed on the wire), waiting
+/// up to `timeout_ms` for it.
+async fn zero_on_the_wire(robot: &RemoteRobot, timeout_ms: u64) -> Instant {
+    let deadline = Instant::now() + Duration::from_millis(timeout_ms);
+    loop {
+        let commanded = robot.robot.drives.drive(1).command;
+        if commanded.is_some_and(|command| command.speed_rpm == 0) {
+            return Instant::now();
+        }
+        assert!(
+            Instant::now() < deadline,
+            "no zero speed on the wire within {timeout_ms} ms: {commanded:?}"
+        );
+        Timer::after_millis(1).await;
+    }
+}
+
+/// The deceleration of the drives' last command, (1/min)/s.
+fn last_decel(robot: &RemoteRobot) -> i32 {
+    robot
+        .robot
+        .drives
+        .drive(1)
+        .command
+        .expect("the left drive was commanded")
+        .decel_rpm_per_s
+}
+
+/// A value of `Contr_acc_high` no other rule uses, to recognise its braking.
+const RELEASE_BRAKING: u16 = 2777;
+
+/// Whether the bond partition holds the pad's address as the Classic bond record
+/// stores it (least significant byte first).
+fn bond_stored_for(robot: &RemoteRobot, address: &str) -> bool {
+    let mut raw: Vec<u8> = address
+        .split(':')
+        .map(|pair| u8::from_str_radix(pair, 16).expect("hex address"))
+        .collect();
+    raw.reverse();
+    let flash = robot.bond_flash.contents(0..BOND_FLASH_SIZE as u32);
+    flash.windows(raw.len()).any(|window| window == raw)
+}
+
+#[test]
+fn a_dualshock4_pairs_in_the_window_drives_with_r1_held_and_release_stops() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        let before = status(pc, 5_000, "the controller is up", |_| true).await;
+        assert!(!before.flags.remote_bonded, "no bond on a blank flash");
+        write_register(pc, Reg::ContrAccHigh, RELEASE_BRAKING);
+        let took = pair(&mut peer, pc, "pad", "ds4", PAD_ADDRESS).await;
+        eprintln!("classic pairing (window opened to connected): {took:?}");
+        take_control(&mut peer, pc, "pad").await;
+        // Stick forward → the first non-zero speed on the wire: the peer's command, the
+        // next report (every 4 ms), the splitter, the host, the controller's cycle.
+        let pushed_at = Instant::now();
+        peer.cmd("stick pad LY 1.0").await;
+        let deadline = pushed_at + Duration::from_secs(2);
+        while robot
+            .robot
+            .drives
+            .drive(1)
+            .command
+            .is_none_or(|c| c.speed_rpm == 0)
+        {
+            assert!(
+                Instant::now() < deadline,
+                "the stick never reached the drives"
+            );
+            Timer::after_millis(1).await;
+        }
+        eprintln!(
+            "classic stick to speed on the wire: {:?}",
+            pushed_at.elapsed()
+        );
+        wheels(&robot, 3_000, true).await;
+        peer.cmd("release pad R1").await;
+        wheels(&robot, 3_000, false).await;
+        assert_eq!(last_decel(&robot), i32::from(RELEASE_BRAKING));
+        status(
+            pc,
+            2_000,
+            "releasing the dead-man ends remote control",
+            |s| !s.flags.remote_in_control,
+        )
+        .await;
+    });
+    assert!(
+        bond_stored_for(&robot, PAD_ADDRESS),
+        "the link key is in the bonds partition"
+    );
+}
+
+#[test]
+fn link_loss_with_r1_held_stops_within_the_supervision_timeout() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        status(pc, 5_000, "the controller is up", |_| true).await;
+        write_register(pc, Reg::ContrAccHigh, RELEASE_BRAKING);
+        pair(&mut peer, pc, "pad", "ds4", PAD_ADDRESS).await;
+        drive_forward(&mut peer, &robot, pc, "pad").await;
+        let mark = peer.mark();
+        let lost_at = Instant::now();
+        // Out of range: the dead-man stays held, nothing passes any more. The pad's
+        // stream stops with the link, so the silence watchdog may see it first.
+        peer.cmd("lose pad").await;
+        let zero = zero_on_the_wire(&robot, 2_000).await;
+        let stopped_after = zero - lost_at;
+        assert_eq!(last_decel(&robot), i32::from(RELEASE_BRAKING));
+        status(pc, 2_000, "the lost link is reported", |s| {
+            !s.flags.remote_connected && !s.flags.remote_in_control
+        })
+        .await;
+        // The supervision timeout the host set as central is the one played out.
+        let lost = peer.wait_for(mark, &["lost", "pad"], 3_000).await;
+        assert_eq!(lost.words[2], "500", "supervision timeout in ms");
+        assert!(
+            stopped_after < Duration::from_millis(600),
+            "{stopped_after:?}"
+        );
+        eprintln!("classic link loss to zero on the wire: {stopped_after:?}");
+    });
+}
+
+#[test]
+fn a_silent_pad_stops_the_base_within_the_report_watchdog() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        status(pc, 5_000, "the controller is up", |_| true).await;
+        write_register(pc, Reg::ContrAccHigh, RELEASE_BRAKING);
+        pair(&mut peer, pc, "pad", "ds4", PAD_ADDRESS).await;
+        drive_forward(&mut peer, &robot, pc, "pad").await;
+        let mark = peer.mark();
+        let silent_at = Instant::now();
+        // The link stays up; the reports stop (a hung pad).
+        peer.cmd("silent pad").await;
+        let zero = zero_on_the_wire(&robot, 2_000).await;
+        let stopped_after = zero - silent_at;
+        assert_eq!(last_decel(&robot), i32::from(RELEASE_BRAKING));
+        // 100 ms of silence, a 10 ms tick, the controller's cycle.
+        assert!(
+            stopped_after < Duration::from_millis(250),
+            "{stopped_after:?}"
+        );
+        eprintln!("classic report silence to zero on the wire: {stopped_after:?}");
+        // The silent link is dropped.
+        peer.wait_for(mark, &["disconnected", "pad"], 3_000).await;
+        status(pc, 1_000, "the link is reported down", |s| {
+            !s.flags.remote_connected
+        })
+        .await;
+    });
+}
+
+#[test]
+fn the_bonded_pad_reconnects_by_its_page_also_after_a_reboot_without_pairing() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        pair(&mut peer, pc, "pad", "ds4", PAD_ADDRESS).await;
+        // Switched off and on: the pad pages the robot.
+        peer.cmd("off pad").await;
+        status(pc, 3_000, "the switch-off is reported", |s| {
+            !s.flags.remote_connected
+        })
+        .await;
+        let mark = peer.mark();
+        let on_at = Instant::now();
+        peer.cmd("on pad").await;
+        peer.wait_for(mark, &["encrypted", "pad", "1"], 10_000)
+            .await;
+        status(pc, 5_000, "the pad is back", |s| s.flags.remote_connected).await;
+        eprintln!(
+            "classic reconnect (pad on to connected): {:?}",
+            on_at.elapsed()
+        );
+        assert!(
+            peer.events_since(mark, &["paired"]).is_empty(),
+            "a bonded pad is not paired again"
+        );
+        take_control(&mut peer, pc, "pad").await;
+        // At rest before the power goes, so that the next boot finds the drives well.
+        peer.cmd("release pad R1").await;
+        status(pc, 5_000, "the brakes close", |s| s.flags.brakes_applied).await;
+    });
+    // The chip lost power; it boots with the key from flash.
+    let mark = peer.mark();
+    robot.run(peer.controller(), async |pc| {
+        status(pc, 5_000, "the bond came back from flash", |s| {
+            s.flags.remote_bonded
+        })
+        .await;
+        peer.wait_for(0, &["disconnected", "pad"], 5_000).await;
+        switch_on(&mut peer, "pad").await;
+        status(pc, 5_000, "the pad is back", |s| s.flags.remote_connected).await;
+        assert!(peer.events_since(mark, &["paired"]).is_empty());
+        take_control(&mut peer, pc, "pad").await;
+    });
+}
+
+#[test]
+fn a_stranger_outside_the_window_and_an_impostor_at_the_bonded_address_are_refused() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        pair(&mut peer, pc, "pad", "ds4", PAD_ADDRESS).await;
+        peer.cmd("off pad").await;
+        status(pc, 3_000, "the switch-off is reported", |s| {
+            !s.flags.remote_connected
+        })
+        .await;
+        // A pad nobody paired pages the robot: rejected at once, by its address.
+        peer.cmd(&format!("ps stranger ds4 {STRANGER_ADDRESS}"))
+            .await;
+        let mark = peer.mark();
+        peer.cmd("on stranger 00:B0:75:00:00:01").await;
+        peer.wait_for(mark, &["page-failed", "stranger"], 10_000)
+            .await;
+        assert!(
+            peer.events_since(mark, &["connected", "stranger"])
+                .is_empty()
+        );
+        // The bonded address without the key (an impostor, or a pad reset): the link
+        // comes up, fails to authenticate, is dropped and never paired.
+        peer.cmd("forget pad").await;
+        let mark = peer.mark();
+        peer.cmd("on pad").await;
+        peer.wait_for(mark, &["classic-key-mismatch"], 10_000).await;
+        peer.wait_for(mark, &["disconnected", "pad"], 10_000).await;
+        Timer::after_millis(500).await;
+        assert!(
+            peer.events_since(mark, &["paired"]).is_empty(),
+            "no pairing outside the window"
+        );
+        assert!(
+            peer.events_since(mark, &["encrypted", "pad", "1"])
+                .is_empty()
+        );
+        let now = status(pc, 1_000, "the controller answers", |_| true).await;
+        assert!(!now.flags.remote_connected && now.flags.remote_bonded);
+    });
+}
+
+#[test]
+fn a_dualsense_pairs_and_drives_and_l2_with_ps_switches_it_off() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        pair(&mut peer, pc, "pad", "dualsense", PAD_ADDRESS).await;
+        drive_forward(&mut peer, &robot, pc, "pad").await;
+        peer.cmd("release pad R1").await;
+        peer.cmd("stick pad LY 0").await;
+        wheels(&robot, 3_000, false).await;
+        let mark = peer.mark();
+        peer.cmd("trigger pad L2 1.0").await;
+        Timer::after_millis(50).await;
+        peer.cmd("press pad PS").await;
+        peer.wait_for(mark, &["disconnected", "pad"], 3_000).await;
+        status(pc, 2_000, "the switch-off is reported", |s| {
+            s.flags.remote_bonded && !s.flags.remote_connected
+        })
+        .await;
+    });
+}
+
+#[test]
+fn a_ble_pad_and_a_playstation_pad_bonded_in_turn_both_drive() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        // The BLE pad first (HID over GATT, its dead-man RB).
+        peer.cmd(&format!("pad xbox {BLE_PAD_ADDRESS}")).await;
+        let mark = peer.mark();
+        peer.cmd("advertise xbox").await;
+        open_pairing_window(pc).await;
+        peer.wait_for(mark, &["paired", "xbox"], 20_000).await;
+        peer.wait_for(mark, &["subscribed", "xbox"], 10_000).await;
+        status(pc, 5_000, "the BLE pad is connected", |s| {
+            s.flags.remote_connected
+        })
+        .await;
+        peer.cmd("disconnect xbox").await;
+        status(pc, 3_000, "the BLE pad is off", |s| {
+            !s.flags.remote_connected
+        })
+        .await;
+        // Then the PlayStation pad, in the next window.
+        pair(&mut peer, pc, "ps", "ds4", PAD_ADDRESS).await;
+        drive_forward(&mut peer, &robot, pc, "ps").await;
+        peer.cmd("release ps R1").await;
+        wheels(&robot, 3_000, false).await;
+        peer.cmd("off ps").await;
+        status(pc, 3_000, "the PlayStation pad is off", |s| {
+            !s.flags.remote_connected
+        })
+        .await;
+        // Each kind keeps its bond: the BLE pad comes back and drives too.
+        let mark = peer.mark();
+        peer.cmd("advertise xbox").await;
+        peer.wait_for(mark, &["subscribed", "xbox"], 10_000).await;
+        status(pc, 3_000, "the BLE pad is back", |s| {
+            s.flags.remote_connected
+        })
+        .await;
+        drives_ready(pc).await;
+        peer.cmd("release xbox RB").await;
+        peer.cmd("press xbox RB").await;
+        status(pc, 2_000, "the BLE pad's dead-man gives it control", |s| {
+            s.flags.remote_in_control
+        })
+        .await;
+    });
+    assert!(bond_stored_for(&robot, PAD_ADDRESS));
+}
+
+#[test]
+fn a_streaming_pad_left_idle_is_switched_off() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        status(pc, 5_000, "the controller is up", |_| true).await;
+        // The shortest AFK time the register takes.
+        write_register(pc, Reg::PsAfkTime, 5_000);
+        let mark = peer.mark();
+        pair(&mut peer, pc, "pad", "ds4", PAD_ADDRESS).await;
+        // The pad streams all the time, but nothing changes: that is no input.
+        let streaming = peer.wait_for(mark, &["streaming", "pad"], 0).await;
+        let off = peer.wait_for(mark, &["disconnected", "pad"], 10_000).await;
+        let idle = off.at - streaming.at;
+        assert!(
+            (Duration::from_millis(5_000)..Duration::from_millis(7_000)).contains(&idle),
+            "switched off after {idle:?}"
+        );
+        // Remote user terminated connection: the robot closed the link.
+        assert_eq!(off.words[2], "19");
+    });
+}
+
+#[test]
+fn a_pad_stuck_on_the_short_report_still_drives_and_is_asked_again() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        // A clone that answers feature report 0x05 but never leaves the short report.
+        peer.cmd(&format!("ps pad ds4 {PAD_ADDRESS}")).await;
+        peer.cmd("short pad").await;
+        let mark = peer.mark();
+        peer.cmd("pairing pad").await;
+        open_pairing_window(pc).await;
+        peer.wait_for(mark, &["paired", "pad"], 20_000).await;
+        status(pc, 5_000, "the paired pad is connected", |s| {
+            s.flags.remote_connected
+        })
+        .await;
+        // The short report carries sticks and buttons: it drives.
+        drive_forward(&mut peer, &robot, pc, "pad").await;
+        peer.cmd("release pad R1").await;
+        wheels(&robot, 3_000, false).await;
+        // Asked again, once a second, a bounded number of times.
+        Timer::after_millis(1_500).await;
+        let asked = peer
+            .events_since(mark, &["feature-read", "pad", "0x05"])
+            .len();
+        assert!((2..=5).contains(&asked), "asked {asked} times");
+        assert_eq!(peer.cmd("state pad").await, "connected short");
+    });
+}
+
+#[test]
+fn reports_with_a_bad_crc_are_refused_and_stop_the_base_as_silence_does() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        status(pc, 5_000, "the controller is up", |_| true).await;
+        write_register(pc, Reg::ContrAccHigh, RELEASE_BRAKING);
+        pair(&mut peer, pc, "pad", "ds4", PAD_ADDRESS).await;
+        drive_forward(&mut peer, &robot, pc, "pad").await;
+        let garbled_at = Instant::now();
+        // The link stays and the stream goes on, but no report passes its CRC check.
+        peer.cmd("garble pad").await;
+        let zero = zero_on_the_wire(&robot, 2_000).await;
+        let stopped_after = zero - garbled_at;
+        assert_eq!(last_decel(&robot), i32::from(RELEASE_BRAKING));
+        assert!(
+            stopped_after < Duration::from_millis(250),
+            "{stopped_after:?}"
+        );
+        eprintln!("classic bad-CRC stream to zero on the wire: {stopped_after:?}");
+        status(pc, 2_000, "the link is reported down", |s| {
+            !s.flags.remote_connected
+        })
+        .await;
+    });
+}
