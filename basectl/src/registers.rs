@@ -256,7 +256,7 @@ mod tests {
     #[test]
     fn unknown_registers_and_holes_are_refused() {
         assert!(lookup("no_such_register").is_err());
-        assert!(lookup("35").is_err(), "34-37 are kept free");
+        assert!(lookup("35").is_err(), "35-37 are kept free");
         assert!(lookup("300").is_err());
     }
 

@@ -21,9 +21,9 @@ pub use record::{
     encode_store_record, migrate,
 };
 pub use table::{
-    ADDRESS_COUNT, Access, FW_VERSION, LAST_MANUAL_ADDRESS, MOTOR_DIR_INVERT_LEFT,
-    MOTOR_DIR_INVERT_RIGHT, OPEN_PAIRING_WINDOW_KEY, REGMAP_VERSION, RESTORE_DEFAULTS_KEY, Reg,
-    RegisterInfo, TABLE, info,
+    ADDRESS_COUNT, Access, BLUETOOTH_ON_KEY, FW_VERSION, LAST_MANUAL_ADDRESS,
+    MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, OPEN_PAIRING_WINDOW_KEY, REGMAP_VERSION,
+    RESTORE_DEFAULTS_KEY, Reg, RegisterInfo, TABLE, info,
 };
 
 /// Why a register read or write was refused. The code goes on CAN (register-read error
@@ -68,6 +68,9 @@ pub enum WriteOutcome {
     /// `command` got [`OPEN_PAIRING_WINDOW_KEY`]: no register changed, nothing to
     /// persist; the controller opens the pairing window.
     PairingWindowRequested,
+    /// `command` got [`BLUETOOTH_ON_KEY`]: no register changed, nothing to persist; the
+    /// controller turns Bluetooth on if a panic loop switched it off.
+    BluetoothOnRequested,
     /// The full scale offset changed (a write of 19, 44 or 45, or a tare): persist
     /// [`Registers::weight_offset_records`], all three at once.
     OffsetChanged,
@@ -251,6 +254,7 @@ impl Registers {
                     Ok(WriteOutcome::DefaultsRestored)
                 }
                 OPEN_PAIRING_WINDOW_KEY => Ok(WriteOutcome::PairingWindowRequested),
+                BLUETOOTH_ON_KEY => Ok(WriteOutcome::BluetoothOnRequested),
                 _ => Err(RegisterError::OutOfRange),
             };
         }

@@ -31,7 +31,7 @@ const MANUAL: [(u8, &str, u16); 24] = [
 ];
 
 /// The extensions as the lead fixed them: address, name, default, min, max, 0 = off.
-const EXTENSIONS: [(u8, &str, u16, u16, u16, bool); 17] = [
+const EXTENSIONS: [(u8, &str, u16, u16, u16, bool); 18] = [
     (24, "gear_ratio", 1000, 100, 10000, false),
     (25, "enable_timeout", 500, 50, 5000, false),
     (26, "estop_decel", 4500, 100, 30000, false),
@@ -42,6 +42,7 @@ const EXTENSIONS: [(u8, &str, u16, u16, u16, bool); 17] = [
     (31, "status_time", 1000, 100, 60000, true),
     (32, "pc_boot_grace", 120, 10, 600, false),
     (33, "pc_switch_pulse", 500, 50, 2000, false),
+    (34, "bluetooth_off", 0, 0, 1, false),
     (43, "can_tx_dropped", 0, 0, 65535, false),
     (44, "weight_offset_hi", 0, 0, 255, false),
     (45, "weight_offset_lo", 20490, 0, 65535, false),
@@ -112,7 +113,7 @@ fn reg_enum_table_and_addresses_agree() {
         assert_eq!(Reg::from_address(reg as u8), Some(reg));
     }
     assert!(Reg::ALL.windows(2).all(|w| w[0] < w[1]));
-    for address in (34..=37).chain(41..=42).chain(50..=u8::MAX) {
+    for address in (35..=37).chain(41..=42).chain(50..=u8::MAX) {
         assert_eq!(Reg::from_address(address), None);
         assert_eq!(info(address), None);
     }
@@ -131,8 +132,9 @@ fn version_registers_read_the_build_and_map_versions() {
     let registers = Registers::defaults();
     assert_eq!(registers.read(38), Ok((major << 8) | minor));
     // 3 since the full scale offset, the erase count, the transmit drops,
-    // `stop_decel` and `sec_motor_vel` came, and motion registers wait for standstill.
-    assert_eq!(registers.read(39), Ok(3));
+    // `stop_decel` and `sec_motor_vel` came, and motion registers wait for standstill;
+    // 4 since `bluetooth_off` and the Bluetooth-on key.
+    assert_eq!(registers.read(39), Ok(4));
 }
 
 #[test]
@@ -195,7 +197,8 @@ fn bad_writes_are_rejected_and_change_nothing() {
         (8, 49, OutOfRange),     // PS_rel_max_vel below the lowest speed level
         (28, 4, OutOfRange),     // motor_dir has two bits
         (40, 1, OutOfRange),     // command: not the restore key
-        (34, 1, UnknownAddress),
+        (34, 0, ReadOnly),       // bluetooth_off: only the panic-loop decision sets it
+        (35, 1, UnknownAddress),
         (37, 1, UnknownAddress),
         (41, 1, UnknownAddress),
         (255, 1, UnknownAddress),
@@ -311,7 +314,7 @@ fn restore_key_brings_back_every_default() {
 }
 
 #[test]
-fn pairing_key_changes_no_register_and_command_takes_no_other_value() {
+fn pairing_and_bluetooth_keys_change_no_register_and_command_takes_no_other_value() {
     let mut registers = Registers::defaults();
     registers.write(0, 150).unwrap();
     let before = registers.clone();
@@ -319,8 +322,12 @@ fn pairing_key_changes_no_register_and_command_takes_no_other_value() {
         registers.write(40, OPEN_PAIRING_WINDOW_KEY),
         Ok(WriteOutcome::PairingWindowRequested)
     );
+    assert_eq!(
+        registers.write(40, BLUETOOTH_ON_KEY),
+        Ok(WriteOutcome::BluetoothOnRequested)
+    );
     assert_eq!(registers, before);
-    for value in [0, 1, 0xB1E1, 0xC000, 0xDEEF, 0xDEF1, u16::MAX] {
+    for value in [0, 1, 0xB1DF, 0xB1E2, 0xC000, 0xDEEF, 0xDEF1, u16::MAX] {
         assert_eq!(
             registers.write(40, value),
             Err(RegisterError::OutOfRange),
@@ -552,6 +559,10 @@ proptest! {
                 Ok(WriteOutcome::DefaultsRestored) => prop_assert_eq!(&registers, &Registers::defaults()),
                 Ok(WriteOutcome::PairingWindowRequested) => {
                     prop_assert_eq!((address, value), (40, OPEN_PAIRING_WINDOW_KEY));
+                    prop_assert_eq!(&registers, &before);
+                }
+                Ok(WriteOutcome::BluetoothOnRequested) => {
+                    prop_assert_eq!((address, value), (40, BLUETOOTH_ON_KEY));
                     prop_assert_eq!(&registers, &before);
                 }
                 Err(_) => prop_assert_eq!(&registers, &before),

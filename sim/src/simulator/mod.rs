@@ -214,11 +214,13 @@ async fn controller(
             load_cell: robot.load_cell.clone(),
             watchdog: robot.watchdog.clone(),
             reset_by_watchdog,
+            bluetooth: robot.rtc_ram.boot(),
         };
+        let bluetooth = hardware.bluetooth;
         let channels = Channels::new();
         let firmware = embassy_futures::join::join(
             base_runtime::run(hardware, robot.settings, &channels),
-            crate::ble::run_live_remote(remote.take(), &channels),
+            crate::ble::run_live_remote(remote.take(), bluetooth, &robot.rtc_ram, &channels),
         );
         // The firmware (and its end of the HCI connection) is dropped at the end of
         // this statement: the chip is reset.
