@@ -32,7 +32,7 @@ pub use table::{
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum RegisterError {
-    /// No register at this address (34–37, 41–47 and 50–255).
+    /// No register at this address (35–37, 41–42 and 50–255).
     UnknownAddress = 0x10,
     /// The register is read-only (`fw_version`, `regmap_version`).
     ReadOnly = 0x11,
