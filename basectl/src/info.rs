@@ -5,7 +5,10 @@
 use std::io::Write;
 use std::time::{Duration, Instant};
 
-use base_core::registers::{Charge, Reg, RemoteBattery, RemoteInfo, RemoteKind};
+use base_core::panic_loop::{LOOP_PANICS, SHORT_LIFE_MS};
+use base_core::registers::{
+    BLUETOOTH_ON_KEY, Charge, Reg, RemoteBattery, RemoteInfo, RemoteKind,
+};
 use serde_json::{Value, json};
 
 use crate::base::{Base, Error};
@@ -20,6 +23,38 @@ const LONGEST_LISTEN: Duration = Duration::from_secs(10);
 /// older firmware would refuse to read them.
 const REMOTE_REGMAP: u16 = 4;
 
+/// The Bluetooth remote's state, from `bluetooth_off` (36).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Bluetooth {
+    On,
+    OffAfterPanics,
+    /// A firmware older than register 36.
+    Unknown,
+}
+
+impl Bluetooth {
+    fn describe(self) -> String {
+        match self {
+            Bluetooth::On => "on".to_owned(),
+            Bluetooth::OffAfterPanics => format!(
+                "OFF after {LOOP_PANICS} panics, each within {} s of boot; turn it on with a \
+                 confirm press of the front button or `basectl reg set command 0x{BLUETOOTH_ON_KEY:04X}`",
+                SHORT_LIFE_MS / 1_000
+            ),
+            Bluetooth::Unknown => "not reported by this firmware (no register 36)".to_owned(),
+        }
+    }
+}
+
+fn bluetooth_state(base: &mut Base) -> Result<Bluetooth, Error> {
+    match base.read_register(Reg::BluetoothOff.address()) {
+        Ok(0) => Ok(Bluetooth::On),
+        Ok(_) => Ok(Bluetooth::OffAfterPanics),
+        Err(Error::ReadRefused { .. }) => Ok(Bluetooth::Unknown),
+        Err(error) => Err(error),
+    }
+}
+
 pub fn info(base: &mut Base, json_output: bool, out: &mut dyn Write) -> Result<(), Error> {
     let [firmware, regmap, volt_time] =
         base.read_registers([Reg::FwVersion, Reg::RegmapVersion, Reg::VoltTime])?;
@@ -28,6 +63,7 @@ pub fn info(base: &mut Base, json_output: bool, out: &mut dyn Write) -> Result<(
     } else {
         None
     };
+    let bluetooth = bluetooth_state(base)?;
     let status = base.next_status()?;
     // The battery report comes every volt_time (5 s by default): wait for one.
     let listen = (Duration::from_millis(u64::from(volt_time)) + Duration::from_millis(500))
@@ -67,6 +103,11 @@ pub fn info(base: &mut Base, json_output: bool, out: &mut dyn Write) -> Result<(
             "pose": pose.map(|pose| json!({"x_mm": pose.x_mm, "y_mm": pose.y_mm, "heading_mrad": pose.heading_mrad})),
             "weight_g": base.weight_g(),
             "remote": remote_json(remote),
+            "bluetooth_off_after_panics": match bluetooth {
+                Bluetooth::On => Some(false),
+                Bluetooth::OffAfterPanics => Some(true),
+                Bluetooth::Unknown => None,
+            },
         });
         writeln!(out, "{object}")?;
         return Ok(());
@@ -108,6 +149,7 @@ pub fn info(base: &mut Base, json_output: bool, out: &mut dyn Write) -> Result<(
         },
         status.drive_alarm
     )?;
+    writeln!(out, "bluetooth       {}", bluetooth.describe())?;
     writeln!(out, "modbus errors   {}", status.modbus_errors)?;
     writeln!(
         out,

@@ -110,6 +110,9 @@ pub struct BootReport {
     pub watchdog_reset: bool,
     /// The register store's page erases so far.
     pub flash_erases: u32,
+    /// The Bluetooth remote stays off: the last resets were a panic loop
+    /// ([`crate::panic_loop`]).
+    pub bluetooth_off_after_panics: bool,
 }
 
 /// Register changes the flash task must persist.
@@ -145,6 +148,10 @@ pub struct Output {
     /// restarts it) or closed (`false`). It is closed at boot. While it is closed the
     /// BLE task connects only to the bonded pad and accepts no pairing request.
     pub pairing_window: Option<bool>,
+    /// Bluetooth was off after a panic loop and is turned on now (a confirm press of
+    /// the front button, or [`crate::registers::BLUETOOTH_ON_KEY`]): start the remote
+    /// and forget the panics.
+    pub bluetooth_on: bool,
 }
 
 /// Counts and remembers rejected inputs for the status frame.
@@ -257,7 +264,20 @@ impl Controller {
         controller.faults.flash = report.flash_fault;
         controller.faults.watchdog_reset = report.watchdog_reset;
         controller.set_flash_erases(report.flash_erases);
+        controller.registers.set_counter(
+            Reg::BluetoothOff,
+            u16::from(report.bluetooth_off_after_panics),
+        );
         controller
+    }
+
+    /// Turns the Bluetooth remote on if a panic loop switched it off at boot.
+    fn turn_bluetooth_on(&mut self, out: &mut Output) {
+        if self.registers.get(Reg::BluetoothOff) != 0 {
+            info!("Bluetooth on again");
+            self.registers.set_counter(Reg::BluetoothOff, 0);
+            out.bluetooth_on = true;
+        }
     }
 
     fn set_flash_erases(&mut self, erases: u32) {
@@ -629,6 +649,7 @@ impl Controller {
                 self.pairing.open(now);
                 out.pairing_window = Some(true);
             }
+            Ok(WriteOutcome::BluetoothOnRequested) => self.turn_bluetooth_on(out),
             Err(error) => self.reject_register(address, error),
         }
     }
@@ -803,6 +824,7 @@ impl Controller {
     fn power_event(&mut self, now: Timestamp, event: power::Event, out: &mut Output) {
         let power = self.power.step(now, event, &power_params(&self.registers));
         if power.confirm {
+            self.turn_bluetooth_on(out);
             self.supervise(now, supervisor::Event::ConfirmPressed, out);
         }
         if power.switch.is_some() {
@@ -1090,6 +1112,7 @@ mod tests {
             flash_fault: true,
             watchdog_reset: true,
             flash_erases: 70_000,
+            bluetooth_off_after_panics: false,
         };
         let mut controller = Controller::boot(at(0), Registers::defaults(), &report);
         let out = controller.handle(at(0), Input::Tick);
@@ -1366,5 +1389,68 @@ mod tests {
         let out = controller.handle(at(1_000), Input::Tick);
         assert_eq!(out.excite, None);
         assert!(!controller.supervisor().brakes_applied());
+    }
+    fn booted_after_a_panic_loop() -> Controller {
+        let report = BootReport {
+            bluetooth_off_after_panics: true,
+            ..BootReport::default()
+        };
+        Controller::boot(at(0), Registers::defaults(), &report)
+    }
+
+    #[test]
+    fn bluetooth_off_after_panics_reads_1_until_the_key_turns_it_on_once() {
+        let mut controller = booted_after_a_panic_loop();
+        assert_eq!(controller.registers().get(Reg::BluetoothOff), 1);
+        let out = controller.handle(
+            at(10),
+            write(Reg::Command, crate::registers::BLUETOOTH_ON_KEY),
+        );
+        assert!(out.bluetooth_on);
+        assert_eq!(controller.registers().get(Reg::BluetoothOff), 0);
+        let again = controller.handle(
+            at(20),
+            write(Reg::Command, crate::registers::BLUETOOTH_ON_KEY),
+        );
+        assert!(!again.bluetooth_on, "on already: nothing to start");
+        assert_eq!(
+            controller.rejections.count, 0,
+            "the key is accepted either way"
+        );
+    }
+
+    #[test]
+    fn a_confirm_press_turns_bluetooth_on_after_panics_and_nothing_else_does() {
+        let mut controller = booted_after_a_panic_loop();
+        for (ms, input) in [
+            (
+                10,
+                write(Reg::Command, crate::registers::OPEN_PAIRING_WINDOW_KEY),
+            ),
+            (20, Input::DrivesReady),
+            (30, Input::Tick),
+        ] {
+            assert!(!controller.handle(at(ms), input).bluetooth_on, "{input:?}");
+        }
+        controller.handle(at(100), Input::Button(true));
+        let released = controller.handle(at(300), Input::Button(false));
+        assert!(released.bluetooth_on);
+        assert_eq!(controller.registers().get(Reg::BluetoothOff), 0);
+    }
+
+    #[test]
+    fn with_bluetooth_on_the_key_and_a_confirm_press_start_nothing() {
+        let mut controller = Controller::new(at(0), Registers::defaults());
+        let out = controller.handle(
+            at(10),
+            write(Reg::Command, crate::registers::BLUETOOTH_ON_KEY),
+        );
+        assert!(!out.bluetooth_on);
+        controller.handle(at(100), Input::Button(true));
+        assert!(
+            !controller
+                .handle(at(300), Input::Button(false))
+                .bluetooth_on
+        );
     }
 }

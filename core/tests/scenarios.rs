@@ -1461,11 +1461,11 @@ fn register_writes_with_bad_values_are_rejected_and_change_nothing() {
             ),
             (
                 40,
-                raw(id::REGISTER_WRITE, &[36, 0x00, 0x02]),
+                raw(id::REGISTER_WRITE, &[37, 0x00, 0x02]),
                 &[
                     Rejected {
                         code: 0x10,
-                        subject: 36,
+                        subject: 37,
                     },
                     RejectedCount(5),
                 ],

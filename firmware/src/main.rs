@@ -20,7 +20,9 @@ use esp_radio::ble::controller::BleConnector;
 use static_cell::StaticCell;
 use trouble_host::prelude::ExternalController;
 
-use base_controller_firmware::board::{self, BUTTON_PULL, ESTOP_PULL, SAFETY_ZONE_PULL};
+use base_controller_firmware::board::{
+    self, BUTTON_PULL, ESTOP_PULL, SAFETY_ZONE_PULL, panic_record,
+};
 use base_controller_firmware::flash::{self, SharedFlash};
 use base_controller_firmware::rs485::Rs485Port;
 use base_controller_firmware::watchdog::LivenessWatchdog;
@@ -44,6 +46,8 @@ async fn main(_spawner: embassy_executor::Spawner) {
     let peripherals = esp_hal::init(esp_hal::Config::default().with_cpu_clock(CpuClock::max()));
     esp_alloc::heap_allocator!(size: HEAP_SIZE);
     let reset_reason = esp_hal::system::reset_reason();
+    // A software reset is the panic handler's (see `custom_halt`).
+    let bluetooth = panic_record::at_boot(board::reset_by_software(reset_reason));
     let mut board = board::take(peripherals);
     esp_rtos::start(
         TimerGroup::new(board.timg0).timer0,
@@ -113,6 +117,7 @@ async fn main(_spawner: embassy_executor::Spawner) {
         // itself otherwise. The status frame reports both as an abnormal reset.
         reset_by_watchdog: board::reset_by_watchdog(reset_reason)
             || board::reset_by_software(reset_reason),
+        bluetooth,
     };
     if hardware.reset_by_watchdog {
         warn!(
@@ -122,6 +127,13 @@ async fn main(_spawner: embassy_executor::Spawner) {
     }
 
     let remote = async {
+        // After a panic loop the radio stays untouched until Bluetooth is turned on.
+        ble::wait_until_on(
+            bluetooth,
+            &CHANNELS.remote_requests,
+            panic_record::turned_on,
+        )
+        .await;
         match BleConnector::new(board.bt, Default::default()) {
             Ok(connector) => {
                 let controller: ExternalController<_, HCI_SLOTS> =

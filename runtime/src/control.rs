@@ -143,6 +143,9 @@ fn dispatch<S: OutputPin>(
     if out.disconnect_remote {
         remote.disconnects = remote.disconnects.wrapping_add(1);
     }
+    if out.bluetooth_on {
+        remote.bluetooth_on = true;
+    }
     if remote != state.remote {
         state.remote = remote;
         channels.remote_requests.signal(remote);

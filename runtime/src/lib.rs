@@ -40,6 +40,7 @@ use embassy_futures::join::{join, join4, join5};
 
 use base_core::controller::{BootReport, Controller};
 use base_core::drives::DriveSettings;
+use base_core::panic_loop::Bluetooth;
 
 use crate::channels::Channels;
 use crate::hw::{
@@ -68,6 +69,9 @@ pub struct Hardware<CR, CT, P, F, E, Z, B, S, V, L, W> {
     pub watchdog: W,
     /// The chip's reset reason says the watchdog bit.
     pub reset_by_watchdog: bool,
+    /// Whether the Bluetooth remote may start at this boot: off after a panic loop
+    /// ([`base_core::panic_loop`]), which the controller reports.
+    pub bluetooth: Bluetooth,
 }
 
 /// What the board knows about its wiring and the drives.
@@ -123,6 +127,7 @@ where
         flash_fault: report.flash_fault(),
         watchdog_reset: hardware.reset_by_watchdog,
         flash_erases: store.erases(),
+        bluetooth_off_after_panics: hardware.bluetooth == Bluetooth::OffAfterPanics,
     };
     let controller = Controller::boot(control::core_now(), registers, &boot);
     let ((never, ..), ..) = join(

@@ -214,18 +214,35 @@ async fn controller(
             load_cell: robot.load_cell.clone(),
             watchdog: robot.watchdog.clone(),
             reset_by_watchdog,
+            bluetooth: robot.rtc_ram.boot(),
         };
+        let bluetooth = hardware.bluetooth;
+        let booted = now();
         let channels = Channels::new();
         let firmware = embassy_futures::join::join(
             base_runtime::run(hardware, robot.settings, &channels),
-            crate::ble::run_live_remote(remote.take(), &channels),
+            crate::ble::run_live_remote(remote.take(), bluetooth, &robot.rtc_ram, &channels),
         );
         // The firmware (and its end of the HCI connection) is dropped at the end of
         // this statement: the chip is reset.
-        reset_by_watchdog = match select(firmware, view.reboot.wait()).await {
+        let reset = match select(firmware, view.reboot.wait()).await {
             Either::First((never, ())) => never,
-            Either::Second(by_watchdog) => by_watchdog,
+            Either::Second(reset) => reset,
         };
+        // As the chip's panic handler does, before its reset.
+        if reset == Reset::Panic {
+            let uptime = (now() - booted).as_millis();
+            robot
+                .rtc_ram
+                .record_panic(base_core::time::Timestamp::from_millis(uptime));
+            view.output.message(&format!(
+                "panic: the controller panicked {uptime} ms after its boot and resets; \
+                 panics in a row soon after boot: {} (at {} Bluetooth stays off)",
+                robot.rtc_ram.short_panics(),
+                base_core::panic_loop::LOOP_PANICS
+            ));
+        }
+        reset_by_watchdog = reset != Reset::Button;
         view.output.message(if reset_by_watchdog {
             "reboot: the controller restarts as after a watchdog reset (the status frame \
              reports watchdog_reset); the drives keep running until it stops them"
@@ -325,8 +342,20 @@ struct View<'a> {
     slcan: SlcanCounters,
     network: NetworkCounters,
     output: Output,
-    /// The console asked for a reboot: `true` as by the watchdog.
-    reboot: Signal<NoopRawMutex, bool>,
+    /// The console asked for a reboot.
+    reboot: Signal<NoopRawMutex, Reset>,
+}
+
+/// How the console resets the controller.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Reset {
+    /// The reset button or a brown-out.
+    Button,
+    /// A watchdog bite.
+    Watchdog,
+    /// A panic: recorded for the next boot's panic-loop decision, then the reset (the
+    /// status frame shows it as watchdog_reset, as the chip's does).
+    Panic,
 }
 
 impl View<'_> {
@@ -638,7 +667,12 @@ async fn serve_console(lines: &QueueReceiver<String>, view: &View<'_>) {
             ConsoleCommand::DriveSilent { wheel, silent } => {
                 robot.drives.set_silent(wheel.slave(), silent)
             }
-            ConsoleCommand::Reboot { by_watchdog } => view.reboot.signal(by_watchdog),
+            ConsoleCommand::Reboot { by_watchdog } => view.reboot.signal(if by_watchdog {
+                Reset::Watchdog
+            } else {
+                Reset::Button
+            }),
+            ConsoleCommand::Panic => view.reboot.signal(Reset::Panic),
             ConsoleCommand::Status => view.output.message(&view.status_report()),
             ConsoleCommand::Help => view.output.message(HELP),
             ConsoleCommand::Quit => return,
