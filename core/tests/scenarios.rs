@@ -1005,7 +1005,7 @@ fn pairing_window_opens_on_its_command_and_closes_after_a_minute_or_on_a_new_bon
             // Only the exact key opens it.
             (
                 320_000,
-                raw(id::REGISTER_WRITE, &[40, 0xB1, 0xE1]),
+                raw(id::REGISTER_WRITE, &[40, 0xB1, 0xE2]),
                 &[
                     NoPairingChange,
                     Rejected {
@@ -1492,9 +1492,9 @@ fn register_writes_with_bad_values_are_rejected_and_change_nothing() {
             ),
             (
                 70,
-                raw(id::REGISTER_READ, &[1, 36]),
+                raw(id::REGISTER_READ, &[1, 37]),
                 &[Sends(Report::RegisterReadError {
-                    address: 36,
+                    address: 37,
                     reason: 0x10,
                     tag: Some(0),
                 })],
