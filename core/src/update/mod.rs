@@ -12,4 +12,6 @@
 pub mod boot;
 pub mod image;
 pub mod otadata;
+pub mod partitions;
+pub mod session;
 pub mod trial;
