@@ -30,9 +30,7 @@ use crate::can::FrameQueue;
 use crate::channels::RawMutex;
 use crate::hw::NorFlash;
 
-/// The project name `esp_app_desc!` records for this firmware (its crate's name): an
-/// image naming another project is refused.
-pub const PROJECT: &str = "base-controller-firmware";
+pub use base_core::update::PROJECT;
 
 /// Update frames the queue holds: a sub-block of 24 data frames and the PC's commands.
 pub const UPDATE_QUEUE: usize = 32;
