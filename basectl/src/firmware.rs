@@ -132,8 +132,7 @@ pub fn query(bus: &mut dyn Bus, timeout: Duration) -> Result<Running, Error> {
     })
 }
 
-fn refused(step: &str, opcode: u8, error: UpdateError, detail: u8) -> Error {
-    let _ = opcode;
+fn refused(step: &str, error: UpdateError, detail: u8) -> Error {
     let detail = if error == UpdateError::BadImage {
         format!(" (image check {detail})")
     } else {
@@ -168,7 +167,7 @@ fn expect_done(
                 error,
                 detail,
             }) if opcode == command.opcode() => {
-                return Err(refused(&format!("{step:?}"), opcode, error, detail));
+                return Err(refused(&format!("{step:?}"), error, detail));
             }
             Some(_) => {}
         }
@@ -253,11 +252,9 @@ pub fn transfer(
                         error: UpdateError::OutOfOrder | UpdateError::Duplicate,
                         ..
                     } => {}
-                    UpdateReply::Refused {
-                        opcode,
-                        error,
-                        detail,
-                    } => return Err(refused("the image", opcode, error, detail)),
+                    UpdateReply::Refused { error, detail, .. } => {
+                        return Err(refused("the image", error, detail));
+                    }
                     _ => {}
                 }
             }
@@ -391,10 +388,8 @@ pub fn update(
             file.bytes.len() / 1024
         )?;
     }
-    if !plan.yes {
-        if !ask_yes("update now? [y/N] ")? {
-            return Err(Error::Aborted("not updated".into()));
-        }
+    if !plan.yes && !ask_yes("update now? [y/N] ")? {
+        return Err(Error::Aborted("not updated".into()));
     }
     let flash_fault_before = {
         // A driving base is left alone: no withdrawn enable, no session.
@@ -523,15 +518,12 @@ pub fn update(
         }
         Ok(())
     };
-    match wait_for_trial(bus, &file.version, &running.version)? {
-        None => {
-            report(out, "rolled back", &running.version)?;
-            return Err(Error::Aborted(format!(
-                "firmware {} did not start; the controller went back to {}",
-                file.version, running.version
-            )));
-        }
-        Some(_) => {}
+    if wait_for_trial(bus, &file.version, &running.version)?.is_none() {
+        report(out, "rolled back", &running.version)?;
+        return Err(Error::Aborted(format!(
+            "firmware {} did not start; the controller went back to {}",
+            file.version, running.version
+        )));
     }
     if let Err(why) = health_check(bus, reply_timeout, flash_fault_before) {
         let _ = bus.send(&UpdateCommand::Rollback.encode());

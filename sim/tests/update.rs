@@ -57,15 +57,14 @@ fn plan(file: PathBuf) -> UpdatePlan {
 fn standby(bus: &mut dyn Bus) {
     let mut base = Base::new(bus, TIMEOUT);
     let deadline = Instant::now() + Duration::from_secs(15);
+    let mut last = None;
     while Instant::now() < deadline {
-        if base
-            .next_status()
-            .is_ok_and(|status| status.mode == Mode::Standby)
-        {
-            return;
+        match base.next_status() {
+            Ok(status) if status.mode == Mode::Standby => return,
+            other => last = Some(format!("{other:?}")),
         }
     }
-    panic!("the base did not reach Standby");
+    panic!("the base did not reach Standby: {last:?}");
 }
 
 fn app_flash_bytes(simulator: &SimulatorProcess) -> Vec<u8> {
@@ -158,6 +157,10 @@ fn a_reset_in_the_middle_of_the_transfer_keeps_the_old_version_and_the_rerun_suc
         first.join().unwrap().is_err(),
         "the interrupted update reports failure"
     );
+    // A fresh connection: the server drops a client that stops reading while the
+    // image streams past (this one slept).
+    drop(bus);
+    let mut bus = connect(&simulator);
     standby(&mut bus);
     let running = firmware::query(&mut bus, TIMEOUT).unwrap();
     assert_eq!(

@@ -298,7 +298,7 @@ impl Updater {
                 match owner {
                     None => effects.refuse(opcode, UpdateError::NoSession, 0),
                     Some(owner) if owner != session => effects.refuse(opcode, UpdateError::Busy, 0),
-                    Some(_) => self.session_command(now, command, params, effects),
+                    Some(_) => self.session_command(now, command, effects),
                 }
             }
         }
@@ -381,13 +381,7 @@ impl Updater {
     }
 
     /// A command from the session's own PC.
-    fn session_command(
-        &mut self,
-        now: Timestamp,
-        command: UpdateCommand,
-        params: &Params<'_>,
-        effects: &mut Effects,
-    ) {
+    fn session_command(&mut self, now: Timestamp, command: UpdateCommand, effects: &mut Effects) {
         let opcode = command.opcode();
         if let UpdateCommand::Abort { session } = command {
             // Also while a window is written: its result is ignored.
@@ -481,10 +475,7 @@ impl Updater {
                 _ => effects.refuse(opcode, UpdateError::WrongWindow, 0),
             },
             State::Activating { .. } => effects.refuse(opcode, UpdateError::Writing, 0),
-            _ => {
-                let _ = params;
-                effects.refuse(opcode, UpdateError::NoSession, 0)
-            }
+            _ => effects.refuse(opcode, UpdateError::NoSession, 0),
         }
     }
 
