@@ -209,6 +209,9 @@ const FEEDBACK_REASONS: [Rejection; 3] = [
     Rejection::Feedback(Finding::SpeedStale),
 ];
 
+/// Motion refused while a firmware update runs or an image is on trial (0x50).
+const UPDATE_REASONS: [Rejection; 1] = [Rejection::UpdateInProgress];
+
 /// Status byte 4 before anything was rejected.
 const NO_REJECTION: u8 = 0;
 
@@ -223,6 +226,7 @@ fn rejection_reasons() -> Vec<(u8, String)> {
     let scale = SCALE_CALIBRATION_ERRORS.iter().map(|e| reason(e.code(), e));
     let feedback = FEEDBACK_REASONS
         .iter()
+        .chain(UPDATE_REASONS.iter())
         .map(|r| (r.code(), r.name().to_string()));
     frame
         .chain(register)
