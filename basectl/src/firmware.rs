@@ -236,14 +236,22 @@ pub fn transfer(
                     Some(reply) => reply,
                 };
                 match reply {
-                    UpdateReply::Ready { window, next, .. } if window == index => {
+                    // Another session's replies (another program, or stale ones) are not ours.
+                    UpdateReply::Ready {
+                        session: owner,
+                        window,
+                        next,
+                    } if owner == session && window == index => {
                         let end = (usize::from(next) + usize::from(SUB_BLOCK)).min(frames.len());
                         for frame in &frames[usize::from(next).min(end)..end] {
                             bus.send(frame)?;
                             stats.frames += 1;
                         }
                     }
-                    UpdateReply::Written { window, .. } if window == index => break 'window,
+                    UpdateReply::Written {
+                        session: owner,
+                        window,
+                    } if owner == session && window == index => break 'window,
                     UpdateReply::Refused {
                         error: UpdateError::BadCrc | UpdateError::WrongWindow,
                         ..

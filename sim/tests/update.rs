@@ -398,3 +398,17 @@ fn basectl_checks_an_image_file_offline() {
     let error = firmware::check(&bad, false, &mut Vec::new()).unwrap_err();
     assert!(matches!(error, Error::InvalidInput(_)), "{error}");
 }
+
+#[test]
+fn an_update_over_slcan_is_confirmed_too() {
+    let simulator = start();
+    let mut bus =
+        basectl::bus::SlcanPort::open(simulator.link().to_str().unwrap(), 500_000).unwrap();
+    standby(&mut bus);
+    let file = image_file(&simulator, "0.2.0");
+    let mut out = Vec::new();
+    firmware::update(&mut bus, &plan(file), TIMEOUT, &mut out).unwrap();
+    let report: serde_json::Value = serde_json::from_slice(&out).unwrap();
+    assert_eq!(report["outcome"], "confirmed");
+    assert_eq!(firmware::query(&mut bus, TIMEOUT).unwrap().version, "0.2.0");
+}
