@@ -412,3 +412,58 @@ fn an_update_over_slcan_is_confirmed_too() {
     assert_eq!(report["outcome"], "confirmed");
     assert_eq!(firmware::query(&mut bus, TIMEOUT).unwrap().version, "0.2.0");
 }
+
+/// The update task's view of the flash reaches the inactive slot and otadata only:
+/// an offset past the slot is refused without touching anything, and a window
+/// written at the slot's last sector lands there and nowhere else.
+#[test]
+fn the_update_flash_writes_only_inside_the_inactive_slot() {
+    use base_core::update::otadata::Slot;
+    use base_runtime::update::{UpdateFlash, UpdateFlashError};
+    use virtual_robot::flash::RamFlash;
+    use virtual_robot::runtime::block_on;
+
+    let flash = RamFlash::new(partitions::FLASH_SIZE as usize);
+    // Everything outside the slots holds a pattern that must survive.
+    let pattern: Vec<u8> = (0..partitions::FLASH_SIZE)
+        .map(|i| (i % 251) as u8)
+        .collect();
+    let mut writer = flash.clone();
+    block_on(async {
+        use embedded_storage_async::nor_flash::NorFlash;
+        writer.erase(0, partitions::FLASH_SIZE).await.unwrap();
+        writer.write(0, &pattern).await.unwrap();
+    });
+    let before = flash.contents(0..partitions::FLASH_SIZE);
+    let mut update = UpdateFlash::new(flash.clone(), Slot::Ota0);
+    let last_sector = partitions::SLOT_LEN - 4096;
+    block_on(async {
+        assert_eq!(
+            update.write_window(partitions::SLOT_LEN, &[1; 16]).await,
+            Err(UpdateFlashError::OutOfBounds)
+        );
+        assert_eq!(
+            update.write_window(100, &[1; 16]).await,
+            Err(UpdateFlashError::OutOfBounds)
+        );
+        assert_eq!(
+            update.write_window(0, &[1; 4097]).await,
+            Err(UpdateFlashError::OutOfBounds)
+        );
+        update.write_window(last_sector, &[7; 4093]).await.unwrap();
+    });
+    let after = flash.contents(0..partitions::FLASH_SIZE);
+    let target = partitions::OTA_1.offset + last_sector;
+    for (at, (old, new)) in before.iter().zip(&after).enumerate() {
+        let at = at as u32;
+        if (target..target + 4096).contains(&at) {
+            let expected = if at < target + 4093 { 7 } else { 0xFF };
+            assert_eq!(*new, expected, "{at:#x}");
+        } else {
+            assert_eq!(
+                old, new,
+                "{at:#x} changed outside the inactive slot's sector"
+            );
+        }
+    }
+}
