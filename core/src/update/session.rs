@@ -384,6 +384,10 @@ impl Updater {
     fn session_command(&mut self, now: Timestamp, command: UpdateCommand, effects: &mut Effects) {
         let opcode = command.opcode();
         if let UpdateCommand::Abort { session } = command {
+            if matches!(self.state, State::Activating { .. }) {
+                // otadata is being rewritten: the activated image starts either way.
+                return effects.refuse(opcode, UpdateError::Writing, 0);
+            }
             // Also while a window is written: its result is ignored.
             self.state = State::Idle;
             return effects.reply(UpdateReply::Done {

@@ -604,3 +604,29 @@ fn release_numbers_compare_as_versions() {
     assert_eq!(release("abc"), None);
     assert!(release("0.10.0") > release("0.9.9"));
 }
+
+#[test]
+fn an_abort_while_otadata_is_written_for_activation_is_refused() {
+    let image = image("0.3.0");
+    let mut bench = Bench::new();
+    bench.begin(&image, BeginFlags::default());
+    bench.transfer(&image);
+    bench.command(C::Finish { session: SID });
+    let effects = bench.updater.step(
+        at(100),
+        Event::Command(C::Activate { session: SID }, AT_REST),
+        &params(),
+    );
+    assert_eq!(effects.flash, Some(FlashOp::Activate));
+    // The activation write is under way: an abort cannot undo it.
+    let effects = bench.updater.step(
+        at(101),
+        Event::Command(C::Abort { session: SID }, AT_REST),
+        &params(),
+    );
+    assert!(effects.replies.iter().any(refused(UpdateError::Writing)));
+    let effects = bench
+        .updater
+        .step(at(102), Event::FlashDone(true), &params());
+    assert!(effects.reset, "the activated image must be started");
+}
