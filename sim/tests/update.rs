@@ -467,3 +467,52 @@ fn the_update_flash_writes_only_inside_the_inactive_slot() {
         }
     }
 }
+
+/// While a session runs, the e-stop and the status frame work as always, and a
+/// velocity is refused with rejection 0x50.
+#[test]
+fn during_an_update_session_the_estop_and_status_work_and_motion_is_refused() {
+    let mut simulator = start();
+    let mut bus = connect(&simulator);
+    standby(&mut bus);
+    bus.send(
+        &UpdateCommand::Begin {
+            session: 5,
+            size: 200_000,
+            flags: BeginFlags::default(),
+        }
+        .encode(),
+    )
+    .unwrap();
+    let reply = receive_reply(&mut bus, Duration::from_secs(1));
+    assert!(
+        matches!(reply, Some(UpdateReply::Done { session: 5, .. })),
+        "{reply:?}"
+    );
+    bus.send(&Command::Enable { refresh: true }.encode())
+        .unwrap();
+    bus.send(
+        &Command::Velocity {
+            linear_mm_s: 200,
+            rotation_mrad_s: 0,
+        }
+        .encode(),
+    )
+    .unwrap();
+    simulator.console("estop on").unwrap();
+    let mut base = Base::new(&mut bus, TIMEOUT);
+    let deadline = Instant::now() + Duration::from_secs(5);
+    let status = loop {
+        let status = base.next_status().unwrap();
+        if status.mode == Mode::Emergency || Instant::now() > deadline {
+            break status;
+        }
+    };
+    assert_eq!(status.mode, Mode::Emergency);
+    assert!(status.flags.estop_pressed);
+    assert_eq!(status.control, ControlSource::None);
+    assert_eq!(
+        status.last_rejection,
+        base_core::can::Rejection::UpdateInProgress.code()
+    );
+}
