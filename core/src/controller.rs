@@ -222,6 +222,9 @@ pub struct Controller {
     persist_pending: bool,
     /// Both drives confirmed de-excited (the drive link's word).
     drive_brakes_confirmed: bool,
+    /// A firmware update runs or a new image is on trial (the update task's word):
+    /// velocity, enable and the gamepad are refused.
+    update_lock: bool,
 }
 
 impl Controller {
@@ -254,6 +257,7 @@ impl Controller {
             feedback_check: FeedbackCheck::new(),
             persist_pending: false,
             drive_brakes_confirmed: false,
+            update_lock: false,
         }
     }
 
@@ -297,6 +301,23 @@ impl Controller {
     /// ([`crate::drives::link::DriveLink::brakes_confirmed`]).
     pub fn set_drive_brakes_confirmed(&mut self, confirmed: bool) {
         self.drive_brakes_confirmed = confirmed;
+    }
+
+    /// The update task's word on whether a firmware update runs or an image is on
+    /// trial: while it does, motion commands are refused with `UpdateInProgress`.
+    pub fn set_update_lock(&mut self, locked: bool) {
+        self.update_lock = locked;
+    }
+
+    /// What an update's BEGIN needs to know: the base stands braked and nobody
+    /// controls it.
+    pub fn update_gate(&self, now: Timestamp) -> crate::update::session::MotionGate {
+        crate::update::session::MotionGate {
+            at_standstill: self.at_standstill(now),
+            brakes_applied: self.brakes_applied(),
+            control_active: self.supervisor.enable_fresh(now, &self.supervisor_params())
+                || self.supervisor.remote_in_control(),
+        }
     }
 
     /// The brakes hold the base: the supervisor commanded S-OFF and both drives
@@ -497,6 +518,17 @@ impl Controller {
                 return;
             }
         };
+        let moves = matches!(
+            command,
+            Command::Enable { refresh: true } | Command::Velocity { .. }
+        );
+        if moves && self.update_lock {
+            self.rejections.record(
+                Rejection::UpdateInProgress.code(),
+                frame_subject(frame.id()),
+            );
+            return;
+        }
         match command {
             Command::Enable { refresh } => {
                 self.supervise(now, supervisor::Event::CanEnable { refresh }, out)
@@ -810,6 +842,15 @@ impl Controller {
         }
         out.disconnect_remote |= effects.disconnect;
         let step = match effects.control {
+            Some(Control::Drive { dead_man: true, .. }) if self.update_lock => {
+                // The supervisor sees the dead-man released: the base stays braked.
+                self.rejections
+                    .record(Rejection::UpdateInProgress.code(), 0);
+                Some(supervisor::Event::Remote {
+                    dead_man: false,
+                    twist: Twist::ZERO,
+                })
+            }
             Some(Control::Drive { dead_man, twist }) => {
                 Some(supervisor::Event::Remote { dead_man, twist })
             }
@@ -1217,6 +1258,64 @@ mod tests {
             })
         );
         controller
+    }
+
+    #[test]
+    fn an_update_lock_refuses_enable_velocity_and_the_dead_man_but_not_a_withdrawal() {
+        let mut controller = Controller::new(at(0), Registers::defaults());
+        controller.handle(at(0), Input::DrivesReady);
+        controller.set_update_lock(true);
+        for command in [
+            Command::Enable { refresh: true },
+            Command::Velocity {
+                linear_mm_s: 500,
+                rotation_mrad_s: 0,
+            },
+        ] {
+            let out = controller.handle(at(10), can(command));
+            assert_eq!(out.wheels, None, "{command:?}");
+            assert_eq!(out.excite, None, "{command:?}");
+            let status = controller.status(at(10));
+            assert_eq!(status.last_rejection, Rejection::UpdateInProgress.code());
+            assert_eq!(
+                status.last_rejection_subject,
+                frame_subject(command.encode().id())
+            );
+        }
+        controller.handle(
+            at(10),
+            Input::RemoteLink {
+                bonded: true,
+                connected: true,
+            },
+        );
+        let dead_man = Input::Gamepad(GamepadState {
+            left_y: 1.0,
+            buttons: crate::gamepad::Buttons::RIGHT_BUMPER,
+            ..GamepadState::default()
+        });
+        let out = controller.handle(at(15), dead_man);
+        assert_eq!((out.wheels, out.excite), (None, None));
+        let status = controller.status(at(15));
+        assert_eq!(status.last_rejection, Rejection::UpdateInProgress.code());
+        assert_eq!(status.control, crate::can::ControlSource::None);
+        assert_eq!(status.rejected_count, 3);
+        assert!(!controller.update_gate(at(15)).control_active);
+        // A withdrawal is never refused.
+        controller.handle(at(20), can(Command::Enable { refresh: false }));
+        assert_eq!(controller.status(at(20)).rejected_count, 3);
+        // Unlocked, the same commands drive again.
+        controller.set_update_lock(false);
+        controller.handle(at(30), can(Command::Enable { refresh: true }));
+        let out = controller.handle(
+            at(30),
+            can(Command::Velocity {
+                linear_mm_s: 500,
+                rotation_mrad_s: 0,
+            }),
+        );
+        assert!(out.wheels.is_some());
+        assert!(controller.update_gate(at(30)).control_active);
     }
 
     /// A reading's moment moves by a few ms from cycle to cycle (a command write may hold

@@ -8,7 +8,7 @@ use base_runtime::hx711::{Gain, Hx711};
 use base_runtime::{Hardware, Settings, ble, channels::Channels};
 use defmt::{error, info, warn};
 use embassy_embedded_hal::adapter::BlockingAsync;
-use embassy_futures::join::join;
+use embassy_futures::join::join3;
 use esp_backtrace as _;
 use esp_hal::clock::CpuClock;
 use esp_hal::delay::Delay;
@@ -76,6 +76,7 @@ async fn main(_spawner: embassy_executor::Spawner) {
             );
         }
     }
+    let running_slot = base_controller_firmware::update::running_slot(&mut board.flash);
     let shared_flash = FLASH.init(SharedFlash::new(BlockingAsync::new(board.flash)));
     let (flash, flash_range) = flash::partition(shared_flash, flash::REGISTERS, registers);
     let (bond_flash, bond_range) = flash::partition(shared_flash, flash::BONDS, bonds);
@@ -157,6 +158,46 @@ async fn main(_spawner: embassy_executor::Spawner) {
             }
         }
     };
-    let (never, ()) = join(base_runtime::run(hardware, settings, &CHANNELS), remote).await;
+    // Updates over CAN. A new image arms its trial before any task runs; the update
+    // task returns when the chip must restart (activated or rolled back). Without an
+    // app slot (a board still on the old partition table) there is none.
+    let mut update_flash = None;
+    if let Some(slot) = running_slot {
+        let whole = embassy_embedded_hal::flash::partition::Partition::new(
+            shared_flash,
+            0,
+            base_core::update::partitions::FLASH_SIZE,
+        );
+        let mut flash = base_runtime::update::UpdateFlash::new(whole, slot);
+        let role = base_runtime::update::arm(&mut flash, &CHANNELS.update).await;
+        update_flash = Some((flash, role));
+    }
+    let update = async {
+        let Some((mut flash, role)) = update_flash else {
+            return core::future::pending().await;
+        };
+        let config = base_runtime::update::UpdateConfig {
+            chip: base_controller_firmware::update::CHIP,
+            project: base_runtime::update::PROJECT,
+            version: env!("CARGO_PKG_VERSION"),
+            trial_deadline_ms: base_runtime::update::TRIAL_DEADLINE_MS,
+        };
+        let reset = base_runtime::update::run(
+            &mut flash,
+            role,
+            &config,
+            &CHANNELS.update,
+            &CHANNELS.can_tx,
+        )
+        .await;
+        info!("update: {}: restarting", reset);
+        esp_hal::system::software_reset()
+    };
+    let (never, (), ()) = join3(
+        base_runtime::run(hardware, settings, &CHANNELS),
+        remote,
+        update,
+    )
+    .await;
     never
 }

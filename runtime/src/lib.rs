@@ -35,6 +35,7 @@ pub mod inputs;
 pub mod liveness;
 pub mod sensors;
 pub mod store;
+pub mod update;
 
 use embassy_futures::join::{join, join4, join5};
 
@@ -134,7 +135,7 @@ where
         join5(
             control::run(controller, channels.control_ends(), hardware.pc_switch),
             drive_link::run(hardware.drives, settings.drives, channels.drive_link_ends()),
-            can::run_rx(hardware.can_rx, channels.inputs.sender()),
+            can::run_rx(hardware.can_rx, channels.inputs.sender(), &channels.update),
             can::run_tx(hardware.can_tx, &channels.can_tx, channels.inputs.sender()),
             inputs::run(
                 inputs::InputPins {

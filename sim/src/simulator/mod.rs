@@ -23,6 +23,7 @@ use embassy_sync::signal::Signal;
 use embassy_time::{Instant, Timer};
 use embedded_hal::digital::PinState;
 
+use crate::app_flash::{self, Behaviour};
 use crate::can::{BITRATE_BPS, CanPeer, VirtualCan};
 use crate::drives::DrivesConfig;
 use crate::file_flash::FileFlash;
@@ -97,6 +98,10 @@ pub fn run(options: &Options) -> io::Result<()> {
     };
     let robot = VirtualRobot::with_drives(drives);
     let flash = FileFlash::open(&options.flash_path, FLASH_SIZE as usize)?;
+    let app_flash = FileFlash::open(
+        &app_flash_path(&options.flash_path),
+        base_core::update::partitions::FLASH_SIZE as usize,
+    )?;
     let port = SerialPort::open()?;
     let link = options
         .link
@@ -164,7 +169,7 @@ pub fn run(options: &Options) -> io::Result<()> {
             signals.receive(),
         );
         match select4(
-            controller(&view, options, flash, (can_rx, can_tx), remote),
+            controller(&view, options, (flash, app_flash), (can_rx, can_tx), remote),
             bridge(&port, &network, socketcan.as_ref(), &view),
             show_status(&view),
             ending,
@@ -179,8 +184,20 @@ pub fn run(options: &Options) -> io::Result<()> {
     Ok(())
 }
 
+/// The file that holds the app slots and otadata: beside the register store's file.
+pub fn app_flash_path(flash_path: &std::path::Path) -> PathBuf {
+    let mut name = flash_path
+        .file_stem()
+        .map(|stem| stem.to_os_string())
+        .unwrap_or_default();
+    name.push("-app.bin");
+    flash_path.with_file_name(name)
+}
+
 /// The controller: the firmware's tasks on the robot's hardware, booted again from
-/// scratch at every console `reboot`. A reboot drops the running firmware where it
+/// scratch at every console `reboot`, at every reset an update asks for, and after a
+/// panic. Each boot goes through the bootloader model: the slot otadata names starts,
+/// and its image's version says what the virtual firmware does (`app_flash`). A reboot drops the running firmware where it
 /// stands, as a reset does to the chip: the drives, the flash, the inputs and the
 /// sensors stay as they are (the drives keep their last command until the new boot
 /// stops them), and the controller's CAN node restarts on the same bus, so the
@@ -188,17 +205,64 @@ pub fn run(options: &Options) -> io::Result<()> {
 async fn controller(
     view: &View<'_>,
     options: &Options,
-    flash: FileFlash,
+    (flash, app_flash): (FileFlash, FileFlash),
     first_can: (crate::can::CanRxPort, crate::can::CanTxPort),
     mut remote: Option<crate::ble::LiveRemote>,
 ) -> ! {
     let robot = view.robot;
     let mut first_can = Some(first_can);
     let mut reset_by_watchdog = false;
+    let mut app = app_flash;
+    if app_flash::install_factory_image(&mut app).await {
+        view.output.message(&format!(
+            "app flash blank: firmware {} written to ota_0",
+            app_flash::FACTORY_VERSION
+        ));
+    }
     loop {
         let (can_rx, can_tx) = match first_can.take() {
             Some(ports) => ports,
             None => view.peer.reset_controller(),
+        };
+        let Some(booted) = app_flash::boot(&mut app).await else {
+            view.output.message(
+                "boot: no slot holds an image that loads: the controller stays dark \
+                 (remove the app flash file to start from the factory image)",
+            );
+            reset_by_watchdog = view.reboot.wait().await != Reset::Button;
+            continue;
+        };
+        let booted_at = now();
+        // As the chip's boot does, first thing: the panic-loop decision.
+        let bluetooth = robot.rtc_ram.boot();
+        let channels = Channels::new();
+        let mut update_flash = base_runtime::update::UpdateFlash::new(app.clone(), booted.slot);
+        let role = base_runtime::update::arm(&mut update_flash, &channels.update).await;
+        let behaviour = Behaviour::of(&booted.version);
+        view.output.message(&format!(
+            "boot: firmware {} from {:?}{}",
+            booted.version,
+            booted.slot,
+            if role.on_trial() { ", on trial" } else { "" }
+        ));
+        if behaviour == Behaviour::PanicsAtBoot {
+            view.output.message(&format!(
+                "firmware {} panicked at boot: the watchdog resets the chip",
+                booted.version
+            ));
+            Timer::after_millis(200).await;
+            // As the chip's panic handler does: the panic counts towards a panic loop.
+            robot
+                .rtc_ram
+                .record_panic(base_core::time::Timestamp::from_millis(
+                    (now() - booted_at).as_millis(),
+                ));
+            reset_by_watchdog = true;
+            continue;
+        }
+        let can_rx = app_flash::DeafToConfirm {
+            rx: can_rx,
+            deaf: behaviour == Behaviour::NeverConfirms,
         };
         let hardware = Hardware {
             can_rx,
@@ -214,24 +278,39 @@ async fn controller(
             load_cell: robot.load_cell.clone(),
             watchdog: robot.watchdog.clone(),
             reset_by_watchdog,
-            bluetooth: robot.rtc_ram.boot(),
+            bluetooth,
         };
-        let bluetooth = hardware.bluetooth;
-        let booted = now();
-        let channels = Channels::new();
         let firmware = embassy_futures::join::join(
             base_runtime::run(hardware, robot.settings, &channels),
             crate::ble::run_live_remote(remote.take(), bluetooth, &robot.rtc_ram, &channels),
         );
+        let config = base_runtime::update::UpdateConfig {
+            chip: app_flash::SIM_CHIP,
+            project: base_runtime::update::PROJECT,
+            version: &booted.version,
+            trial_deadline_ms: base_runtime::update::TRIAL_DEADLINE_MS,
+        };
+        let update = base_runtime::update::run(
+            &mut update_flash,
+            role,
+            &config,
+            &channels.update,
+            &channels.can_tx,
+        );
         // The firmware (and its end of the HCI connection) is dropped at the end of
         // this statement: the chip is reset.
-        let reset = match select(firmware, view.reboot.wait()).await {
-            Either::First((never, ())) => never,
-            Either::Second(reset) => reset,
+        let reset = match select3(firmware, update, view.reboot.wait()).await {
+            Either3::First((never, ())) => never,
+            Either3::Second(request) => {
+                view.output
+                    .message(&format!("update: {request:?}: the controller resets"));
+                Reset::Update
+            }
+            Either3::Third(reset) => reset,
         };
         // As the chip's panic handler does, before its reset.
         if reset == Reset::Panic {
-            let uptime = (now() - booted).as_millis();
+            let uptime = (now() - booted_at).as_millis();
             robot
                 .rtc_ram
                 .record_panic(base_core::time::Timestamp::from_millis(uptime));
@@ -242,13 +321,21 @@ async fn controller(
                 base_core::panic_loop::LOOP_PANICS
             ));
         }
-        reset_by_watchdog = reset != Reset::Button;
-        view.output.message(if reset_by_watchdog {
-            "reboot: the controller restarts as after a watchdog reset (the status frame \
-             reports watchdog_reset); the drives keep running until it stops them"
-        } else {
-            "reboot: the controller restarts as after a reset or brown-out; the drives \
-             keep running until it stops them"
+        reset_by_watchdog = matches!(reset, Reset::Watchdog | Reset::Panic);
+        view.output.message(match reset {
+            Reset::Watchdog | Reset::Panic => {
+                "reboot: the controller restarts as after a watchdog reset (the status frame \
+                 reports watchdog_reset); the drives keep running until it stops them"
+            }
+            Reset::Button => {
+                "reboot: the controller restarts as after a reset or brown-out; the drives \
+                 keep running until it stops them"
+            }
+            Reset::Update => {
+                "reboot: the controller restarts into the image otadata names (a software \
+                 reset, not reported as watchdog_reset); the drives keep running until it \
+                 stops them"
+            }
         });
         // The radio restarts with the chip: a new host on the HCI transport.
         if let Some(spec) = &options.hci {
@@ -356,6 +443,9 @@ enum Reset {
     /// A panic: recorded for the next boot's panic-loop decision, then the reset (the
     /// status frame shows it as watchdog_reset, as the chip's does).
     Panic,
+    /// The update asked for it: an image activated, rejected or rolled back (a software
+    /// reset, which the status frame does not report as a watchdog reset).
+    Update,
 }
 
 impl View<'_> {
