@@ -515,13 +515,13 @@ fn battery_and_weight_frames_report_the_sensors() {
 fn the_control_cycle_follows_loop_end_delay() {
     let robot = VirtualRobot::new();
     let cycles_per_s = robot.run(async |pc| {
-        // The cycle's feedback read: FC 03h to the share group.
+        // The cycle's feedback read: FC 03h to the share group (its motion part).
         let count_reads = || {
             robot
                 .drives
                 .requests()
                 .iter()
-                .filter(|request| request.bytes[..2] == [15, 0x03])
+                .filter(|request| request.bytes[..4] == [15, 0x03, 0, 0])
                 .count()
         };
         wait_ms(BOOT_MS).await;
