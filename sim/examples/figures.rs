@@ -603,6 +603,27 @@ fn report_line(recording: &BusRecording, cycle_ms: f64) {
         per_cycle(busy_ms),
         100.0 * busy_ms / (window.seconds() * 1000.0)
     );
+    // What the drives' communication timeout (0x138A) sees: the longest time without
+    // a frame on the line, from the end of one frame to the start of the next.
+    let mut frames: Vec<&FrameRecord> = recording
+        .requests
+        .iter()
+        .chain(&recording.replies)
+        .filter(|frame| window.contains(frame.started))
+        .collect();
+    frames.sort_by_key(|frame| frame.started);
+    let longest_silence = frames
+        .windows(2)
+        .map(|pair| pair[1].started - pair[0].at)
+        .max()
+        .expect("frames");
+    println!(
+        "  longest silence on the line: {:.1} ms (the drives' communication timeout: {} ms)",
+        ms(longest_silence),
+        base_core::drives::DriveSettings::DEFAULT
+            .drive_comm_timeout_ms
+            .unwrap_or(0)
+    );
 }
 
 /// Frames per second by ID and direction, and the share of the bus's bits they take.

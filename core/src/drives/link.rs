@@ -69,6 +69,12 @@
 //!   every drive's communication timeout has surely tripped (with it off: S-OFF by
 //!   broadcast first). Then each drive is probed and the lost ones are reported ([`Input::DriveSilent`]; both when both
 //!   answer alone, because the commands cannot reach the wheels).
+//! - In the cycle the link steps at least every third of the drives' communication
+//!   timeout. A longer gap means the chip stalled (a flash erase, which waits for both
+//!   brakes confirmed): if both drives were confirmed de-excited, an alarm 85h in the
+//!   first alarm read sent after it is the link's own doing and is reset (0x0180: 1,
+//!   then 0) and counted as a Modbus error instead of reported. Any other alarm, or an
+//!   85h that stays, is reported.
 //! - [`Input::DrivesReady`] comes only after boot or a setup request (the controller's
 //!   contract): drives that come back unasked stay held until the controller asks.
 //! - A request is answered before anything else moves the machine: a demand that
@@ -268,6 +274,10 @@ pub struct Cycle {
     /// The zero of an emergency stop went out by broadcast; the acknowledged group
     /// write follows. Cleared by the next non-zero command the drives acknowledge.
     pub zero_broadcast: bool,
+    /// Per wheel: alarm 85h that the controller's own silence at rest caused (a flash
+    /// erase stalls the chip longer than the drives' timeout) is reset before anything
+    /// else goes to that drive.
+    pub timeout_alarm_resets: [bool; 2],
     /// Failed writes (command, S-ON or S-OFF) in a row.
     pub write_failures: u8,
     /// A write went out while the read was due: the read goes next, so commands at
@@ -292,6 +302,7 @@ impl Cycle {
             alarm_read_failures: 0,
             alarms_due: false,
             zero_broadcast: false,
+            timeout_alarm_resets: [false; 2],
             write_failures: 0,
             read_deferred: false,
             write_retry_at: now,
@@ -329,6 +340,13 @@ pub enum State {
     Reading { cycle: Cycle, part: ReadPart },
     /// The zero of an emergency stop is out by broadcast (no reply comes).
     BroadcastingZero { cycle: Cycle },
+    /// One write of the reset of an alarm 85h that the controller's own silence at
+    /// rest caused: 1 (`on`), then 0.
+    ResettingTimeoutAlarm {
+        wheel: Wheel,
+        on: bool,
+        cycle: Cycle,
+    },
     /// Until the next read is due, or a new demand comes.
     CycleWait { wake_at: Timestamp, cycle: Cycle },
     /// N failed reads or writes: the drives are stopped without needing a reply, then
@@ -374,6 +392,14 @@ pub struct DriveLink {
     /// cannot have survived, says so; an S-ON (answered or not) unsays it, and a drive
     /// that is silent with that timeout off stays unknown until it answers an S-OFF.
     brakes_confirmed: [bool; 2],
+    /// When the link last stepped. In the cycle it steps at least every third of the
+    /// drives' timeout; a longer gap means the chip stalled (a flash erase).
+    last_step_at: Timestamp,
+    /// The link was stalled beyond the drives' timeout while both were confirmed
+    /// de-excited: an alarm 85h in the next alarm read sent after it is its own doing.
+    stalled_at_rest: bool,
+    /// The alarm read that is out was sent after such a stall.
+    alarm_read_after_stall: bool,
 }
 
 impl DriveLink {
@@ -392,6 +418,9 @@ impl DriveLink {
             powered_up_at: now.plus_millis(u64::from(settings.power_up_wait_ms)),
             // A controller that restarts cannot know what the drives do.
             brakes_confirmed: [false; 2],
+            last_step_at: now,
+            stalled_at_rest: false,
+            alarm_read_after_stall: false,
         };
         let mut effects = Effects::default();
         link.begin_hold(Hold::ForSetup, [0; 2], settings, &mut effects);
@@ -415,6 +444,25 @@ impl DriveLink {
 
     pub fn step(&mut self, now: Timestamp, event: Event<'_>, settings: &DriveSettings) -> Effects {
         let mut effects = Effects::default();
+        let timeout_ms = comm_timeout_ms(settings);
+        let in_cycle = matches!(
+            self.state,
+            State::CycleWait { .. }
+                | State::Reading { .. }
+                | State::Writing { .. }
+                | State::Exciting { .. }
+                | State::BroadcastingZero { .. }
+                | State::ResettingTimeoutAlarm { .. }
+        );
+        if in_cycle
+            && timeout_ms > 0
+            && now.millis_since(self.last_step_at) >= timeout_ms
+            && self.brakes_confirmed()
+        {
+            warn!("drive link stalled beyond the drives' timeout at rest");
+            self.stalled_at_rest = true;
+        }
+        self.last_step_at = now;
         match (self.state, event) {
             (_, Event::Demand(demand)) => {
                 self.demand = demand;
@@ -435,6 +483,7 @@ impl DriveLink {
                     | State::Writing { .. }
                     | State::Reading { .. }
                     | State::BroadcastingZero { .. }
+                    | State::ResettingTimeoutAlarm { .. }
                     | State::StoppingBlind { .. }
                     | State::Probing { .. } => {}
                 }
@@ -477,6 +526,9 @@ impl DriveLink {
             (State::BroadcastingZero { cycle }, Event::Reply(_)) => {
                 self.next_in_cycle(now, cycle, settings, &mut effects)
             }
+            (State::ResettingTimeoutAlarm { wheel, on, cycle }, Event::Reply(reply)) => {
+                self.on_timeout_alarm_reset(now, wheel, on, cycle, reply, settings, &mut effects)
+            }
             (State::Probing { wheel, lost }, Event::Reply(reply)) => {
                 self.on_probe(wheel, lost, reply, settings, &mut effects)
             }
@@ -500,6 +552,7 @@ impl DriveLink {
                 | State::Writing { .. }
                 | State::Reading { .. }
                 | State::BroadcastingZero { .. }
+                | State::ResettingTimeoutAlarm { .. }
                 | State::Probing { .. },
                 Event::Timer,
             ) => {}
@@ -664,7 +717,7 @@ impl DriveLink {
         settings: &DriveSettings,
         effects: &mut Effects,
     ) {
-        let wake_at = now.plus_millis(u64::from(settings.poll_interval_ms));
+        let wake_at = now.plus_millis(u64::from(hold_pause_ms(settings)));
         self.state = State::HoldPause {
             hold,
             wake_at,
@@ -844,6 +897,10 @@ impl DriveLink {
                 .is_some_and(|written| written.rpm != MotorRpm::ZERO)
         {
             return self.broadcast_zero(cycle, &command, settings, effects);
+        }
+        if let Some(index) = cycle.timeout_alarm_resets.iter().position(|&reset| reset) {
+            let wheel = [Wheel::Left, Wheel::Right][index];
+            return self.send_timeout_alarm_reset(wheel, true, cycle, settings, effects);
         }
         let read_due = now >= cycle.read_at;
         let feedback_due = read_due || cycle.alarms_due;
@@ -1075,6 +1132,10 @@ impl DriveLink {
         effects: &mut Effects,
     ) {
         let (first, items) = part.items();
+        if part == ReadPart::Alarms {
+            // A reply to a read sent before the stall cannot show what it caused.
+            self.alarm_read_after_stall = self.stalled_at_rest;
+        }
         // Two share registers per item.
         let frame = modbus::share_read(settings.share_group, 2 * first, items as u16, 2);
         self.state = State::Reading { cycle, part };
@@ -1136,6 +1197,13 @@ impl DriveLink {
                     .zip([left[0], right[0]])
                     .enumerate()
                 {
+                    if code == reg::ALARM_COMM_TIMEOUT && self.alarm_read_after_stall {
+                        // Our own silence at rest tripped it: reset, and counted.
+                        warn!("{} drive: alarm 85h after a stall at rest, reset", wheel);
+                        report(effects, Input::ModbusError);
+                        cycle.timeout_alarm_resets[index] = true;
+                        continue;
+                    }
                     if code != 0 && cycle.alarms[index] == 0 {
                         report(
                             effects,
@@ -1148,8 +1216,54 @@ impl DriveLink {
                     cycle.alarms[index] = code;
                 }
                 cycle.alarm_read_failures = 0;
+                // One stall excuses the alarms of the first read after it, no more:
+                // an alarm that stays after the reset is reported.
+                if self.alarm_read_after_stall {
+                    self.stalled_at_rest = false;
+                    self.alarm_read_after_stall = false;
+                }
             }
         }
+        self.next_in_cycle(now, cycle, settings, effects)
+    }
+
+    fn send_timeout_alarm_reset(
+        &mut self,
+        wheel: Wheel,
+        on: bool,
+        cycle: Cycle,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        let frame = modbus::write_items(slave(wheel, settings), reg::ALARM_RESET, &[u32::from(on)]);
+        self.state = State::ResettingTimeoutAlarm { wheel, on, cycle };
+        effects.next = Some(Next::Send(Request::new(frame, Target::Unicast)));
+    }
+
+    /// The reset acts on the 0 → 1 change, so 1 then 0; a failed write counts as any
+    /// failed write and the reset is tried again after the next read.
+    #[allow(clippy::too_many_arguments)]
+    fn on_timeout_alarm_reset(
+        &mut self,
+        now: Timestamp,
+        wheel: Wheel,
+        on: bool,
+        mut cycle: Cycle,
+        reply: Result<&[u8], TransferError>,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        let acknowledged = reply.is_ok_and(|bytes| {
+            write_echo(bytes, slave(wheel, settings), reg::ALARM_RESET, 1).is_ok()
+        });
+        if !acknowledged {
+            return self.write_failed(now, cycle, settings, effects);
+        }
+        if on {
+            return self.send_timeout_alarm_reset(wheel, false, cycle, settings, effects);
+        }
+        cycle.timeout_alarm_resets[wheel_index(wheel)] = false;
+        cycle.write_failures = 0;
         self.next_in_cycle(now, cycle, settings, effects)
     }
 
@@ -1360,6 +1474,17 @@ pub fn cycle_period_ms(cycle_ms: u16, settings: &DriveSettings) -> u32 {
     match settings.drive_comm_timeout_ms {
         Some(timeout) if timeout > 0 => cycle.min((u32::from(timeout) / 3).max(1)),
         _ => cycle,
+    }
+}
+
+/// The pause between two hold rounds: `poll_interval_ms`, but at most a third of the
+/// drives' communication timeout, so that a held drive never trips it.
+pub fn hold_pause_ms(settings: &DriveSettings) -> u32 {
+    match settings.drive_comm_timeout_ms {
+        Some(timeout) if timeout > 0 => settings
+            .poll_interval_ms
+            .min((u32::from(timeout) / 3).max(1)),
+        _ => settings.poll_interval_ms,
     }
 }
 

@@ -295,7 +295,7 @@ fn a_hold_round_writes_zero_trigger_and_s_off_to_each_drive_then_pauses_before_t
         (20, Answer, Send(2, WRITE, reg::DDO_TRIGGER), &[]),
         (25, Answer, Send(2, WRITE, reg::DRIVER_INPUT_COMMAND), &[]),
         // Both answered, but the drives had no 1000 ms to power up yet.
-        (30, Answer, WaitUntil(230), &[]),
+        (30, Answer, WaitUntil(80), &[]),
         (230, Timer, HOLD_LEFT[0], &[]),
     ]);
     assert_eq!(written_items(bench.request()), [16, 0, 0, 4_500, 4_500]);
@@ -308,7 +308,7 @@ fn a_silent_drive_is_skipped_and_the_answering_one_is_still_held() {
         (5, Silent, HOLD_RIGHT_ZERO, &[]),
         (10, Answer, Send(2, WRITE, reg::DDO_TRIGGER), &[]),
         (15, Answer, Send(2, WRITE, reg::DRIVER_INPUT_COMMAND), &[]),
-        (20, Answer, WaitUntil(220), &[]),
+        (20, Answer, WaitUntil(70), &[]),
     ]);
 }
 
@@ -364,29 +364,29 @@ fn a_drive_silent_after_the_power_up_wait_is_reported_once_after_n_rounds() {
             (now, Answer, HOLD_LEFT[1], &[]),
             (now, Answer, HOLD_LEFT[2], &[]),
             (now, Answer, HOLD_RIGHT_ZERO, &[]),
-            (now, Silent, WaitUntil(now + 200), &[]),
+            (now, Silent, WaitUntil(now + 50), &[]),
         ]
     };
     // The power-up wait ends at 2000 ms.
     bench.run(&right_silent_round(1_000));
     bench.run(&[(1_200, Timer, HOLD_LEFT[0], &[])]);
     bench.run(&right_silent_round(2_000)[..3]);
-    bench.run(&[(2_000, Silent, WaitUntil(2_200), &[])]);
+    bench.run(&[(2_000, Silent, WaitUntil(2_050), &[])]);
     bench.run(&[(2_200, Timer, HOLD_LEFT[0], &[])]);
     bench.run(&right_silent_round(2_200)[..3]);
-    bench.run(&[(2_200, Silent, WaitUntil(2_400), &[])]);
+    bench.run(&[(2_200, Silent, WaitUntil(2_250), &[])]);
     bench.run(&[(2_400, Timer, HOLD_LEFT[0], &[])]);
     bench.run(&right_silent_round(2_400)[..3]);
     bench.run(&[(
         2_400,
         Silent,
-        WaitUntil(2_600),
+        WaitUntil(2_450),
         &[Input::DriveSilent(Wheel::Right)],
     )]);
     // Reported once, not every round.
     bench.run(&[(2_600, Timer, HOLD_LEFT[0], &[])]);
     bench.run(&right_silent_round(2_600)[..3]);
-    bench.run(&[(2_600, Silent, WaitUntil(2_800), &[])]);
+    bench.run(&[(2_600, Silent, WaitUntil(2_650), &[])]);
 }
 
 #[test]
@@ -403,7 +403,7 @@ fn the_setup_writes_share_control_lists_comm_timeout_checks_the_alarm_and_leaves
         (1_001, Answer, Send(1, WRITE, reg::SHARE_LISTS), &[]),
         (1_002, Answer, Send(1, WRITE, reg::COMM_TIMEOUT), &[]),
     ]);
-    assert_eq!(written_items(bench.request()), [300]);
+    assert_eq!(written_items(bench.request()), [150]);
     bench.run(&[
         (1_003, Answer, Send(1, READ, reg::PRESENT_ALARM), &[]),
         (
@@ -491,7 +491,7 @@ fn an_alarm_that_stays_after_the_reset_is_reported_and_the_setup_waits_a_poll_in
         (
             1_000,
             Answer,
-            WaitUntil(1_200),
+            WaitUntil(1_050),
             &[Input::DriveAlarm {
                 wheel: Wheel::Left,
                 code: 0x30,
@@ -515,14 +515,14 @@ fn a_setup_step_that_fails_on_the_line_is_counted_and_retried_after_a_hold() {
             bench.link.state()
         );
         bench.run(&[
-            (1_000, Silent, WaitUntil(1_200), &[Input::ModbusError]),
+            (1_000, Silent, WaitUntil(1_050), &[Input::ModbusError]),
             (1_200, Timer, HOLD_LEFT[0], &[]),
         ]);
         let mut bench = Bench::boot();
         for _ in 0..6 + step {
             bench.step(1_000, Answer);
         }
-        bench.run(&[(1_000, Garbled, WaitUntil(1_200), &[Input::ModbusError])]);
+        bench.run(&[(1_000, Garbled, WaitUntil(1_050), &[Input::ModbusError])]);
     }
 }
 
@@ -534,7 +534,7 @@ fn a_group_that_does_not_answer_the_check_fails_the_setup() {
     }
     assert_eq!(bench.link.state(), State::CheckingGroup);
     bench.run(&[
-        (1_000, Silent, WaitUntil(1_200), &[Input::ModbusError]),
+        (1_000, Silent, WaitUntil(1_050), &[Input::ModbusError]),
         (1_200, Timer, HOLD_LEFT[0], &[]),
     ]);
 }
@@ -799,8 +799,8 @@ fn the_nth_failed_read_stops_both_drives_blind_then_falls_silent() {
     blind_stop_from(&mut bench, 1_125);
     // Demands change nothing until the silence is over.
     bench.run(&[
-        (1_500, Line::Demand(demand(600, true, 0)), CarryOn, &[]),
-        (1_560, Timer, Send(1, READ, reg::SHARE_CONTROL), &[]),
+        (1_400, Line::Demand(demand(600, true, 0)), CarryOn, &[]),
+        (1_410, Timer, Send(1, READ, reg::SHARE_CONTROL), &[]),
     ]);
 }
 
@@ -842,7 +842,7 @@ fn probing() -> Bench {
         (1_125, Silent, BLIND_ZERO, &[Input::ModbusError]),
     ]);
     blind_stop_from(&mut bench, 1_125);
-    bench.run(&[(1_560, Timer, Send(1, READ, reg::SHARE_CONTROL), &[])]);
+    bench.run(&[(1_410, Timer, Send(1, READ, reg::SHARE_CONTROL), &[])]);
     assert_eq!(
         bench.link.state(),
         State::Probing {
@@ -862,7 +862,7 @@ fn blind_stop_from(bench: &mut Bench, since: u64) {
     bench.run(&[
         (since + 5, Answer, BLIND_ZERO, &[]),
         (since + 10, Answer, BLIND_ZERO, &[]),
-        (since + 35, Silent, WaitUntil(since + 435), &[]),
+        (since + 35, Silent, WaitUntil(since + 285), &[]),
     ]);
     assert!(!bench.link.excited());
 }
@@ -918,7 +918,7 @@ fn a_probe_that_finds_a_drive_silent_reports_that_drive_and_holds_until_a_setup_
         bench.step(1_170, Answer);
     }
     bench.run(&[
-        (1_170, Answer, WaitUntil(1_370), &[]),
+        (1_170, Answer, WaitUntil(1_220), &[]),
         (1_370, Timer, HOLD_LEFT[0], &[]),
     ]);
 }
@@ -974,7 +974,7 @@ fn drives_that_come_back_stay_held_until_the_controller_asks_for_a_setup() {
             bench.step(now, Answer);
         }
         bench.run(&[
-            (now, Answer, WaitUntil(now + 200), &[]),
+            (now, Answer, WaitUntil(now + 50), &[]),
             (now + 200, Timer, HOLD_LEFT[0], &[]),
         ]);
     }
@@ -1020,9 +1020,10 @@ fn the_cycle_never_waits_longer_than_a_third_of_the_drives_comm_timeout() {
     bench.run(&[
         (1_012, Answer, COMMAND, &[feedback_of(&bench)]),
         (1_014, Answer, READ_ALARMS, &[]),
-        (1_016, Answer, WaitUntil(1_100), &[]),
+        (1_016, Answer, WaitUntil(1_050), &[]),
     ]);
-    assert_eq!(cycle_period_ms(500, &SETTINGS), 100);
+    // A third of the drives' 150 ms.
+    assert_eq!(cycle_period_ms(500, &SETTINGS), 50);
     let off = DriveSettings {
         drive_comm_timeout_ms: None,
         ..SETTINGS
@@ -1156,10 +1157,10 @@ fn excited_then_the_line_dies(settings: DriveSettings) -> (Bench, u64) {
 fn brakes_are_confirmed_by_an_answered_s_off_or_by_silence_beyond_the_drives_timeout() {
     let (mut bench, silent_at) = excited_then_the_line_dies(SETTINGS);
     assert!(!bench.link.brakes_confirmed(), "silence only started");
-    bench.step(silent_at + 400, Timer);
+    bench.step(silent_at + 250, Timer);
     assert!(
         bench.link.brakes_confirmed(),
-        "every drive's 300 ms tripped"
+        "every drive's 150 ms tripped"
     );
 
     let settings = DriveSettings {
@@ -1261,5 +1262,116 @@ fn the_nth_failed_alarm_read_stops_both_drives_blind() {
         (1_200, Timer, READ_FEEDBACK, &[]),
         (1_202, Answer, READ_ALARMS, &[feedback_of(&bench)]),
         (1_227, Silent, BLIND_ZERO, &[Input::ModbusError]),
+    ]);
+}
+
+const RESET_ALARM_LEFT: Then = Send(1, WRITE, reg::ALARM_RESET);
+const RESET_ALARM_RIGHT: Then = Send(2, WRITE, reg::ALARM_RESET);
+
+/// A flash erase at rest stalls the chip (up to 400 ms) beyond the drives' timeout
+/// (150 ms): both drives raise alarm 85h. The link's own silence caused it while both
+/// drives were confirmed de-excited, so it resets the alarm and counts it.
+#[test]
+fn an_alarm_85h_after_the_links_own_stall_at_rest_is_reset_and_counted() {
+    let mut bench = Bench::cycling();
+    bench.step(1_002, Answer);
+    bench.step(1_004, Answer);
+    bench.step(1_004, Answer);
+    assert!(bench.link.brakes_confirmed());
+    bench.feedback[0][2] = reg::ALARM_COMM_TIMEOUT;
+    bench.feedback[1][2] = reg::ALARM_COMM_TIMEOUT;
+    bench.run(&[
+        // The chip stalled from 1010 to 1400.
+        (1_400, Timer, READ_FEEDBACK, &[]),
+        (1_402, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (
+            1_404,
+            Answer,
+            RESET_ALARM_LEFT,
+            &[Input::ModbusError, Input::ModbusError],
+        ),
+    ]);
+    assert_eq!(written_items(bench.request()), [1]);
+    bench.run(&[(1_406, Answer, RESET_ALARM_LEFT, &[])]);
+    assert_eq!(written_items(bench.request()), [0]);
+    bench.feedback[0][2] = 0;
+    bench.feedback[1][2] = 0;
+    bench.run(&[
+        (1_408, Answer, RESET_ALARM_RIGHT, &[]),
+        (1_410, Answer, RESET_ALARM_RIGHT, &[]),
+        (1_412, Answer, READ_FEEDBACK, &[]),
+        (1_414, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (1_416, Answer, WaitUntil(1_452), &[]),
+    ]);
+}
+
+#[test]
+fn an_alarm_85h_that_stays_after_the_reset_is_reported() {
+    let mut bench = Bench::cycling();
+    bench.step(1_002, Answer);
+    bench.step(1_004, Answer);
+    bench.step(1_004, Answer);
+    bench.feedback[0][2] = reg::ALARM_COMM_TIMEOUT;
+    bench.run(&[
+        (1_400, Timer, READ_FEEDBACK, &[]),
+        (1_402, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (1_404, Answer, RESET_ALARM_LEFT, &[Input::ModbusError]),
+        (1_406, Answer, RESET_ALARM_LEFT, &[]),
+        (1_408, Answer, READ_FEEDBACK, &[]),
+        (1_410, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (
+            1_412,
+            Answer,
+            WaitUntil(1_452),
+            &[Input::DriveAlarm {
+                wheel: Wheel::Left,
+                code: 0x85,
+            }],
+        ),
+    ]);
+}
+
+/// Without a stall, or with a drive that may turn, an alarm 85h is a fault like any.
+#[test]
+fn an_alarm_85h_without_a_stall_or_while_excited_is_reported() {
+    let alarm = Input::DriveAlarm {
+        wheel: Wheel::Right,
+        code: 0x85,
+    };
+    let mut bench = Bench::cycling();
+    bench.step(1_002, Answer);
+    bench.step(1_004, Answer);
+    bench.step(1_004, Answer);
+    bench.feedback[1][2] = reg::ALARM_COMM_TIMEOUT;
+    bench.run(&[
+        (1_050, Timer, READ_FEEDBACK, &[]),
+        (1_052, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (1_054, Answer, WaitUntil(1_100), &[alarm]),
+    ]);
+
+    let mut bench = driving_at_600();
+    bench.feedback[1][2] = reg::ALARM_COMM_TIMEOUT;
+    bench.run(&[
+        (1_400, Timer, READ_FEEDBACK, &[]),
+        (1_402, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (1_404, Answer, READ_FEEDBACK, &[alarm]),
+    ]);
+}
+
+/// The stall may fall while the alarm read is out: its reply was read before the
+/// drives tripped, so only the next alarm read can show what the stall caused.
+#[test]
+fn a_stall_during_the_alarm_read_excuses_the_next_alarm_read() {
+    let mut bench = Bench::cycling();
+    bench.step(1_002, Answer);
+    bench.step(1_004, Answer);
+    bench.run(&[
+        // The alarm read went out at 1004; the chip stalled until 1400.
+        (1_400, Answer, READ_FEEDBACK, &[]),
+    ]);
+    bench.feedback[0][2] = reg::ALARM_COMM_TIMEOUT;
+    bench.run(&[
+        (1_402, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (1_404, Answer, RESET_ALARM_LEFT, &[Input::ModbusError]),
     ]);
 }
