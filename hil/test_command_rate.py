@@ -62,3 +62,33 @@ def test_speeds_changing_every_20_ms_keep_the_positions_fresh_and_the_drives_hap
     assert all(status.drive_alarm == 0 for status in statuses)
     assert after.mode != "Fault" and after.drive_alarm == 0
     assert moved > 100, f"{moved} mm in 1 s at 200 mm/s after the stream"
+
+
+def test_the_e_stop_stops_the_base_within_what_estop_decel_allows(base, operator):
+    """The e-stop's zero goes to both drives by one short broadcast within 8 ms of the
+    edge, with `estop_decel`: from 300 mm/s (about 200 r/min at the motor) 4500
+    (r/min)/s stops the wheels in 45 ms, about 7 mm, plus 2.4 mm for the 8 ms. The
+    e-stop circuit cuts the drives' power about 300 ms after the press: a zero that
+    never came, or a drive braking with its own slow ramp, rolls up to 90 mm."""
+    with base.enabled():
+        base.wait_for_mode("Standby", timeout=15)
+        base.send(p.reset_odometry())
+        time.sleep(0.2)
+        end = time.monotonic() + 1.5
+        while time.monotonic() < end:
+            base.send(p.velocity(300, 0))
+            time.sleep(PERIOD)
+        # The last pose before the press is at most one 50 ms frame old: 15 mm.
+        before = base.position()
+        operator.press_estop()
+        base.wait_for_mode("Emergency", timeout=5)
+        time.sleep(1.0)
+        operator.release_estop()
+        base.wait_for_mode("AwaitingConfirm", timeout=5)
+        operator.confirm()
+        base.wait_for_mode("Standby", timeout=15)
+        after = base.position()
+        status = base.status()
+    rolled = after.x_mm - before.x_mm
+    assert 0 <= rolled <= 40, f"rolled {rolled} mm after the e-stop from 300 mm/s"
+    assert status.drive_alarm == 0

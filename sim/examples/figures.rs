@@ -25,8 +25,9 @@ use virtual_robot::can::{BITRATE_BPS, SentFrame};
 use virtual_robot::drives::{DrivesConfig, FeedbackFault, FrameRecord};
 use virtual_robot::robot::{Pc, VirtualRobot, wait_ms};
 
-/// Phases spread over one 50 ms control cycle.
-const TRIALS: u64 = 50;
+/// Phases spread over one 50 ms control cycle, 0.1 ms apart: fine enough to catch an
+/// event just after a transaction's first byte.
+const TRIALS: u64 = 500;
 /// Until the drives are set up and the sensors have a first reading.
 const BOOT_MS: u64 = 1_500;
 /// Standby: the controller reports, the PC sends nothing.
@@ -62,6 +63,8 @@ fn main() {
     );
     report_command_limit(DrivesConfig::commissioned().baud);
     report_command_limit(FAST_BAUD);
+    report_emergency_zero_limit(DrivesConfig::commissioned().baud);
+    report_emergency_zero_limit(FAST_BAUD);
 
     println!();
     report_fail_safe();
@@ -214,10 +217,9 @@ fn measure_latencies(robot: &VirtualRobot) -> (Vec<Duration>, Vec<Duration>) {
             pc.enable();
             let sent = Instant::now();
             pc.velocity(speed, 0);
-            // Longer than a cycle, and 1 ms more each trial: the next command lands
-            // at a new phase of the drive link's own 50 ms cycle, sometimes while its
-            // transaction is on the wire.
-            Timer::after(Duration::from_millis(50) + Duration::from_micros(trial * 1_000)).await;
+            // A cycle and 0.1 ms: the next command lands at a new phase of the drive
+            // link's own 50 ms cycle, sometimes while a transaction is on the wire.
+            Timer::after(Duration::from_micros(50_100)).await;
             let applied =
                 [1, 2].map(|slave| robot.drives.drive(slave).last_new_speed_at.expect("speed"));
             velocity.push(applied.into_iter().max().expect("two drives") - sent);
@@ -226,7 +228,7 @@ fn measure_latencies(robot: &VirtualRobot) -> (Vec<Duration>, Vec<Duration>) {
         let mut estop = Vec::new();
         for trial in 0..TRIALS {
             pc.drive(300, 0, 300).await;
-            Timer::after(Duration::from_micros(trial * 1_000)).await;
+            Timer::after(Duration::from_micros(trial * 100)).await;
             let pressed = Instant::now();
             robot.press_estop();
             wait_ms(60).await;
@@ -384,7 +386,8 @@ fn report_fail_safe() {
                 .requests()
                 .into_iter()
                 .filter(|request| {
-                    request.bytes[..2] == [15, 0x03] && (from..to).contains(&request.at)
+                    // The motion part of each cycle's feedback read.
+                    request.bytes[..4] == [15, 0x03, 0, 0] && (from..to).contains(&request.at)
                 })
                 .map(|request| request.at)
                 .collect();
@@ -450,6 +453,20 @@ fn report_command_limit(baud: u32) {
     println!(
         "limit at {baud} baud: the command write ({bytes} bytes) takes {on_wire:.1} ms on the \
          wire, the drives apply it {:.1} ms after its first byte",
+        on_wire + FRAME_GAP_CHARS * char_ms
+    );
+}
+
+/// The e-stop's limit: the emergency zero by broadcast (FC 10h to address 0, the DDO
+/// speed, both rates, torque limit and trigger) on the line, and the drives' C3.5.
+fn report_emergency_zero_limit(baud: u32) {
+    // Address, function, start, count, byte count; five 4-byte items; CRC.
+    let bytes = 7 + 5 * 4 + 2;
+    let char_ms = virtual_robot::runtime::char_time(baud, 11).as_micros() as f64 / 1000.0;
+    let on_wire = bytes as f64 * char_ms;
+    println!(
+        "limit at {baud} baud: the emergency zero ({bytes} bytes, broadcast) takes {on_wire:.1} ms \
+         on the wire, the drives apply it {:.1} ms after its first byte",
         on_wire + FRAME_GAP_CHARS * char_ms
     );
 }
@@ -611,6 +628,14 @@ impl Transaction<'_> {
         self.request.bytes.get(1).copied().unwrap_or_default()
     }
 
+    /// The request's first register (a share read's part, a command write's items).
+    fn start_register(&self) -> u16 {
+        match self.request.bytes.get(2..4) {
+            Some(&[high, low]) => u16::from_be_bytes([high, low]),
+            _ => 0,
+        }
+    }
+
     /// How long one byte took on the line, from the request's own timing.
     fn char_time_ms(&self) -> f64 {
         ms(self.request.at - self.request.started) / self.request.bytes.len() as f64
@@ -658,14 +683,14 @@ fn report_line(recording: &BusRecording, cycle_ms: f64) {
         recording.line_baud,
         char_time * 1000.0
     );
-    let mut by_function: BTreeMap<u8, Vec<&Transaction>> = BTreeMap::new();
+    let mut by_function: BTreeMap<(u8, u16), Vec<&Transaction>> = BTreeMap::new();
     for transaction in &transactions {
         by_function
-            .entry(transaction.function_code())
+            .entry((transaction.function_code(), transaction.start_register()))
             .or_default()
             .push(transaction);
     }
-    for (function, group) in &by_function {
+    for ((function, start), group) in &by_function {
         let count = group.len() as f64;
         let mean = |measure: &dyn Fn(&Transaction) -> f64| {
             group.iter().map(|&t| measure(t)).sum::<f64>() / count
@@ -677,7 +702,7 @@ fn report_line(recording: &BusRecording, cycle_ms: f64) {
                 .map_or(0.0, |reply| ms(reply.started - t.request.at))
         });
         println!(
-            "  FC {function:02X}h, {:.2} per cycle: request {request_bytes:.0} B ({:.2} ms) + response \
+            "  FC {function:02X}h from {start:04X}h, {:.2} per cycle: request {request_bytes:.0} B ({:.2} ms) + response \
              delay {response_delay:.2} ms + reply {reply_bytes:.0} B ({:.2} ms) + gap {:.2} ms",
             per_cycle(count),
             request_bytes * char_time,
@@ -695,6 +720,27 @@ fn report_line(recording: &BusRecording, cycle_ms: f64) {
         per_cycle(bytes as f64),
         per_cycle(busy_ms),
         100.0 * busy_ms / (window.seconds() * 1000.0)
+    );
+    // What the drives' communication timeout (0x138A) sees: the longest time without
+    // a frame on the line, from the end of one frame to the start of the next.
+    let mut frames: Vec<&FrameRecord> = recording
+        .requests
+        .iter()
+        .chain(&recording.replies)
+        .filter(|frame| window.contains(frame.started))
+        .collect();
+    frames.sort_by_key(|frame| frame.started);
+    let longest_silence = frames
+        .windows(2)
+        .map(|pair| pair[1].started - pair[0].at)
+        .max()
+        .expect("frames");
+    println!(
+        "  longest silence on the line: {:.1} ms (the drives' communication timeout: {} ms)",
+        ms(longest_silence),
+        base_core::drives::DriveSettings::DEFAULT
+            .drive_comm_timeout_ms
+            .unwrap_or(0)
     );
 }
 

@@ -91,15 +91,20 @@ fn wheels_travel_mm(robot: &VirtualRobot) -> f64 {
     wheel_mm((left + right) / 2.0)
 }
 
-/// The moments the drives' feedback reached the controller: the end of each reply to a
-/// group read (FC 03h, or the old FC 17h exchange).
+/// The moments the drives' positions reached the controller: the end of each reply to a
+/// group read from the share read list's start (FC 03h, or the old FC 17h exchange),
+/// not to the alarm part of the read.
 fn feedback_moments(robot: &VirtualRobot) -> Vec<Instant> {
     let requests: Vec<FrameRecord> = robot.drives.requests();
     let replies = robot.drives.replies();
     requests
         .iter()
         .enumerate()
-        .filter(|(_, request)| request.bytes[0] == GROUP && matches!(request.bytes[1], 0x03 | 0x17))
+        .filter(|(_, request)| {
+            request.bytes[0] == GROUP
+                && matches!(request.bytes[1], 0x03 | 0x17)
+                && request.bytes[2..4] == [0, 0]
+        })
         .filter_map(|(index, request)| {
             let next = requests.get(index + 1).map(|next| next.started);
             replies
@@ -305,11 +310,12 @@ fn robot_at_baud(baud: u32) -> VirtualRobot {
     robot
 }
 
-/// The worst latency over events at every phase of the 50 ms cycle (1 ms apart), from
-/// a CAN velocity frame to both drives having the new speed, and from an e-stop edge to
-/// zero on the wire.
+/// The worst latency over events at every phase of the 50 ms cycle (0.1 ms apart, fine
+/// enough to catch an event just after a transaction's first byte), from a CAN velocity
+/// frame to both drives having the new speed, and from an e-stop edge to zero on the
+/// wire.
 fn worst_latencies(robot: &VirtualRobot) -> (Duration, Duration) {
-    const PHASES: u64 = 50;
+    const PHASES: u64 = 500;
     let applied = || {
         [1, 2]
             .map(|slave| robot.drives.drive(slave).last_new_speed_at.expect("speed"))
@@ -325,14 +331,14 @@ fn worst_latencies(robot: &VirtualRobot) -> (Duration, Duration) {
             pc.enable();
             let sent = Instant::now();
             pc.velocity(if phase % 2 == 0 { 300 } else { 200 }, 0);
-            // 51 ms on: the next frame lands 1 ms later in the drive link's cycle.
-            wait_ms(51).await;
+            // 50.1 ms on: the next frame lands 0.1 ms later in the drive link's cycle.
+            embassy_time::Timer::after(Duration::from_micros(50_100)).await;
             velocity = velocity.max(applied() - sent);
         }
         let mut estop = Duration::from_ticks(0);
         for phase in 0..PHASES {
             stream(pc, Pattern::Constant, 50, 300).await;
-            embassy_time::Timer::after(Duration::from_micros(phase * 1_000)).await;
+            embassy_time::Timer::after(Duration::from_micros(phase * 100)).await;
             let pressed = Instant::now();
             robot.press_estop();
             wait_ms(60).await;
@@ -346,11 +352,12 @@ fn worst_latencies(robot: &VirtualRobot) -> (Duration, Duration) {
     })
 }
 
-/// The goals: a new speed at both drives within 10 ms at 115200 baud; zero on the
-/// wire within 8 ms of the e-stop edge at 230400. At 115200 the e-stop's bound is
-/// 12 ms, not 8: the edge (about 2 ms to sample and debounce) may come as the feedback
-/// read starts, and the half-duplex line must finish it (5.1 ms) before the zero
-/// (4.3 ms to the drives) can go out: 11.4 ms.
+/// The goals: a new speed at both drives within 10 ms, zero on the wire within 8 ms of
+/// the e-stop edge, at both baud rates. The e-stop's worst case at 115200 is the edge
+/// (sampled every 200 µs) coming just as the motion part of the feedback read starts
+/// (4.35 ms on the line), then the zero by broadcast (29 bytes and the drives' C3.5:
+/// 3.12 ms): 7.7 ms. With the whole feedback in one read (5.1 ms) and the zero in the
+/// 41-byte group write (4.3 ms) it was 9.6 ms: this test failed on that.
 #[test]
 fn worst_case_latencies_stay_within_their_goals() {
     let (velocity, estop) = worst_latencies(&robot_at_baud(115_200));
@@ -358,7 +365,7 @@ fn worst_case_latencies_stay_within_their_goals() {
         velocity <= Duration::from_millis(10),
         "velocity {velocity:?}"
     );
-    assert!(estop <= Duration::from_millis(12), "e-stop {estop:?}");
+    assert!(estop <= Duration::from_millis(8), "e-stop {estop:?}");
     let (velocity, estop) = worst_latencies(&robot_at_baud(230_400));
     assert!(
         velocity <= Duration::from_millis(10),

@@ -470,7 +470,8 @@ fn worst_cycle_gap(robot: &VirtualRobot, from: Instant, to: Instant) -> Duration
         .requests()
         .into_iter()
         .filter(|request| {
-            request.bytes[..2] == [15, 0x03] && request.at >= from && request.at <= to
+            // The motion part of each cycle's feedback read.
+            request.bytes[..4] == [15, 0x03, 0, 0] && request.at >= from && request.at <= to
         })
         .map(|request| request.at)
         .collect();

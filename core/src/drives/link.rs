@@ -21,9 +21,11 @@
 //!   │                  ▼
 //!   │   ┌───────▶ CycleWait ── S-ON or S-OFF due ──▶ Exciting(left, right)
 //!   │   │   ▲  │  │                                     │ done, or failed
+//!   │   │   │  │  ├── an emergency zero ──▶ BroadcastingZero (one 10h to address 0)
+//!   │   │   │  │  │                                       │ sent
 //!   │   │   │  │  └── a command the drives do not have ──▶ Writing (one 10h)
 //!   │   │   │  │                                          │ done, or failed
-//!   │   │   │  └── the read's moment came ──▶ Reading (one 03h)
+//!   │   │   │  └── the read's moment came ──▶ Reading(Motion), then Reading(Alarms)
 //!   │   │   │                                     │ answered, or failed
 //!   │   └───┴─────────────────────────────────────┘ (fewer than N failed in a row)
 //!   │
@@ -49,12 +51,16 @@
 //!   whichever drive answers.
 //! - Only `Writing` sends a non-zero speed, and only while excited and after
 //!   `excite_settle_ms` has passed since S-ON.
-//! - The cycle splits the line's work: the feedback read (FC 03h to the group: both
-//!   positions, speeds and alarms) goes out once per `loop_end_delay` on a fixed
-//!   schedule that commands never move, and a command (FC 10h to the group: both
-//!   wheels' speed, rates and trigger) goes out at the next free moment whenever the
-//!   controller wants something the drives do not have yet. A newer demand replaces
-//!   one that was not sent; one that was acknowledged is not sent again.
+//! - The cycle splits the line's work: the feedback read goes out once per
+//!   `loop_end_delay` on a fixed schedule that commands never move, in two short FC
+//!   03h to the group (both positions and speeds, then both alarms), and a command
+//!   (FC 10h to the group: both wheels' speed, rates and trigger) goes out at the next
+//!   free moment whenever the controller wants something the drives do not have yet.
+//!   A newer demand replaces one that was not sent; one that was acknowledged is not
+//!   sent again. No transaction is long, so nothing urgent waits long behind one.
+//! - An emergency zero (zero for both wheels braked at least with `estop_decel`)
+//!   goes out first, by one 29-byte broadcast that needs no reply (speed 0, the
+//!   stronger wheel's rate, the trigger); the acknowledged group write follows.
 //! - N = `failures_before_loss` failed reads, or failed writes, in a row (the group
 //!   silent, a member silent or reset, or the group frames alone failing while each
 //!   drive answers unicast) end the cycle (a failed write is tried again after the
@@ -63,6 +69,12 @@
 //!   every drive's communication timeout has surely tripped (with it off: S-OFF by
 //!   broadcast first). Then each drive is probed and the lost ones are reported ([`Input::DriveSilent`]; both when both
 //!   answer alone, because the commands cannot reach the wheels).
+//! - In the cycle the link steps at least every third of the drives' communication
+//!   timeout. A longer gap means the chip stalled (a flash erase, which waits for both
+//!   brakes confirmed): if both drives were confirmed de-excited, an alarm 85h in the
+//!   first alarm read sent after it is the link's own doing and is reset (0x0180: 1,
+//!   then 0) and counted as a Modbus error instead of reported. Any other alarm, or an
+//!   85h that stays, is reported.
 //! - [`Input::DrivesReady`] comes only after boot or a setup request (the controller's
 //!   contract): drives that come back unasked stay held until the controller asks.
 //! - A request is answered before anything else moves the machine: a demand that
@@ -252,8 +264,20 @@ pub struct Cycle {
     /// When the next feedback read is due. It advances by whole periods from the read
     /// before, whatever the commands in between do.
     pub read_at: Timestamp,
-    /// Failed feedback reads in a row.
+    /// Failed motion reads (positions and speeds) in a row.
     pub read_failures: u8,
+    /// Failed alarm reads in a row.
+    pub alarm_read_failures: u8,
+    /// The motion read passed and the alarm read, the rest of this period's feedback,
+    /// goes next.
+    pub alarms_due: bool,
+    /// The zero of an emergency stop went out by broadcast; the acknowledged group
+    /// write follows. Cleared by the next non-zero command the drives acknowledge.
+    pub zero_broadcast: bool,
+    /// Per wheel: alarm 85h that the controller's own silence at rest caused (a flash
+    /// erase stalls the chip longer than the drives' timeout) is reset before anything
+    /// else goes to that drive.
+    pub timeout_alarm_resets: [bool; 2],
     /// Failed writes (command, S-ON or S-OFF) in a row.
     pub write_failures: u8,
     /// A write went out while the read was due: the read goes next, so commands at
@@ -275,6 +299,10 @@ impl Cycle {
         Self {
             read_at: now,
             read_failures: 0,
+            alarm_read_failures: 0,
+            alarms_due: false,
+            zero_broadcast: false,
+            timeout_alarm_resets: [false; 2],
             write_failures: 0,
             read_deferred: false,
             write_retry_at: now,
@@ -308,8 +336,17 @@ pub enum State {
     },
     /// The command write (FC 10h to the group) is out.
     Writing { cycle: Cycle, command: WheelCommand },
-    /// The feedback read (FC 03h to the group) is out.
-    Reading { cycle: Cycle },
+    /// One part of the feedback read (FC 03h to the group) is out.
+    Reading { cycle: Cycle, part: ReadPart },
+    /// The zero of an emergency stop is out by broadcast (no reply comes).
+    BroadcastingZero { cycle: Cycle },
+    /// One write of the reset of an alarm 85h that the controller's own silence at
+    /// rest caused: 1 (`on`), then 0.
+    ResettingTimeoutAlarm {
+        wheel: Wheel,
+        on: bool,
+        cycle: Cycle,
+    },
     /// Until the next read is due, or a new demand comes.
     CycleWait { wake_at: Timestamp, cycle: Cycle },
     /// N failed reads or writes: the drives are stopped without needing a reply, then
@@ -317,6 +354,26 @@ pub enum State {
     StoppingBlind { step: BlindStep, since: Timestamp },
     /// After the blind stop: the share control block of one drive is being read.
     Probing { wheel: Wheel, lost: bool },
+}
+
+/// The feedback read of one period, in two short parts, so that an urgent write never
+/// waits behind a long one: positions and speeds (on the read's schedule), then the
+/// alarms.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ReadPart {
+    Motion,
+    Alarms,
+}
+
+impl ReadPart {
+    /// The part's first item in the share read list, and how many it reads.
+    fn items(self) -> (u16, usize) {
+        match self {
+            ReadPart::Motion => (0, 2),
+            ReadPart::Alarms => (2, 1),
+        }
+    }
 }
 
 /// The drive link (see the module documentation).
@@ -335,6 +392,14 @@ pub struct DriveLink {
     /// cannot have survived, says so; an S-ON (answered or not) unsays it, and a drive
     /// that is silent with that timeout off stays unknown until it answers an S-OFF.
     brakes_confirmed: [bool; 2],
+    /// When the link last stepped. In the cycle it steps at least every third of the
+    /// drives' timeout; a longer gap means the chip stalled (a flash erase).
+    last_step_at: Timestamp,
+    /// The link was stalled beyond the drives' timeout while both were confirmed
+    /// de-excited: an alarm 85h in the next alarm read sent after it is its own doing.
+    stalled_at_rest: bool,
+    /// The alarm read that is out was sent after such a stall.
+    alarm_read_after_stall: bool,
 }
 
 impl DriveLink {
@@ -353,6 +418,9 @@ impl DriveLink {
             powered_up_at: now.plus_millis(u64::from(settings.power_up_wait_ms)),
             // A controller that restarts cannot know what the drives do.
             brakes_confirmed: [false; 2],
+            last_step_at: now,
+            stalled_at_rest: false,
+            alarm_read_after_stall: false,
         };
         let mut effects = Effects::default();
         link.begin_hold(Hold::ForSetup, [0; 2], settings, &mut effects);
@@ -376,6 +444,25 @@ impl DriveLink {
 
     pub fn step(&mut self, now: Timestamp, event: Event<'_>, settings: &DriveSettings) -> Effects {
         let mut effects = Effects::default();
+        let timeout_ms = comm_timeout_ms(settings);
+        let in_cycle = matches!(
+            self.state,
+            State::CycleWait { .. }
+                | State::Reading { .. }
+                | State::Writing { .. }
+                | State::Exciting { .. }
+                | State::BroadcastingZero { .. }
+                | State::ResettingTimeoutAlarm { .. }
+        );
+        if in_cycle
+            && timeout_ms > 0
+            && now.millis_since(self.last_step_at) >= timeout_ms
+            && self.brakes_confirmed()
+        {
+            warn!("drive link stalled beyond the drives' timeout at rest");
+            self.stalled_at_rest = true;
+        }
+        self.last_step_at = now;
         match (self.state, event) {
             (_, Event::Demand(demand)) => {
                 self.demand = demand;
@@ -395,6 +482,8 @@ impl DriveLink {
                     | State::Exciting { .. }
                     | State::Writing { .. }
                     | State::Reading { .. }
+                    | State::BroadcastingZero { .. }
+                    | State::ResettingTimeoutAlarm { .. }
                     | State::StoppingBlind { .. }
                     | State::Probing { .. } => {}
                 }
@@ -430,8 +519,15 @@ impl DriveLink {
             (State::Writing { cycle, command }, Event::Reply(reply)) => {
                 self.on_command_written(now, cycle, command, reply, settings, &mut effects)
             }
-            (State::Reading { cycle }, Event::Reply(reply)) => {
-                self.on_feedback(now, cycle, reply, settings, &mut effects)
+            (State::Reading { cycle, part }, Event::Reply(reply)) => {
+                self.on_feedback(now, cycle, part, reply, settings, &mut effects)
+            }
+            // A broadcast draws no reply; its "reply" says the frame is out.
+            (State::BroadcastingZero { cycle }, Event::Reply(_)) => {
+                self.next_in_cycle(now, cycle, settings, &mut effects)
+            }
+            (State::ResettingTimeoutAlarm { wheel, on, cycle }, Event::Reply(reply)) => {
+                self.on_timeout_alarm_reset(now, wheel, on, cycle, reply, settings, &mut effects)
             }
             (State::Probing { wheel, lost }, Event::Reply(reply)) => {
                 self.on_probe(wheel, lost, reply, settings, &mut effects)
@@ -455,6 +551,8 @@ impl DriveLink {
                 | State::Exciting { .. }
                 | State::Writing { .. }
                 | State::Reading { .. }
+                | State::BroadcastingZero { .. }
+                | State::ResettingTimeoutAlarm { .. }
                 | State::Probing { .. },
                 Event::Timer,
             ) => {}
@@ -619,7 +717,7 @@ impl DriveLink {
         settings: &DriveSettings,
         effects: &mut Effects,
     ) {
-        let wake_at = now.plus_millis(u64::from(settings.poll_interval_ms));
+        let wake_at = now.plus_millis(u64::from(hold_pause_ms(settings)));
         self.state = State::HoldPause {
             hold,
             wake_at,
@@ -789,23 +887,41 @@ impl DriveLink {
         if self.setup_requested() {
             return self.begin_hold(Hold::ForSetup, [0; 2], settings, effects);
         }
+        let command = self.command_now(now, &cycle);
+        // An emergency stop goes out first, by one short broadcast that needs no reply:
+        // it never waits behind more than the transaction on the line.
+        if self.is_emergency_stop(&command)
+            && !cycle.zero_broadcast
+            && cycle
+                .written
+                .is_some_and(|written| written.rpm != MotorRpm::ZERO)
+        {
+            return self.broadcast_zero(cycle, &command, settings, effects);
+        }
+        if let Some(index) = cycle.timeout_alarm_resets.iter().position(|&reset| reset) {
+            let wheel = [Wheel::Left, Wheel::Right][index];
+            return self.send_timeout_alarm_reset(wheel, true, cycle, settings, effects);
+        }
         let read_due = now >= cycle.read_at;
+        let feedback_due = read_due || cycle.alarms_due;
         // A due read waits for one write at most; after a failed write it goes first,
         // so a line that fails long frames still brings the feedback and a failing
         // write is retried once per period.
-        let read_first = read_due && (cycle.read_deferred || cycle.write_failures > 0);
+        let read_first = feedback_due && (cycle.read_deferred || cycle.write_failures > 0);
         let may_write = now >= cycle.write_retry_at && !read_first;
-        cycle.read_deferred |= read_due;
+        cycle.read_deferred |= feedback_due;
         if may_write && self.demand.excite != self.excited {
             return self.send_excite(Wheel::Left, self.demand.excite, cycle, settings, effects);
         }
-        let command = self.command_now(now, &cycle);
         let write_pending = cycle.written != Some(command);
         if may_write && write_pending {
             return self.send_command(cycle, command, settings, effects);
         }
+        if cycle.alarms_due {
+            return self.send_read(cycle, ReadPart::Alarms, settings, effects);
+        }
         if read_due {
-            return self.send_read(cycle, settings, effects);
+            return self.send_read(cycle, ReadPart::Motion, settings, effects);
         }
         let mut wake_at = cycle.read_at;
         if write_pending || self.demand.excite != self.excited {
@@ -827,6 +943,37 @@ impl DriveLink {
             command.rpm = MotorRpm::ZERO;
         }
         command
+    }
+
+    /// Zero for both wheels braked at least with `estop_decel`: the e-stop, a drive
+    /// fault, the safety zone stopping the base. A stop the PC asks for with its own
+    /// (gentler) rate is an ordinary command.
+    fn is_emergency_stop(&self, command: &WheelCommand) -> bool {
+        command.rpm == MotorRpm::ZERO
+            && command.left_accel.max(command.right_accel) >= self.demand.stop_decel
+    }
+
+    /// The emergency zero by broadcast (address 0): speed 0, both rates the stronger
+    /// wheel's, torque limit 100 % (the drives' default), trigger, from the DDO speed
+    /// on (29 bytes; 3.1 ms to the drives at 115200 instead of 4.3 ms for the group
+    /// write). Each drive stops with that rate; the acknowledged group write with each
+    /// wheel's own rate follows, so a turning base still ends up on its track.
+    fn broadcast_zero(
+        &mut self,
+        mut cycle: Cycle,
+        command: &WheelCommand,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        const BROADCAST: u8 = 0;
+        let decel = settings
+            .accel_unit
+            .field(command.left_accel.max(command.right_accel));
+        let fields = [0, decel, decel, 1_000, 1];
+        let frame = modbus::write_items(BROADCAST, reg::DDO_SPEED, &fields);
+        cycle.zero_broadcast = true;
+        self.state = State::BroadcastingZero { cycle };
+        effects.next = Some(Next::Send(Request::new(frame, Target::Unicast)));
     }
 
     fn send_excite(
@@ -925,6 +1072,9 @@ impl DriveLink {
         }
         cycle.written = Some(command);
         cycle.write_failures = 0;
+        if command.rpm != MotorRpm::ZERO {
+            cycle.zero_broadcast = false;
+        }
         self.next_in_cycle(now, cycle, settings, effects);
     }
 
@@ -972,15 +1122,23 @@ impl DriveLink {
         aligned.unwrap_or(read_at.plus_millis(period)).max(now)
     }
 
-    /// The feedback read: positions, speeds and alarms of both drives in one FC 03h.
-    fn send_read(&mut self, cycle: Cycle, settings: &DriveSettings, effects: &mut Effects) {
-        let frame = modbus::share_read(
-            settings.share_group,
-            0,
-            reg::SHARE_READ_LIST.len() as u16,
-            2,
-        );
-        self.state = State::Reading { cycle };
+    /// One part of the feedback read: positions and speeds, or the alarms, of both
+    /// drives in one FC 03h to the group.
+    fn send_read(
+        &mut self,
+        cycle: Cycle,
+        part: ReadPart,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        let (first, items) = part.items();
+        if part == ReadPart::Alarms {
+            // A reply to a read sent before the stall cannot show what it caused.
+            self.alarm_read_after_stall = self.stalled_at_rest;
+        }
+        // Two share registers per item.
+        let frame = modbus::share_read(settings.share_group, 2 * first, items as u16, 2);
+        self.state = State::Reading { cycle, part };
         effects.next = Some(Next::Send(Request::new(frame, Target::Share)));
     }
 
@@ -988,62 +1146,125 @@ impl DriveLink {
         &mut self,
         now: Timestamp,
         mut cycle: Cycle,
+        part: ReadPart,
         reply: Result<&[u8], TransferError>,
         settings: &DriveSettings,
         effects: &mut Effects,
     ) {
-        cycle.read_at = self.next_read_at(now, cycle.read_at, settings);
         cycle.read_deferred = false;
+        let (_, items) = part.items();
         let share = reply.ok().and_then(|bytes| {
-            modbus::parse_share_reply(
-                bytes,
-                settings.share_group,
-                modbus::READ_HOLDING,
-                2,
-                reg::SHARE_READ_LIST.len(),
-            )
-            .ok()
+            modbus::parse_share_reply(bytes, settings.share_group, modbus::READ_HOLDING, 2, items)
+                .ok()
         });
+        if part == ReadPart::Motion {
+            cycle.read_at = self.next_read_at(now, cycle.read_at, settings);
+        }
+        cycle.alarms_due = part == ReadPart::Motion && share.is_some();
         let Some(share) = share else {
             report(effects, Input::ModbusError);
-            cycle.read_failures = cycle.read_failures.saturating_add(1);
-            if cycle.read_failures >= settings.failures_before_loss {
+            let failures = match part {
+                ReadPart::Motion => &mut cycle.read_failures,
+                ReadPart::Alarms => &mut cycle.alarm_read_failures,
+            };
+            *failures = failures.saturating_add(1);
+            if *failures >= settings.failures_before_loss {
                 return self.escalate(now, settings, effects);
             }
             return self.next_in_cycle(now, cycle, settings, effects);
         };
         let (left, right) = (share.member(0), share.member(1));
-        report(
-            effects,
-            Input::DriveFeedback {
-                counts: EncoderCounts {
-                    left: left[0] as i32,
-                    right: right[0] as i32,
-                },
-                rpm: MotorRpm {
-                    left: left[1] as i32,
-                    right: right[1] as i32,
-                },
-            },
-        );
-        for (index, (wheel, code)) in [Wheel::Left, Wheel::Right]
-            .into_iter()
-            .zip([left[2], right[2]])
-            .enumerate()
-        {
-            if code != 0 && cycle.alarms[index] == 0 {
+        match part {
+            ReadPart::Motion => {
                 report(
                     effects,
-                    Input::DriveAlarm {
-                        wheel,
-                        code: alarm_byte(code),
+                    Input::DriveFeedback {
+                        counts: EncoderCounts {
+                            left: left[0] as i32,
+                            right: right[0] as i32,
+                        },
+                        rpm: MotorRpm {
+                            left: left[1] as i32,
+                            right: right[1] as i32,
+                        },
                     },
                 );
+                cycle.read_failures = 0;
             }
-            cycle.alarms[index] = code;
+            ReadPart::Alarms => {
+                for (index, (wheel, code)) in [Wheel::Left, Wheel::Right]
+                    .into_iter()
+                    .zip([left[0], right[0]])
+                    .enumerate()
+                {
+                    if code == reg::ALARM_COMM_TIMEOUT && self.alarm_read_after_stall {
+                        // Our own silence at rest tripped it: reset, and counted.
+                        warn!("{} drive: alarm 85h after a stall at rest, reset", wheel);
+                        report(effects, Input::ModbusError);
+                        cycle.timeout_alarm_resets[index] = true;
+                        continue;
+                    }
+                    if code != 0 && cycle.alarms[index] == 0 {
+                        report(
+                            effects,
+                            Input::DriveAlarm {
+                                wheel,
+                                code: alarm_byte(code),
+                            },
+                        );
+                    }
+                    cycle.alarms[index] = code;
+                }
+                cycle.alarm_read_failures = 0;
+                // One stall excuses the alarms of the first read after it, no more:
+                // an alarm that stays after the reset is reported.
+                if self.alarm_read_after_stall {
+                    self.stalled_at_rest = false;
+                    self.alarm_read_after_stall = false;
+                }
+            }
         }
-        cycle.read_failures = 0;
-        self.next_in_cycle(now, cycle, settings, effects);
+        self.next_in_cycle(now, cycle, settings, effects)
+    }
+
+    fn send_timeout_alarm_reset(
+        &mut self,
+        wheel: Wheel,
+        on: bool,
+        cycle: Cycle,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        let frame = modbus::write_items(slave(wheel, settings), reg::ALARM_RESET, &[u32::from(on)]);
+        self.state = State::ResettingTimeoutAlarm { wheel, on, cycle };
+        effects.next = Some(Next::Send(Request::new(frame, Target::Unicast)));
+    }
+
+    /// The reset acts on the 0 → 1 change, so 1 then 0; a failed write counts as any
+    /// failed write and the reset is tried again after the next read.
+    #[allow(clippy::too_many_arguments)]
+    fn on_timeout_alarm_reset(
+        &mut self,
+        now: Timestamp,
+        wheel: Wheel,
+        on: bool,
+        mut cycle: Cycle,
+        reply: Result<&[u8], TransferError>,
+        settings: &DriveSettings,
+        effects: &mut Effects,
+    ) {
+        let acknowledged = reply.is_ok_and(|bytes| {
+            write_echo(bytes, slave(wheel, settings), reg::ALARM_RESET, 1).is_ok()
+        });
+        if !acknowledged {
+            return self.write_failed(now, cycle, settings, effects);
+        }
+        if on {
+            return self.send_timeout_alarm_reset(wheel, false, cycle, settings, effects);
+        }
+        cycle.timeout_alarm_resets[wheel_index(wheel)] = false;
+        cycle.write_failures = 0;
+        self.next_in_cycle(now, cycle, settings, effects)
     }
 
     /// N failed reads or writes in a row: no command reached the drives or no feedback
@@ -1253,6 +1474,17 @@ pub fn cycle_period_ms(cycle_ms: u16, settings: &DriveSettings) -> u32 {
     match settings.drive_comm_timeout_ms {
         Some(timeout) if timeout > 0 => cycle.min((u32::from(timeout) / 3).max(1)),
         _ => cycle,
+    }
+}
+
+/// The pause between two hold rounds: `poll_interval_ms`, but at most a third of the
+/// drives' communication timeout, so that a held drive never trips it.
+pub fn hold_pause_ms(settings: &DriveSettings) -> u32 {
+    match settings.drive_comm_timeout_ms {
+        Some(timeout) if timeout > 0 => settings
+            .poll_interval_ms
+            .min((u32::from(timeout) / 3).max(1)),
+        _ => settings.poll_interval_ms,
     }
 }
 

@@ -30,6 +30,10 @@ pub mod reg {
     /// Modbus communication timeout, ms (alarm 85h).
     pub const COMM_TIMEOUT: u16 = 0x138A;
 
+    /// The alarm a drive raises when no valid frame came for its communication timeout
+    /// ([`COMM_TIMEOUT`]): de-excited, brake applied.
+    pub const ALARM_COMM_TIMEOUT: u32 = 0x85;
+
     /// S-ON bit of [`DRIVER_INPUT_COMMAND`].
     pub const S_ON: u32 = 1;
 

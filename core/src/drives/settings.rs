@@ -97,7 +97,8 @@ pub struct DriveSettings {
     pub accel_unit: AccelUnit,
     /// Wait after the drives get power before the first query (the BLH manual asks ≥ 1 s).
     pub power_up_wait_ms: u32,
-    /// How often a silent drive is polled.
+    /// How often a silent drive is polled (the pause between two hold rounds), at most
+    /// a third of `drive_comm_timeout_ms`.
     pub poll_interval_ms: u32,
     /// How long the master waits for the first byte of a reply, and for the next byte
     /// once a reply has started.
@@ -112,11 +113,14 @@ pub struct DriveSettings {
     /// raises alarm 85h and stops: the wheels stop when the controller hangs or the
     /// line breaks, without the controller. The recovery resets it like any alarm.
     ///
-    /// 300 ms by default: the link puts a frame on the line at least every 200 ms
-    /// (`poll_interval_ms`, the slowest state: holding a drive while the other is
-    /// polled) plus one failed transaction (25 + 5 ms); the control cycle sends one
-    /// 17h per `loop_end_delay` (50 ms: six cycles inside the timeout) and never waits
-    /// longer than a third of the timeout, whatever `loop_end_delay` says.
+    /// 150 ms by default, so that a controller that resets while the base drives at
+    /// 500 mm/s lets it run on at most 75 mm before the drives stop on their own, plus
+    /// their brake (about 4 mm), during a boot of 0.3 s: within the 100 mm goal. The
+    /// control cycle reads the drives every `loop_end_delay` (50 ms: three reads
+    /// inside the timeout) and never waits longer than a third of the timeout, whatever
+    /// `loop_end_delay` says; the hold rounds outside the cycle are at most that far
+    /// apart too. A flash erase at rest stalls the chip longer than this; the link
+    /// resets the alarm 85h that its own stall caused (see `link`).
     pub drive_comm_timeout_ms: Option<u16>,
 }
 
@@ -140,7 +144,7 @@ impl DriveSettings {
         reply_timeout_ms: 25,
         failures_before_loss: 3,
         excite_settle_ms: 50,
-        drive_comm_timeout_ms: Some(300),
+        drive_comm_timeout_ms: Some(150),
     };
 }
 

@@ -83,6 +83,13 @@ pub async fn run<P: Rs485>(port: P, settings: DriveSettings, channels: DriveLink
                 let transfer = master
                     .transact(&request.frame, request.expected_len, &mut reply)
                     .await;
+                // A demand that came while the request was out is kept first, so the
+                // link's next request already serves it (an e-stop never waits for
+                // the rest of the feedback read).
+                if let Some(demand) = channels.drive_demand.try_take() {
+                    let kept = link.step(core_now(), Event::Demand(demand), &settings);
+                    debug_assert!(kept.next.is_none() && kept.reports.is_empty());
+                }
                 let event = Event::Reply(transfer.map(|()| &reply[..]));
                 link.step(core_now(), event, &settings)
             }

@@ -189,12 +189,16 @@ impl Bench {
         }
     }
 
-    /// A share group reply: each member's items followed by the CRC so far.
+    /// A share group reply: each member's items asked for, followed by the CRC so far.
     fn share_reply(&self, function: u8) -> std::vec::Vec<u8> {
-        let items = reg::SHARE_READ_LIST.len();
+        let request = &self.request().frame;
+        // Two registers per item, one more per member for its check word.
+        let first = usize::from(u16::from_be_bytes([request[2], request[3]]) / 2);
+        let count = usize::from(u16::from_be_bytes([request[4], request[5]]));
+        let items = (count / 2 - 1) / 2;
         let mut reply = vec![GROUP, function, 2 * (4 * items as u8 + 2)];
         for member in self.feedback {
-            for value in &member[..items] {
+            for value in &member[first..first + items] {
                 reply.extend_from_slice(&value.to_be_bytes());
             }
             reply = with_crc(reply);
@@ -268,6 +272,9 @@ const COMMAND: Then = Send(GROUP, WRITE, 0);
 const BLIND_ZERO: Then = Send(0, WRITE, reg::DDO_OPERATION_TYPE);
 const BLIND_S_OFF: Then = Send(0, WRITE, reg::DRIVER_INPUT_COMMAND);
 const READ_FEEDBACK: Then = Send(GROUP, READ, 0);
+/// The alarm part of the feedback read: item 2 of the share read list.
+const READ_ALARMS: Then = Send(GROUP, READ, 4);
+const BROADCAST_ZERO: Then = Send(0, WRITE, reg::DDO_SPEED);
 
 #[test]
 fn the_first_request_after_boot_is_zero_speed_with_stop_decel_to_the_left_drive() {
@@ -288,7 +295,7 @@ fn a_hold_round_writes_zero_trigger_and_s_off_to_each_drive_then_pauses_before_t
         (20, Answer, Send(2, WRITE, reg::DDO_TRIGGER), &[]),
         (25, Answer, Send(2, WRITE, reg::DRIVER_INPUT_COMMAND), &[]),
         // Both answered, but the drives had no 1000 ms to power up yet.
-        (30, Answer, WaitUntil(230), &[]),
+        (30, Answer, WaitUntil(80), &[]),
         (230, Timer, HOLD_LEFT[0], &[]),
     ]);
     assert_eq!(written_items(bench.request()), [16, 0, 0, 4_500, 4_500]);
@@ -301,7 +308,7 @@ fn a_silent_drive_is_skipped_and_the_answering_one_is_still_held() {
         (5, Silent, HOLD_RIGHT_ZERO, &[]),
         (10, Answer, Send(2, WRITE, reg::DDO_TRIGGER), &[]),
         (15, Answer, Send(2, WRITE, reg::DRIVER_INPUT_COMMAND), &[]),
-        (20, Answer, WaitUntil(220), &[]),
+        (20, Answer, WaitUntil(70), &[]),
     ]);
 }
 
@@ -357,29 +364,29 @@ fn a_drive_silent_after_the_power_up_wait_is_reported_once_after_n_rounds() {
             (now, Answer, HOLD_LEFT[1], &[]),
             (now, Answer, HOLD_LEFT[2], &[]),
             (now, Answer, HOLD_RIGHT_ZERO, &[]),
-            (now, Silent, WaitUntil(now + 200), &[]),
+            (now, Silent, WaitUntil(now + 50), &[]),
         ]
     };
     // The power-up wait ends at 2000 ms.
     bench.run(&right_silent_round(1_000));
     bench.run(&[(1_200, Timer, HOLD_LEFT[0], &[])]);
     bench.run(&right_silent_round(2_000)[..3]);
-    bench.run(&[(2_000, Silent, WaitUntil(2_200), &[])]);
+    bench.run(&[(2_000, Silent, WaitUntil(2_050), &[])]);
     bench.run(&[(2_200, Timer, HOLD_LEFT[0], &[])]);
     bench.run(&right_silent_round(2_200)[..3]);
-    bench.run(&[(2_200, Silent, WaitUntil(2_400), &[])]);
+    bench.run(&[(2_200, Silent, WaitUntil(2_250), &[])]);
     bench.run(&[(2_400, Timer, HOLD_LEFT[0], &[])]);
     bench.run(&right_silent_round(2_400)[..3]);
     bench.run(&[(
         2_400,
         Silent,
-        WaitUntil(2_600),
+        WaitUntil(2_450),
         &[Input::DriveSilent(Wheel::Right)],
     )]);
     // Reported once, not every round.
     bench.run(&[(2_600, Timer, HOLD_LEFT[0], &[])]);
     bench.run(&right_silent_round(2_600)[..3]);
-    bench.run(&[(2_600, Silent, WaitUntil(2_800), &[])]);
+    bench.run(&[(2_600, Silent, WaitUntil(2_650), &[])]);
 }
 
 #[test]
@@ -396,7 +403,7 @@ fn the_setup_writes_share_control_lists_comm_timeout_checks_the_alarm_and_leaves
         (1_001, Answer, Send(1, WRITE, reg::SHARE_LISTS), &[]),
         (1_002, Answer, Send(1, WRITE, reg::COMM_TIMEOUT), &[]),
     ]);
-    assert_eq!(written_items(bench.request()), [300]);
+    assert_eq!(written_items(bench.request()), [150]);
     bench.run(&[
         (1_003, Answer, Send(1, READ, reg::PRESENT_ALARM), &[]),
         (
@@ -484,7 +491,7 @@ fn an_alarm_that_stays_after_the_reset_is_reported_and_the_setup_waits_a_poll_in
         (
             1_000,
             Answer,
-            WaitUntil(1_200),
+            WaitUntil(1_050),
             &[Input::DriveAlarm {
                 wheel: Wheel::Left,
                 code: 0x30,
@@ -508,14 +515,14 @@ fn a_setup_step_that_fails_on_the_line_is_counted_and_retried_after_a_hold() {
             bench.link.state()
         );
         bench.run(&[
-            (1_000, Silent, WaitUntil(1_200), &[Input::ModbusError]),
+            (1_000, Silent, WaitUntil(1_050), &[Input::ModbusError]),
             (1_200, Timer, HOLD_LEFT[0], &[]),
         ]);
         let mut bench = Bench::boot();
         for _ in 0..6 + step {
             bench.step(1_000, Answer);
         }
-        bench.run(&[(1_000, Garbled, WaitUntil(1_200), &[Input::ModbusError])]);
+        bench.run(&[(1_000, Garbled, WaitUntil(1_050), &[Input::ModbusError])]);
     }
 }
 
@@ -527,7 +534,7 @@ fn a_group_that_does_not_answer_the_check_fails_the_setup() {
     }
     assert_eq!(bench.link.state(), State::CheckingGroup);
     bench.run(&[
-        (1_000, Silent, WaitUntil(1_200), &[Input::ModbusError]),
+        (1_000, Silent, WaitUntil(1_050), &[Input::ModbusError]),
         (1_200, Timer, HOLD_LEFT[0], &[]),
     ]);
 }
@@ -557,14 +564,18 @@ fn the_cycle_reads_the_feedback_once_per_loop_end_delay_and_reports_it() {
     bench.run(&[
         // The first command (zero) was written; the first read follows at once.
         (1_002, Answer, READ_FEEDBACK, &[]),
-        (1_004, Answer, WaitUntil(1_050), &[feedback]),
+        (1_004, Answer, READ_ALARMS, &[feedback]),
+        (1_004, Answer, WaitUntil(1_050), &[]),
         (1_050, Timer, READ_FEEDBACK, &[]),
         // A late reply does not shift the schedule.
-        (1_060, Answer, WaitUntil(1_100), &[feedback]),
+        (1_060, Answer, READ_ALARMS, &[feedback]),
+        (1_062, Answer, WaitUntil(1_100), &[]),
         (1_100, Timer, READ_FEEDBACK, &[]),
         // A stall: the next read goes out at once and the schedule restarts from it.
-        (1_180, Answer, READ_FEEDBACK, &[feedback]),
-        (1_182, Answer, WaitUntil(1_230), &[feedback]),
+        (1_180, Answer, READ_ALARMS, &[feedback]),
+        (1_182, Answer, READ_FEEDBACK, &[]),
+        (1_184, Answer, READ_ALARMS, &[feedback]),
+        (1_185, Answer, WaitUntil(1_230), &[]),
     ]);
 }
 
@@ -575,6 +586,7 @@ fn the_cycle_reads_the_feedback_once_per_loop_end_delay_and_reports_it() {
 fn commands_at_any_rate_go_out_at_once_and_never_move_the_read() {
     let mut bench = Bench::cycling();
     bench.step(1_002, Answer);
+    bench.step(1_004, Answer);
     bench.step(1_004, Answer);
     bench.step(1_005, Line::Demand(demand(0, true, 0)));
     bench.step(1_006, Answer);
@@ -589,12 +601,8 @@ fn commands_at_any_rate_go_out_at_once_and_never_move_the_read() {
         if now >= next_read {
             bench.run(&[
                 (next_read, Timer, READ_FEEDBACK, &[]),
-                (
-                    next_read + 2,
-                    Answer,
-                    WaitUntil(next_read + 50),
-                    &[feedback],
-                ),
+                (next_read + 2, Answer, READ_ALARMS, &[feedback]),
+                (next_read + 3, Answer, WaitUntil(next_read + 50), &[]),
             ]);
             next_read += 50;
         }
@@ -607,7 +615,8 @@ fn commands_at_any_rate_go_out_at_once_and_never_move_the_read() {
     assert_eq!(next_read, 2_050);
     bench.run(&[
         (2_050, Timer, READ_FEEDBACK, &[]),
-        (2_052, Answer, WaitUntil(2_100), &[feedback]),
+        (2_052, Answer, READ_ALARMS, &[feedback]),
+        (2_052, Answer, WaitUntil(2_100), &[]),
     ]);
 }
 
@@ -616,28 +625,28 @@ fn a_new_alarm_in_the_cycle_is_reported_once() {
     let mut bench = Bench::cycling();
     bench.feedback[1][2] = 0x30;
     bench.step(1_002, Answer);
-    let effects = bench.step(1_004, Answer);
-    assert_eq!(
-        effects.reports[1..],
-        [Input::DriveAlarm {
-            wheel: Wheel::Right,
-            code: 0x30
-        }]
-    );
-    bench.step(1_050, Timer);
-    let effects = bench.step(1_052, Answer);
-    assert_eq!(
-        effects.reports.len(),
-        1,
-        "only the feedback: {:?}",
-        effects.reports
-    );
+    bench.run(&[
+        (1_004, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (
+            1_005,
+            Answer,
+            WaitUntil(1_050),
+            &[Input::DriveAlarm {
+                wheel: Wheel::Right,
+                code: 0x30,
+            }],
+        ),
+        (1_050, Timer, READ_FEEDBACK, &[]),
+        (1_052, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (1_053, Answer, WaitUntil(1_100), &[]),
+    ]);
 }
 
 #[test]
 fn a_new_demand_goes_out_at_once_and_waits_for_the_settle_after_s_on() {
     let mut bench = Bench::cycling();
     bench.step(1_002, Answer);
+    bench.step(1_004, Answer);
     bench.step(1_004, Answer);
     bench.run(&[
         // Excite and drive: S-ON to both first.
@@ -665,7 +674,8 @@ fn a_new_demand_goes_out_at_once_and_waits_for_the_settle_after_s_on() {
     bench.run(&[
         (1_016, Answer, WaitUntil(1_050), &[]),
         (1_050, Timer, READ_FEEDBACK, &[]),
-        (1_052, Answer, WaitUntil(1_064), &[feedback_of(&bench)]),
+        (1_052, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (1_052, Answer, WaitUntil(1_064), &[]),
         (1_064, Timer, COMMAND, &[]),
     ]);
     assert_eq!(command_speeds(bench.request()), (600, -600));
@@ -686,11 +696,14 @@ fn a_command_that_comes_while_the_read_is_out_goes_out_right_after_it() {
     let mut bench = Bench::cycling();
     bench.step(1_002, Answer);
     bench.step(1_004, Answer);
+    bench.step(1_004, Answer);
     bench.run(&[
         (1_050, Timer, READ_FEEDBACK, &[]),
         (1_051, Line::Demand(demand(0, false, 0)), CarryOn, &[]),
+        // The command goes before the alarm part of the read.
         (1_053, Answer, COMMAND, &[feedback_of(&bench)]),
-        (1_055, Answer, WaitUntil(1_100), &[]),
+        (1_055, Answer, READ_ALARMS, &[]),
+        (1_057, Answer, WaitUntil(1_100), &[]),
     ]);
 }
 
@@ -698,6 +711,7 @@ fn a_command_that_comes_while_the_read_is_out_goes_out_right_after_it() {
 fn dropping_the_excitation_writes_s_off_to_both_before_the_command() {
     let mut bench = Bench::cycling();
     bench.step(1_002, Answer);
+    bench.step(1_004, Answer);
     bench.step(1_004, Answer);
     bench.step(1_010, Line::Demand(demand(0, true, 0)));
     bench.step(1_010, Answer);
@@ -727,6 +741,7 @@ fn a_failed_s_on_write_is_retried_after_the_next_read_and_the_drives_stay_de_exc
     let mut bench = Bench::cycling();
     bench.step(1_002, Answer);
     bench.step(1_004, Answer);
+    bench.step(1_004, Answer);
     bench.step(1_010, Line::Demand(demand(600, true, 0)));
     bench.run(&[
         (
@@ -737,12 +752,13 @@ fn a_failed_s_on_write_is_retried_after_the_next_read_and_the_drives_stay_de_exc
         ),
         (1_037, Silent, WaitUntil(1_050), &[Input::ModbusError]),
         (1_050, Timer, READ_FEEDBACK, &[]),
+        (1_052, Answer, READ_ALARMS, &[feedback_of(&bench)]),
         // Then both again.
         (
-            1_052,
+            1_054,
             Answer,
             Send(1, WRITE, reg::DRIVER_INPUT_COMMAND),
-            &[feedback_of(&bench)],
+            &[],
         ),
     ]);
     assert!(!bench.link.excited());
@@ -757,7 +773,8 @@ fn failed_reads_below_n_are_counted_and_a_good_one_clears_the_count() {
         (1_050, Timer, READ_FEEDBACK, &[]),
         (1_075, Garbled, WaitUntil(1_100), &[Input::ModbusError]),
         (1_100, Timer, READ_FEEDBACK, &[]),
-        (1_102, Answer, WaitUntil(1_150), &[feedback_of(&bench)]),
+        (1_102, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (1_102, Answer, WaitUntil(1_150), &[]),
         (1_150, Timer, READ_FEEDBACK, &[]),
         (1_175, Silent, WaitUntil(1_200), &[Input::ModbusError]),
         (1_200, Timer, READ_FEEDBACK, &[]),
@@ -782,8 +799,8 @@ fn the_nth_failed_read_stops_both_drives_blind_then_falls_silent() {
     blind_stop_from(&mut bench, 1_125);
     // Demands change nothing until the silence is over.
     bench.run(&[
-        (1_500, Line::Demand(demand(600, true, 0)), CarryOn, &[]),
-        (1_560, Timer, Send(1, READ, reg::SHARE_CONTROL), &[]),
+        (1_400, Line::Demand(demand(600, true, 0)), CarryOn, &[]),
+        (1_410, Timer, Send(1, READ, reg::SHARE_CONTROL), &[]),
     ]);
 }
 
@@ -791,6 +808,7 @@ fn the_nth_failed_read_stops_both_drives_blind_then_falls_silent() {
 fn the_nth_failed_command_write_stops_both_drives_blind_while_the_reads_pass() {
     let mut bench = Bench::cycling();
     bench.step(1_002, Answer);
+    bench.step(1_004, Answer);
     bench.step(1_004, Answer);
     // Driving, excited.
     bench.step(1_010, Line::Demand(demand(600, true, 0)));
@@ -800,10 +818,12 @@ fn the_nth_failed_command_write_stops_both_drives_blind_while_the_reads_pass() {
         // The zero for the settle fails; the read goes first, then the write again.
         (1_035, Garbled, WaitUntil(1_050), &[Input::ModbusError]),
         (1_050, Timer, READ_FEEDBACK, &[]),
-        (1_052, Answer, COMMAND, &[feedback_of(&bench)]),
+        (1_052, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (1_052, Answer, COMMAND, &[]),
         (1_077, Silent, WaitUntil(1_100), &[Input::ModbusError]),
         (1_100, Timer, READ_FEEDBACK, &[]),
-        (1_102, Answer, COMMAND, &[feedback_of(&bench)]),
+        (1_102, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (1_102, Answer, COMMAND, &[]),
         (1_127, Silent, BLIND_ZERO, &[Input::ModbusError]),
     ]);
     blind_stop_from(&mut bench, 1_127);
@@ -822,7 +842,7 @@ fn probing() -> Bench {
         (1_125, Silent, BLIND_ZERO, &[Input::ModbusError]),
     ]);
     blind_stop_from(&mut bench, 1_125);
-    bench.run(&[(1_560, Timer, Send(1, READ, reg::SHARE_CONTROL), &[])]);
+    bench.run(&[(1_410, Timer, Send(1, READ, reg::SHARE_CONTROL), &[])]);
     assert_eq!(
         bench.link.state(),
         State::Probing {
@@ -842,7 +862,7 @@ fn blind_stop_from(bench: &mut Bench, since: u64) {
     bench.run(&[
         (since + 5, Answer, BLIND_ZERO, &[]),
         (since + 10, Answer, BLIND_ZERO, &[]),
-        (since + 35, Silent, WaitUntil(since + 435), &[]),
+        (since + 35, Silent, WaitUntil(since + 285), &[]),
     ]);
     assert!(!bench.link.excited());
 }
@@ -898,7 +918,7 @@ fn a_probe_that_finds_a_drive_silent_reports_that_drive_and_holds_until_a_setup_
         bench.step(1_170, Answer);
     }
     bench.run(&[
-        (1_170, Answer, WaitUntil(1_370), &[]),
+        (1_170, Answer, WaitUntil(1_220), &[]),
         (1_370, Timer, HOLD_LEFT[0], &[]),
     ]);
 }
@@ -954,7 +974,7 @@ fn drives_that_come_back_stay_held_until_the_controller_asks_for_a_setup() {
             bench.step(now, Answer);
         }
         bench.run(&[
-            (now, Answer, WaitUntil(now + 200), &[]),
+            (now, Answer, WaitUntil(now + 50), &[]),
             (now + 200, Timer, HOLD_LEFT[0], &[]),
         ]);
     }
@@ -975,6 +995,7 @@ fn a_setup_request_while_cycling_ends_the_cycle_with_a_hold_and_a_new_setup() {
     let mut bench = Bench::cycling();
     bench.step(1_002, Answer);
     bench.step(1_004, Answer);
+    bench.step(1_004, Answer);
     bench.run(&[(1_010, Line::Demand(demand(0, false, 1)), HOLD_LEFT[0], &[])]);
     for _ in 0..5 {
         bench.step(1_010, Answer);
@@ -984,7 +1005,8 @@ fn a_setup_request_while_cycling_ends_the_cycle_with_a_hold_and_a_new_setup() {
     // Served: the next cycles go on.
     bench.run(&[
         (1_012, Answer, READ_FEEDBACK, &[]),
-        (1_014, Answer, WaitUntil(1_060), &[feedback_of(&bench)]),
+        (1_014, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (1_014, Answer, WaitUntil(1_060), &[]),
     ]);
 }
 
@@ -997,9 +1019,11 @@ fn the_cycle_never_waits_longer_than_a_third_of_the_drives_comm_timeout() {
     bench.step(1_010, Line::Demand(slow));
     bench.run(&[
         (1_012, Answer, COMMAND, &[feedback_of(&bench)]),
-        (1_014, Answer, WaitUntil(1_100), &[]),
+        (1_014, Answer, READ_ALARMS, &[]),
+        (1_016, Answer, WaitUntil(1_050), &[]),
     ]);
-    assert_eq!(cycle_period_ms(500, &SETTINGS), 100);
+    // A third of the drives' 150 ms.
+    assert_eq!(cycle_period_ms(500, &SETTINGS), 50);
     let off = DriveSettings {
         drive_comm_timeout_ms: None,
         ..SETTINGS
@@ -1049,6 +1073,7 @@ fn a_due_read_waits_for_one_write_at_most() {
     let mut bench = Bench::cycling();
     bench.step(1_002, Answer);
     bench.step(1_004, Answer);
+    bench.step(1_004, Answer);
     bench.run(&[
         (1_049, Line::Demand(with_accel(700)), COMMAND, &[]),
         (1_051, Line::Demand(with_accel(800)), CarryOn, &[]),
@@ -1056,8 +1081,10 @@ fn a_due_read_waits_for_one_write_at_most() {
         (1_053, Answer, COMMAND, &[]),
         (1_054, Line::Demand(with_accel(900)), CarryOn, &[]),
         (1_055, Answer, READ_FEEDBACK, &[]),
+        // The alarm part is due as well: one command may go before it.
         (1_057, Answer, COMMAND, &[feedback_of(&bench)]),
-        (1_059, Answer, WaitUntil(1_100), &[]),
+        (1_059, Answer, READ_ALARMS, &[]),
+        (1_061, Answer, WaitUntil(1_100), &[]),
     ]);
 }
 
@@ -1070,17 +1097,20 @@ fn the_read_moves_to_half_a_cycle_before_the_controllers_position_frame() {
     bench.run(&[
         (1_003, Line::Demand(timed), CarryOn, &[]),
         (1_004, Answer, COMMAND, &[feedback_of(&bench)]),
+        (1_006, Answer, READ_ALARMS, &[]),
         // Frames at 1080, 1130, ...: reads at 1055, 1105, ...
-        (1_006, Answer, WaitUntil(1_055), &[]),
+        (1_008, Answer, WaitUntil(1_055), &[]),
         (1_055, Timer, READ_FEEDBACK, &[]),
-        (1_057, Answer, WaitUntil(1_105), &[feedback_of(&bench)]),
+        (1_057, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (1_057, Answer, WaitUntil(1_105), &[]),
     ]);
     // A frame phase that moves is followed by at most half a cycle at a time.
     timed.feedback_due_at = Some(at(1_105));
     bench.run(&[
         (1_060, Line::Demand(timed), WaitUntil(1_105), &[]),
         (1_105, Timer, READ_FEEDBACK, &[]),
-        (1_107, Answer, WaitUntil(1_130), &[feedback_of(&bench)]),
+        (1_107, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (1_107, Answer, WaitUntil(1_130), &[]),
     ]);
 }
 
@@ -1098,6 +1128,7 @@ fn excited_then_the_line_dies(settings: DriveSettings) -> (Bench, u64) {
         "the setup's S-OFF was answered"
     );
     bench.step(1_002, Answer);
+    bench.step(1_004, Answer);
     bench.step(1_004, Answer);
     bench.step(1_010, Line::Demand(demand(600, true, 0)));
     assert!(!bench.link.brakes_confirmed(), "S-ON is out: unknown");
@@ -1126,10 +1157,10 @@ fn excited_then_the_line_dies(settings: DriveSettings) -> (Bench, u64) {
 fn brakes_are_confirmed_by_an_answered_s_off_or_by_silence_beyond_the_drives_timeout() {
     let (mut bench, silent_at) = excited_then_the_line_dies(SETTINGS);
     assert!(!bench.link.brakes_confirmed(), "silence only started");
-    bench.step(silent_at + 400, Timer);
+    bench.step(silent_at + 250, Timer);
     assert!(
         bench.link.brakes_confirmed(),
-        "every drive's 300 ms tripped"
+        "every drive's 150 ms tripped"
     );
 
     let settings = DriveSettings {
@@ -1151,4 +1182,196 @@ fn brakes_are_confirmed_by_an_answered_s_off_or_by_silence_beyond_the_drives_tim
     }
     bench.step(silent_at + 140, Silent);
     assert_eq!(bench.link.brakes_confirmed, [true, false]);
+}
+
+/// A bench whose drives run at 600 r/min (acknowledged) at 1066 ms, nothing out.
+fn driving_at_600() -> Bench {
+    let mut bench = Bench::cycling();
+    bench.step(1_002, Answer);
+    bench.step(1_004, Answer);
+    bench.step(1_004, Answer);
+    bench.step(1_010, Line::Demand(demand(600, true, 0)));
+    bench.step(1_012, Answer);
+    bench.step(1_014, Answer);
+    bench.run(&[
+        (1_016, Answer, WaitUntil(1_050), &[]),
+        (1_050, Timer, READ_FEEDBACK, &[]),
+        (1_052, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (1_053, Answer, WaitUntil(1_064), &[]),
+        (1_064, Timer, COMMAND, &[]),
+        (1_066, Answer, WaitUntil(1_100), &[]),
+    ]);
+    bench
+}
+
+fn emergency_zero() -> DriveDemand {
+    let mut stop = demand(0, true, 0);
+    stop.wheels.left_accel = 4_500;
+    stop.wheels.right_accel = 3_000;
+    stop
+}
+
+#[test]
+fn an_emergency_zero_goes_out_first_by_broadcast_then_by_the_acknowledged_group_write() {
+    let mut bench = driving_at_600();
+    bench.run(&[(1_070, Line::Demand(emergency_zero()), BROADCAST_ZERO, &[])]);
+    // Speed 0, both rates the stronger wheel's, torque limit 100 %, trigger.
+    assert_eq!(written_items(bench.request()), [0, 4_500, 4_500, 1_000, 1]);
+    bench.run(&[(1_071, Answer, COMMAND, &[])]);
+    assert_eq!(command_speeds(bench.request()), (0, 0));
+    // Each wheel's own rate in the group write.
+    assert_eq!(written_items(bench.request())[1], 4_500);
+    assert_eq!(written_items(bench.request())[5], 3_000);
+    bench.run(&[
+        (1_076, Answer, WaitUntil(1_100), &[]),
+        // The same stop again sends nothing.
+        (1_080, Line::Demand(emergency_zero()), WaitUntil(1_100), &[]),
+    ]);
+}
+
+#[test]
+fn an_emergency_zero_that_comes_during_the_read_goes_out_before_the_rest_of_the_feedback() {
+    let mut bench = driving_at_600();
+    bench.run(&[
+        (1_100, Timer, READ_FEEDBACK, &[]),
+        (1_101, Line::Demand(emergency_zero()), CarryOn, &[]),
+        (1_102, Answer, BROADCAST_ZERO, &[feedback_of(&bench)]),
+        // The acknowledged zero may go before the alarm part, as any one write.
+        (1_103, Answer, COMMAND, &[]),
+        (1_105, Answer, READ_ALARMS, &[]),
+    ]);
+}
+
+#[test]
+fn a_stop_with_the_pcs_own_gentler_rate_is_an_ordinary_command() {
+    let mut bench = driving_at_600();
+    bench.run(&[(1_070, Line::Demand(demand(0, true, 0)), COMMAND, &[])]);
+    assert_eq!(command_speeds(bench.request()), (0, 0));
+}
+
+#[test]
+fn the_nth_failed_alarm_read_stops_both_drives_blind() {
+    let mut bench = driving_at_600();
+    bench.run(&[
+        (1_100, Timer, READ_FEEDBACK, &[]),
+        (1_102, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (1_127, Silent, WaitUntil(1_150), &[Input::ModbusError]),
+        (1_150, Timer, READ_FEEDBACK, &[]),
+        (1_152, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (1_177, Garbled, WaitUntil(1_200), &[Input::ModbusError]),
+        (1_200, Timer, READ_FEEDBACK, &[]),
+        (1_202, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (1_227, Silent, BLIND_ZERO, &[Input::ModbusError]),
+    ]);
+}
+
+const RESET_ALARM_LEFT: Then = Send(1, WRITE, reg::ALARM_RESET);
+const RESET_ALARM_RIGHT: Then = Send(2, WRITE, reg::ALARM_RESET);
+
+/// A flash erase at rest stalls the chip (up to 400 ms) beyond the drives' timeout
+/// (150 ms): both drives raise alarm 85h. The link's own silence caused it while both
+/// drives were confirmed de-excited, so it resets the alarm and counts it.
+#[test]
+fn an_alarm_85h_after_the_links_own_stall_at_rest_is_reset_and_counted() {
+    let mut bench = Bench::cycling();
+    bench.step(1_002, Answer);
+    bench.step(1_004, Answer);
+    bench.step(1_004, Answer);
+    assert!(bench.link.brakes_confirmed());
+    bench.feedback[0][2] = reg::ALARM_COMM_TIMEOUT;
+    bench.feedback[1][2] = reg::ALARM_COMM_TIMEOUT;
+    bench.run(&[
+        // The chip stalled from 1010 to 1400.
+        (1_400, Timer, READ_FEEDBACK, &[]),
+        (1_402, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (
+            1_404,
+            Answer,
+            RESET_ALARM_LEFT,
+            &[Input::ModbusError, Input::ModbusError],
+        ),
+    ]);
+    assert_eq!(written_items(bench.request()), [1]);
+    bench.run(&[(1_406, Answer, RESET_ALARM_LEFT, &[])]);
+    assert_eq!(written_items(bench.request()), [0]);
+    bench.feedback[0][2] = 0;
+    bench.feedback[1][2] = 0;
+    bench.run(&[
+        (1_408, Answer, RESET_ALARM_RIGHT, &[]),
+        (1_410, Answer, RESET_ALARM_RIGHT, &[]),
+        (1_412, Answer, READ_FEEDBACK, &[]),
+        (1_414, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (1_416, Answer, WaitUntil(1_452), &[]),
+    ]);
+}
+
+#[test]
+fn an_alarm_85h_that_stays_after_the_reset_is_reported() {
+    let mut bench = Bench::cycling();
+    bench.step(1_002, Answer);
+    bench.step(1_004, Answer);
+    bench.step(1_004, Answer);
+    bench.feedback[0][2] = reg::ALARM_COMM_TIMEOUT;
+    bench.run(&[
+        (1_400, Timer, READ_FEEDBACK, &[]),
+        (1_402, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (1_404, Answer, RESET_ALARM_LEFT, &[Input::ModbusError]),
+        (1_406, Answer, RESET_ALARM_LEFT, &[]),
+        (1_408, Answer, READ_FEEDBACK, &[]),
+        (1_410, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (
+            1_412,
+            Answer,
+            WaitUntil(1_452),
+            &[Input::DriveAlarm {
+                wheel: Wheel::Left,
+                code: 0x85,
+            }],
+        ),
+    ]);
+}
+
+/// Without a stall, or with a drive that may turn, an alarm 85h is a fault like any.
+#[test]
+fn an_alarm_85h_without_a_stall_or_while_excited_is_reported() {
+    let alarm = Input::DriveAlarm {
+        wheel: Wheel::Right,
+        code: 0x85,
+    };
+    let mut bench = Bench::cycling();
+    bench.step(1_002, Answer);
+    bench.step(1_004, Answer);
+    bench.step(1_004, Answer);
+    bench.feedback[1][2] = reg::ALARM_COMM_TIMEOUT;
+    bench.run(&[
+        (1_050, Timer, READ_FEEDBACK, &[]),
+        (1_052, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (1_054, Answer, WaitUntil(1_100), &[alarm]),
+    ]);
+
+    let mut bench = driving_at_600();
+    bench.feedback[1][2] = reg::ALARM_COMM_TIMEOUT;
+    bench.run(&[
+        (1_400, Timer, READ_FEEDBACK, &[]),
+        (1_402, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (1_404, Answer, READ_FEEDBACK, &[alarm]),
+    ]);
+}
+
+/// The stall may fall while the alarm read is out: its reply was read before the
+/// drives tripped, so only the next alarm read can show what the stall caused.
+#[test]
+fn a_stall_during_the_alarm_read_excuses_the_next_alarm_read() {
+    let mut bench = Bench::cycling();
+    bench.step(1_002, Answer);
+    bench.step(1_004, Answer);
+    bench.run(&[
+        // The alarm read went out at 1004; the chip stalled until 1400.
+        (1_400, Answer, READ_FEEDBACK, &[]),
+    ]);
+    bench.feedback[0][2] = reg::ALARM_COMM_TIMEOUT;
+    bench.run(&[
+        (1_402, Answer, READ_ALARMS, &[feedback_of(&bench)]),
+        (1_404, Answer, RESET_ALARM_LEFT, &[Input::ModbusError]),
+    ]);
 }
