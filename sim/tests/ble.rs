@@ -601,9 +601,21 @@ const CRASH_TRIGGERS: [(&str, &str, u16, &str); 7] = [
 /// Lets pad `name` send `payload` on `channel` at `when` on its next link, and waits
 /// until it did and the robot closed that link.
 async fn attack_once(peer: &mut Peer, name: &str, when: &str, channel: u16, payload: &str) {
+    let mark = arm_attack(peer, name, when, channel, payload).await;
+    attack_done(peer, mark, name).await;
+}
+
+/// Arms the pad `name` to send `payload` on `channel` at `when`; the mark to wait from.
+async fn arm_attack(peer: &mut Peer, name: &str, when: &str, channel: u16, payload: &str) -> usize {
     let mark = peer.mark();
     peer.cmd(&format!("attack {name} {when} {channel} {payload}"))
         .await;
+    mark
+}
+
+/// Waits until the armed attack was sent and the controller dropped the link, then
+/// disarms the pad.
+async fn attack_done(peer: &mut Peer, mark: usize, name: &str) {
     peer.wait_for(mark, &["attacked", name], 15_000).await;
     peer.wait_for(mark, &["disconnected", name], 5_000).await;
     peer.cmd(&format!("peace {name}")).await;
@@ -665,16 +677,23 @@ fn crash_triggers_from_a_pad_in_the_pairing_window_are_refused_and_the_owner_pai
     let robot = RemoteRobot::new();
     robot.run(peer.controller(), async |pc| {
         peer.cmd(&format!("pad intruder {OTHER_PAD_ADDRESS}")).await;
-        peer.cmd("advertise intruder").await;
         open_pairing_window(pc).await;
         // Inside the window nothing is encrypted with a bond, so there is no key to
-        // miss: every trigger that comes on connection.
+        // miss: every trigger that comes on connection. The intruder advertises only
+        // once its first attack is armed: in the window the controller connects at
+        // once, and a connection before the arming would just pair.
+        let mut advertising = false;
         for (what, _, channel, payload) in CRASH_TRIGGERS
             .into_iter()
             .filter(|(_, when, _, _)| *when == "connect")
         {
             eprintln!("a pad in the window sends {what}");
-            attack_once(&mut peer, "intruder", "connect", channel, payload).await;
+            let mark = arm_attack(&mut peer, "intruder", "connect", channel, payload).await;
+            if !advertising {
+                peer.cmd("advertise intruder").await;
+                advertising = true;
+            }
+            attack_done(&mut peer, mark, "intruder").await;
             status(pc, 1_000, "the controller still reports", |s| {
                 !s.flags.remote_bonded
             })
