@@ -6,9 +6,7 @@ use std::io::Write;
 use std::time::{Duration, Instant};
 
 use base_core::panic_loop::{LOOP_PANICS, SHORT_LIFE_MS};
-use base_core::registers::{
-    BLUETOOTH_ON_KEY, Charge, Reg, RemoteBattery, RemoteInfo, RemoteKind,
-};
+use base_core::registers::{BLUETOOTH_ON_KEY, Charge, Reg, RemoteBattery, RemoteInfo, RemoteKind};
 use serde_json::{Value, json};
 
 use crate::base::{Base, Error};
