@@ -12,6 +12,7 @@ use embassy_sync::channel::{Channel, Receiver, Sender};
 use embassy_sync::signal::Signal;
 
 use base_core::controller::Input;
+use base_core::hid::light_bar::BaseLight;
 
 use crate::ble::{RemoteEnds, RemoteRequest};
 use crate::can::FrameQueue;
@@ -57,6 +58,10 @@ pub struct Channels {
     /// a state (is the pairing window open, how many disconnects were asked for), and
     /// the remote task acts on the newest.
     pub remote_requests: Signal<RawMutex, RemoteRequest>,
+    /// Controller → PlayStation pad task: the base's mode as the pad's light bar shows
+    /// it, published on change. A signal of its own (latest value wins) rather than a
+    /// field of the remote request, which would wake the BLE task on every mode change.
+    pub base_light: Signal<RawMutex, BaseLight>,
 }
 
 impl Channels {
@@ -69,6 +74,7 @@ impl Channels {
             pending_writes: PendingWrites::new(),
             liveness: Liveness::new(),
             remote_requests: Signal::new(),
+            base_light: Signal::new(),
         }
     }
 
@@ -81,6 +87,7 @@ impl Channels {
             pending_writes: &self.pending_writes,
             drive_brakes: &self.drive_brakes,
             remote_requests: &self.remote_requests,
+            base_light: &self.base_light,
             liveness: &self.liveness,
         }
     }
@@ -101,6 +108,7 @@ impl Channels {
             remote_requests: &self.remote_requests,
             inputs: self.inputs.sender(),
             flash_gate: &self.pending_writes,
+            base_light: &self.base_light,
         }
     }
 }

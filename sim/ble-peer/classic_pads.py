@@ -47,6 +47,8 @@ silent NAME             the pad stops sending reports; the link stays
 talk NAME               the pad sends reports again
 short NAME              the pad never leaves the short report (a clone's quirk)
 garble NAME             from now on the pad's full reports carry a wrong CRC
+battery NAME STATUS     the battery status byte of its full reports, in hex (default 08:
+                        85 % on battery; DS4 1A: charging, 100 %)
 forget NAME             the pad forgets its link key
 state NAME              connected / idle, and the report mode
 """
@@ -353,6 +355,7 @@ class PlayStationPad:
         self.full_mode = False
         self.stuck_short = False
         self.garbled = False
+        self.battery_status = 0x08
         self.silent = False
         self.streaming: asyncio.Task | None = None
         self.held: set[str] = set()
@@ -470,13 +473,13 @@ class PlayStationPad:
             report[3:7] = sticks
             report[7:10] = self.buttons()
             report[10:12] = triggers
-            report[32] = 0x08  # battery: 85 %, on battery
+            report[32] = self.battery_status
         else:
             report[0:2] = bytes([0x31, self.sequence])
             report[2:6] = sticks
             report[6:8] = triggers
             report[9:12] = self.buttons()
-            report[54] = 0x08
+            report[54] = self.battery_status
         crc = crc32(0xA1, bytes(report))
         if self.garbled:
             crc = bytes(b ^ 0xFF for b in crc)
@@ -581,6 +584,8 @@ class ClassicPads:
                 pad.stuck_short = True
             case ["garble", _]:
                 pad.garbled = True
+            case ["battery", _, status]:
+                pad.battery_status = int(status, 16)
             case ["forget", _]:
                 await pad.device.keystore.delete_all()
             case ["state", _]:

@@ -109,6 +109,7 @@ impl RemoteFanout {
             remote_requests: &self.requests[remote as usize],
             inputs: self.inputs[remote as usize].sender(),
             flash_gate: ends.flash_gate,
+            base_light: ends.base_light,
         }
     }
 
