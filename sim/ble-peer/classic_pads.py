@@ -58,6 +58,8 @@ GAMEPAD_CLASS = 0x002508
 # The robot's controller's public address (stable: a pad's bond names it).
 ROBOT_PUBLIC_ADDRESS = "00:B0:75:00:00:01"
 REPORT_PERIOD_MS = 4
+# The subcode of the ESP32 controller's vendor event for a legacy authentication.
+LEGACY_AUTH_SUBCODE = 0x03
 DEFAULT_SUPERVISION_SLOTS = 0x7D00  # 20 s, the specification's default
 HID_CONTROL_PSM = 0x0011
 HID_INTERRUPT_PSM = 0x0013
@@ -260,6 +262,15 @@ class ClassicController(Controller):
                 status=status, connection_handle=connection.handle
             )
         )
+        if status == hci.HCI_ErrorCode.SUCCESS:
+            # The ESP32's controller in dual mode, with its legacy authentication event
+            # on, reports an authentication by link key with a vendor event (code 0xFF,
+            # subcode, the link's handle): the robot's hosts must take it in their stride.
+            handle = connection.handle.to_bytes(2, "little")
+            self.send_hci_packet(
+                hci.HCI_Event(bytes([LEGACY_AUTH_SUBCODE]) + handle, event_code=0xFF)
+            )
+            event("vendor-legacy-auth", connection.peer_address)
 
     def on_hci_set_connection_encryption_command(self, command):
         connection = self.find_classic_connection_by_handle(command.connection_handle)
