@@ -616,12 +616,17 @@ fn the_light_bar_is_green_when_ready_blue_with_r1_held_and_red_in_emergency() {
         light_bar(&peer, mark, "pad", BLUE, 1_000).await;
         // What stops the base wins over the dead-man still held.
         let mark = peer.mark();
+        let pressed = Instant::now();
         robot.robot.press_estop();
+        light_bar(&peer, mark, "pad", RED, 1_000).await;
+        eprintln!(
+            "classic light bar (e-stop pressed → red on the pad): {:?}",
+            pressed.elapsed()
+        );
         status(pc, 1_000, "the e-stop is seen", |s| {
             s.mode == Mode::Emergency
         })
         .await;
-        light_bar(&peer, mark, "pad", RED, 1_000).await;
         // No flood: the light is sent on change and refreshed every 5 s, so a second
         // of a steady mode with R1 held carries at most one report.
         Timer::after_millis(200).await;
