@@ -4,6 +4,8 @@
 #![no_std]
 #![no_main]
 
+use core::ops::Range;
+
 use base_runtime::hx711::{Gain, Hx711};
 use base_runtime::{Hardware, Settings, ble, channels::Channels};
 use defmt::{error, info, warn};
@@ -18,12 +20,11 @@ use esp_hal::timer::timg::TimerGroup;
 use esp_println as _;
 use esp_radio::ble::controller::BleConnector;
 use static_cell::StaticCell;
-use trouble_host::prelude::ExternalController;
 
 use base_controller_firmware::board::{
     self, BUTTON_PULL, ESTOP_PULL, SAFETY_ZONE_PULL, panic_record,
 };
-use base_controller_firmware::flash::{self, SharedFlash};
+use base_controller_firmware::flash::{self, FlashPartition, SharedFlash};
 use base_controller_firmware::rs485::Rs485Port;
 use base_controller_firmware::watchdog::LivenessWatchdog;
 use base_controller_firmware::{can, watchdog};
@@ -137,18 +138,9 @@ async fn main(_spawner: embassy_executor::Spawner) {
         .await;
         match BleConnector::new(board.bt, Default::default()) {
             Ok(connector) => {
-                let controller: ExternalController<_, HCI_SLOTS> =
-                    ExternalController::new(connector);
                 let mac = efuse::interface_mac_address(InterfaceMacAddress::Bluetooth);
                 let address = ble::random_static_address(mac.as_bytes());
-                ble::run(
-                    controller,
-                    address,
-                    bond_flash,
-                    bond_range,
-                    CHANNELS.remote_ends(),
-                )
-                .await
+                run_remote(connector, address, bond_flash, bond_range).await
             }
             Err(error) => {
                 // Without the radio the base still drives over CAN; the status frame
@@ -200,4 +192,43 @@ async fn main(_spawner: embassy_executor::Spawner) {
     )
     .await;
     never
+}
+
+/// The remote on the ESP32's dual-mode radio (`board/esp32.rs`): BLE pads and
+/// PlayStation pads over Classic, both hosts on the one HCI through the splitter.
+#[cfg(all(feature = "esp32", not(feature = "ble-only")))]
+async fn run_remote(
+    connector: BleConnector<'_>,
+    address: [u8; 6],
+    bond_flash: FlashPartition,
+    bond_range: Range<u32>,
+) -> ! {
+    base_runtime::classic::run_both::<_, _, HCI_SLOTS>(
+        &connector,
+        address,
+        bond_flash,
+        bond_range,
+        CHANNELS.remote_ends(),
+    )
+    .await
+}
+
+/// The remote on a BLE-only radio (ESP32-C3, ESP32-C6, the ESP32 built `ble-only`).
+#[cfg(not(all(feature = "esp32", not(feature = "ble-only"))))]
+async fn run_remote(
+    connector: BleConnector<'_>,
+    address: [u8; 6],
+    bond_flash: FlashPartition,
+    bond_range: Range<u32>,
+) -> ! {
+    let controller: trouble_host::prelude::ExternalController<_, HCI_SLOTS> =
+        trouble_host::prelude::ExternalController::new(connector);
+    ble::run(
+        controller,
+        address,
+        bond_flash,
+        bond_range,
+        CHANNELS.remote_ends(),
+    )
+    .await
 }

@@ -12,6 +12,7 @@ use embassy_sync::channel::{Channel, Receiver, Sender};
 use embassy_sync::signal::Signal;
 
 use base_core::controller::Input;
+use base_core::hid::light_bar::BaseLight;
 
 use crate::ble::{RemoteEnds, RemoteRequest};
 use crate::can::FrameQueue;
@@ -63,6 +64,10 @@ pub struct Channels {
     /// the motion lock; controller → update task: the motion gate (flags read before
     /// and set after each input, as the brakes flag).
     pub update: UpdateLink,
+    /// Controller → PlayStation pad task: the base's mode as the pad's light bar shows
+    /// it, published on change. A signal of its own (latest value wins) rather than a
+    /// field of the remote request, which would wake the BLE task on every mode change.
+    pub base_light: Signal<RawMutex, BaseLight>,
 }
 
 impl Channels {
@@ -76,6 +81,7 @@ impl Channels {
             liveness: Liveness::new(),
             remote_requests: Signal::new(),
             update: UpdateLink::new(),
+            base_light: Signal::new(),
         }
     }
 
@@ -88,6 +94,7 @@ impl Channels {
             pending_writes: &self.pending_writes,
             drive_brakes: &self.drive_brakes,
             remote_requests: &self.remote_requests,
+            base_light: &self.base_light,
             liveness: &self.liveness,
             update: &self.update,
         }
@@ -109,6 +116,7 @@ impl Channels {
             remote_requests: &self.remote_requests,
             inputs: self.inputs.sender(),
             flash_gate: &self.pending_writes,
+            base_light: &self.base_light,
         }
     }
 }

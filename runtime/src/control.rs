@@ -8,6 +8,7 @@ use embassy_time::{Duration, Instant, Timer};
 use embassy_sync::signal::Signal;
 
 use base_core::controller::{Controller, Input, Output};
+use base_core::hid::light_bar::BaseLight;
 use base_core::power::SwitchLevel;
 use base_core::registers::Reg;
 use base_core::time;
@@ -37,6 +38,7 @@ pub struct ControlEnds<'a> {
     pub pending_writes: &'a PendingWrites,
     pub drive_brakes: &'a DriveBrakes,
     pub remote_requests: &'a Signal<RawMutex, RemoteRequest>,
+    pub base_light: &'a Signal<RawMutex, BaseLight>,
     pub liveness: &'a Liveness,
     pub update: &'a UpdateLink,
 }
@@ -56,6 +58,7 @@ pub async fn run<S: OutputPin>(
     let mut state = Dispatched {
         demand,
         remote: RemoteRequest::default(),
+        light: None,
     };
     let mut next_tick = Instant::now() + TICK;
     // One input or one tick per iteration, and a due tick before any queued input: a
@@ -90,10 +93,12 @@ pub async fn run<S: OutputPin>(
     }
 }
 
-/// What the controller last asked of the drive link and of the remote task.
+/// What the controller last asked of the drive link and of the remote task, and the
+/// light it last published.
 struct Dispatched {
     demand: DriveDemand,
     remote: RemoteRequest,
+    light: Option<BaseLight>,
 }
 
 fn dispatch<S: OutputPin>(
@@ -154,5 +159,10 @@ fn dispatch<S: OutputPin>(
     if remote != state.remote {
         state.remote = remote;
         channels.remote_requests.signal(remote);
+    }
+    let light = BaseLight::from_supervisor(controller.supervisor());
+    if state.light != Some(light) {
+        state.light = Some(light);
+        channels.base_light.signal(light);
     }
 }

@@ -47,6 +47,8 @@ silent NAME             the pad stops sending reports; the link stays
 talk NAME               the pad sends reports again
 short NAME              the pad never leaves the short report (a clone's quirk)
 garble NAME             from now on the pad's full reports carry a wrong CRC
+battery NAME STATUS     the battery status byte of its full reports, in hex (default 08:
+                        85 % on battery; DS4 1A: charging, 100 %)
 forget NAME             the pad forgets its link key
 state NAME              connected / idle, and the report mode
 """
@@ -56,6 +58,8 @@ GAMEPAD_CLASS = 0x002508
 # The robot's controller's public address (stable: a pad's bond names it).
 ROBOT_PUBLIC_ADDRESS = "00:B0:75:00:00:01"
 REPORT_PERIOD_MS = 4
+# The subcode of the ESP32 controller's vendor event for a legacy authentication.
+LEGACY_AUTH_SUBCODE = 0x03
 DEFAULT_SUPERVISION_SLOTS = 0x7D00  # 20 s, the specification's default
 HID_CONTROL_PSM = 0x0011
 HID_INTERRUPT_PSM = 0x0013
@@ -258,6 +262,15 @@ class ClassicController(Controller):
                 status=status, connection_handle=connection.handle
             )
         )
+        if status == hci.HCI_ErrorCode.SUCCESS:
+            # The ESP32's controller in dual mode, with its legacy authentication event
+            # on, reports an authentication by link key with a vendor event (code 0xFF,
+            # subcode, the link's handle): the robot's hosts must take it in their stride.
+            handle = connection.handle.to_bytes(2, "little")
+            self.send_hci_packet(
+                hci.HCI_Event(bytes([LEGACY_AUTH_SUBCODE]) + handle, event_code=0xFF)
+            )
+            event("vendor-legacy-auth", connection.peer_address)
 
     def on_hci_set_connection_encryption_command(self, command):
         connection = self.find_classic_connection_by_handle(command.connection_handle)
@@ -353,6 +366,7 @@ class PlayStationPad:
         self.full_mode = False
         self.stuck_short = False
         self.garbled = False
+        self.battery_status = 0x08
         self.silent = False
         self.streaming: asyncio.Task | None = None
         self.held: set[str] = set()
@@ -470,13 +484,13 @@ class PlayStationPad:
             report[3:7] = sticks
             report[7:10] = self.buttons()
             report[10:12] = triggers
-            report[32] = 0x08  # battery: 85 %, on battery
+            report[32] = self.battery_status
         else:
             report[0:2] = bytes([0x31, self.sequence])
             report[2:6] = sticks
             report[6:8] = triggers
             report[9:12] = self.buttons()
-            report[54] = 0x08
+            report[54] = self.battery_status
         crc = crc32(0xA1, bytes(report))
         if self.garbled:
             crc = bytes(b ^ 0xFF for b in crc)
@@ -581,6 +595,8 @@ class ClassicPads:
                 pad.stuck_short = True
             case ["garble", _]:
                 pad.garbled = True
+            case ["battery", _, status]:
+                pad.battery_status = int(status, 16)
             case ["forget", _]:
                 await pad.device.keystore.delete_all()
             case ["state", _]:

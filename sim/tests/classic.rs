@@ -14,7 +14,9 @@ use std::sync::{Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
 
 use base_core::can::{Command, Mode, Status};
-use base_core::registers::{OPEN_PAIRING_WINDOW_KEY, Reg};
+use base_core::registers::{
+    Charge, OPEN_PAIRING_WINDOW_KEY, Reg, RemoteBattery, RemoteInfo, RemoteKind,
+};
 use embassy_time::Timer;
 use peer::Peer;
 use virtual_robot::ble::{BOND_FLASH_SIZE, RemoteRobot};
@@ -340,6 +342,13 @@ fn the_bonded_pad_reconnects_by_its_page_also_after_a_reboot_without_pairing() {
             peer.events_since(mark, &["paired"]).is_empty(),
             "a bonded pad is not paired again"
         );
+        // The ESP32's dual-mode vendor event after the authentication by link key went
+        // to the robot (the splitter hands vendor events to the BLE host, which ignores
+        // them); the Classic link runs on and the pad drives.
+        assert!(
+            !peer.events_since(mark, &["vendor-legacy-auth"]).is_empty(),
+            "the controller reported the legacy authentication"
+        );
         take_control(&mut peer, pc, "pad").await;
         // At rest before the power goes, so that the next boot finds the drives well.
         peer.cmd("release pad R1").await;
@@ -410,7 +419,12 @@ fn a_dualsense_pairs_and_drives_and_l2_with_ps_switches_it_off() {
     let mut peer = Peer::start();
     let robot = RemoteRobot::new();
     robot.run(peer.controller(), async |pc| {
+        let mark = peer.mark();
         pair(&mut peer, pc, "pad", "dualsense", PAD_ADDRESS).await;
+        // Its light bar (at other offsets than the DualShock 4's) shows the base ready.
+        light_bar(&peer, mark, "pad", GREEN, 2_000).await;
+        let kind = pc.read_register(Reg::RemoteKind.address()).await;
+        assert_eq!(kind, Some(RemoteKind::DualSense.code()));
         drive_forward(&mut peer, &robot, pc, "pad").await;
         peer.cmd("release pad R1").await;
         peer.cmd("stick pad LY 0").await;
@@ -557,6 +571,109 @@ fn reports_with_a_bad_crc_are_refused_and_stop_the_base_as_silence_does() {
         status(pc, 2_000, "the link is reported down", |s| {
             !s.flags.remote_connected
         })
+        .await;
+    });
+}
+
+/// Waits for the pad's next light bar colour (`event lightbar NAME R G B`) since `mark`.
+async fn light_bar(peer: &Peer, mark: usize, name: &str, rgb: [u8; 3], timeout_ms: u64) {
+    let [r, g, b] = rgb.map(|value| value.to_string());
+    peer.wait_for(mark, &["lightbar", name, &r, &g, &b], timeout_ms)
+        .await;
+}
+
+/// Waits up to 2 s until registers `remote_kind` and `remote_battery` read `want`.
+async fn remote_registers_become(pc: &Pc, want: (u16, u16), what: &str) {
+    let deadline = Instant::now() + Duration::from_secs(2);
+    loop {
+        let read = (
+            pc.read_register(Reg::RemoteKind.address()).await,
+            pc.read_register(Reg::RemoteBattery.address()).await,
+        );
+        if read == (Some(want.0), Some(want.1)) {
+            return;
+        }
+        assert!(Instant::now() < deadline, "{what}: read {read:?}");
+        Timer::after_millis(20).await;
+    }
+}
+
+const GREEN: [u8; 3] = [0, 255, 0];
+const BLUE: [u8; 3] = [0, 0, 255];
+const RED: [u8; 3] = [255, 0, 0];
+
+#[test]
+fn the_light_bar_is_green_when_ready_blue_with_r1_held_and_red_in_emergency() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        let mark = peer.mark();
+        pair(&mut peer, pc, "pad", "ds4", PAD_ADDRESS).await;
+        light_bar(&peer, mark, "pad", GREEN, 2_000).await;
+        let mark = peer.mark();
+        take_control(&mut peer, pc, "pad").await;
+        light_bar(&peer, mark, "pad", BLUE, 1_000).await;
+        // What stops the base wins over the dead-man still held.
+        let mark = peer.mark();
+        let pressed = Instant::now();
+        robot.robot.press_estop();
+        light_bar(&peer, mark, "pad", RED, 1_000).await;
+        eprintln!(
+            "classic light bar (e-stop pressed → red on the pad): {:?}",
+            pressed.elapsed()
+        );
+        status(pc, 1_000, "the e-stop is seen", |s| {
+            s.mode == Mode::Emergency
+        })
+        .await;
+        // No flood: the light is sent on change and refreshed every 5 s, so a second
+        // of a steady mode with R1 held carries at most one report.
+        Timer::after_millis(200).await;
+        let mark = peer.mark();
+        Timer::after_millis(1_000).await;
+        let reports = peer.events_since(mark, &["lightbar", "pad"]).len();
+        assert!(
+            reports <= 1,
+            "{reports} light bar reports in 1 s of a steady mode"
+        );
+    });
+}
+
+#[test]
+fn kind_and_battery_registers_follow_the_connected_pad() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        pair(&mut peer, pc, "pad", "ds4", PAD_ADDRESS).await;
+        let info = |kind: RemoteKind, percent: u8, charge: Charge| {
+            RemoteInfo {
+                kind,
+                battery: Some(RemoteBattery { percent, charge }),
+            }
+            .registers()
+        };
+        remote_registers_become(
+            pc,
+            info(RemoteKind::DualShock4, 85, Charge::Discharging),
+            "a DualShock 4 at 85 %",
+        )
+        .await;
+        // On a cable, charging: the battery follows the pad.
+        peer.cmd("battery pad 1A").await;
+        remote_registers_become(
+            pc,
+            info(RemoteKind::DualShock4, 100, Charge::Charging),
+            "the DualShock 4 charging",
+        )
+        .await;
+        peer.cmd("off pad").await;
+        remote_registers_become(
+            pc,
+            (RemoteKind::None.code(), 0),
+            "no remote after switch-off",
+        )
         .await;
     });
 }

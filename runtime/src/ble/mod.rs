@@ -19,6 +19,8 @@ pub use switch::wait_until_on;
 
 use embassy_sync::signal::Signal;
 
+use base_core::hid::light_bar::BaseLight;
+
 use crate::channels::{InputSender, RawMutex};
 use crate::store::PendingWrites;
 
@@ -42,4 +44,7 @@ pub struct RemoteEnds<'a> {
     pub inputs: InputSender<'a>,
     /// The bond is written to flash only at rest ([`PendingWrites::wait_at_rest`]).
     pub flash_gate: &'a PendingWrites,
+    /// The base's mode for a PlayStation pad's light bar (the Classic task's only; the
+    /// BLE pads have no light to set).
+    pub base_light: &'a Signal<RawMutex, BaseLight>,
 }

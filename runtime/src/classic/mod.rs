@@ -49,7 +49,7 @@ pub async fn run_both<T, F, const SLOTS: usize>(
 ) -> !
 where
     T: Transport,
-    T::Error: From<ReadHciError<Infallible>>,
+    T::Error: From<ReadHciError<Infallible>> + TransportError,
     F: NorFlash + Clone,
 {
     let split = SplitState::new();
@@ -75,6 +75,17 @@ where
     .await;
     never
 }
+
+/// What trouble-host needs of the transport's error: with `defmt` it logs it.
+#[cfg(feature = "defmt")]
+pub trait TransportError: defmt::Format {}
+#[cfg(feature = "defmt")]
+impl<E: defmt::Format> TransportError for E {}
+/// What trouble-host needs of the transport's error: nothing without `defmt`.
+#[cfg(not(feature = "defmt"))]
+pub trait TransportError {}
+#[cfg(not(feature = "defmt"))]
+impl<E> TransportError for E {}
 
 /// The two remote tasks' channel ends, and the merge of what they report.
 pub struct RemoteFanout {
@@ -109,6 +120,7 @@ impl RemoteFanout {
             remote_requests: &self.requests[remote as usize],
             inputs: self.inputs[remote as usize].sender(),
             flash_gate: ends.flash_gate,
+            base_light: ends.base_light,
         }
     }
 

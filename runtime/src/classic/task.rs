@@ -9,7 +9,12 @@
 //!   remote requests ─────▶      └─ pad events: Connected ─▶ GET_REPORT 0x05 (full reports)
 //!                                              Interrupt ─▶ PadDecoder ─▶ Input::Gamepad (on change)
 //!                                              Bonded ────▶ bond to flash at rest, Input::RemotePaired
+//!   base light (on change) ──▶ LightBar ──output report──▶ interrupt channel
 //! ```
+//!
+//! The pad's kind shows in its first full report: from then on the task reports the
+//! kind and battery (`Input::RemoteInfo`, again only when the battery changes) and
+//! keeps the light bar showing the base's mode (`base_core::hid::light_bar`).
 //!
 //! Link loss: the host sets a link supervision timeout of [`SUPERVISION_TIMEOUT_MS`]
 //! as central, and the pads stream their reports continuously, so a stream that
@@ -18,7 +23,7 @@
 
 use core::ops::Range;
 
-use embassy_futures::select::{Either, Either3, select, select3};
+use embassy_futures::select::{Either, Either4, select, select4};
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Instant, Timer};
@@ -28,9 +33,12 @@ use sequential_storage::map::{MapConfig, MapStorage};
 
 use base_core::controller::Input;
 use base_core::gamepad::GamepadState;
+use base_core::hid::light_bar::{self, LIGHT_BAR_PARAMS, LightBar};
 use base_core::hid::playstation::{
-    FULL_MODE_FEATURE_REQUEST, PadDecoder, PadKind, ReportMode, check_full_mode_feature,
+    FULL_MODE_FEATURE_REQUEST, OUTPUT_REPORT_LEN, PadDecoder, PadKind, ReportMode,
+    check_full_mode_feature,
 };
+use base_core::registers::RemoteInfo;
 use base_core::time::Timestamp;
 use bt_hci::transport::Transport;
 use classic_host::hci::{BdAddr, LinkKey};
@@ -76,6 +84,9 @@ struct PadSession {
     feature_requests: u8,
     last_feature_request: Timestamp,
     full_mode: bool,
+    /// The kind and battery last reported to the controller; `None` until the first
+    /// full report tells the kind.
+    info: Option<RemoteInfo>,
 }
 
 impl PadSession {
@@ -87,6 +98,7 @@ impl PadSession {
             feature_requests: 0,
             last_feature_request: at,
             full_mode: false,
+            info: None,
         }
     }
 }
@@ -129,31 +141,45 @@ pub async fn run<T: Transport, F: NorFlash>(
         let mut host = ClassicHost::new_shared();
         let mut request = RemoteRequest::default();
         let mut session: Option<PadSession> = None;
+        let mut light_bar = LightBar::new();
         loop {
-            let event = select3(
+            // The tick, or the light bar's next report if that is due sooner.
+            let wake = match light_bar.next_due(&LIGHT_BAR_PARAMS) {
+                Some(due) => Duration::from_millis(due.millis_since(now())).min(TICK),
+                None => TICK,
+            };
+            let event = select4(
                 port.receive(),
-                Timer::after(TICK),
+                Timer::after(wake),
                 ends.remote_requests.wait(),
+                ends.base_light.wait(),
             )
             .await;
             let at = now();
             let mut disconnect = false;
-            if let Either3::Third(new) = event {
+            // The base's light is taken at once (the bar keeps the newest); what the pad
+            // does to the bar (connect, disconnect) is stepped after the pad's events.
+            if let Either4::Fourth(light) = event {
+                let effects = light_bar.step(at, light_bar::Event::Base(light), &LIGHT_BAR_PARAMS);
+                show_light(&mut host, effects.report, at, &params, &port).await;
+            }
+            let mut light_event = light_bar::Event::Tick;
+            if let Either4::Third(new) = event {
                 disconnect = new.disconnects != request.disconnects;
                 request = new;
             }
             params.pairing_window_open = request.pairing_open;
             let effects = match &event {
-                Either3::First(ClassicPacket::Event(bytes)) => {
+                Either4::First(ClassicPacket::Event(bytes)) => {
                     host.step(at, Event::Hci(bytes), &params)
                 }
-                Either3::First(ClassicPacket::Acl(bytes)) => {
+                Either4::First(ClassicPacket::Acl(bytes)) => {
                     host.step(at, Event::Acl(bytes), &params)
                 }
-                Either3::First(ClassicPacket::ControllerReset) => {
+                Either4::First(ClassicPacket::ControllerReset) => {
                     host.step(at, Event::ControllerReset, &params)
                 }
-                Either3::Third(_) if disconnect => {
+                Either4::Third(_) if disconnect => {
                     info!("classic: the pad is switched off by the controller");
                     host.step(at, Event::Disconnect, &params)
                 }
@@ -170,6 +196,7 @@ pub async fn run<T: Transport, F: NorFlash>(
                         link(&ends, &params, true).await;
                     }
                     PadEvent::Disconnected(_) => {
+                        light_bar.step(at, light_bar::Event::Disconnected, &LIGHT_BAR_PARAMS);
                         if session.take().is_some() {
                             link(&ends, &params, false).await;
                         }
@@ -186,8 +213,11 @@ pub async fn run<T: Transport, F: NorFlash>(
                         }
                     }
                     PadEvent::Interrupt(payload) => {
-                        if let Some(session) = session.as_mut() {
-                            report(session, &payload, at, &ends).await;
+                        if let Some(session) = session.as_mut()
+                            && let Some(kind) = report(session, &payload, at, &ends).await
+                        {
+                            // The kind is known: the light bar can be set.
+                            light_event = light_bar::Event::Connected(kind);
                         }
                     }
                 }
@@ -203,6 +233,7 @@ pub async fn run<T: Transport, F: NorFlash>(
                     REPORT_SILENCE_MS
                 );
                 session = None;
+                light_event = light_bar::Event::Disconnected;
                 link(&ends, &params, false).await;
                 let effects = host.step(at, Event::Disconnect, &params);
                 send(&port, &effects.packets).await;
@@ -213,6 +244,8 @@ pub async fn run<T: Transport, F: NorFlash>(
             {
                 request_full_mode(&mut host, active, at, &params, &port).await;
             }
+            let effects = light_bar.step(at, light_event, &LIGHT_BAR_PARAMS);
+            show_light(&mut host, effects.report, at, &params, &port).await;
         }
     };
     match select(store_at_rest, serve).await {
@@ -231,6 +264,20 @@ async fn request_full_mode<T: Transport>(
     session.last_feature_request = at;
     let effects = host.step(at, Event::SendControl(&FULL_MODE_FEATURE_REQUEST), params);
     send(port, &effects.packets).await;
+}
+
+/// Sends the light bar's output report, if any, on the pad's interrupt channel.
+async fn show_light<T: Transport>(
+    host: &mut ClassicHost,
+    report: Option<[u8; OUTPUT_REPORT_LEN]>,
+    at: Timestamp,
+    params: &Params,
+    port: &ClassicPort<'_, T>,
+) {
+    if let Some(report) = report {
+        let effects = host.step(at, Event::SendInterrupt(&report), params);
+        send(port, &effects.packets).await;
+    }
 }
 
 async fn send<T: Transport>(port: &ClassicPort<'_, T>, packets: &[Packet]) {
@@ -255,8 +302,15 @@ async fn link(ends: &RemoteEnds<'_>, params: &Params, connected: bool) {
         .await;
 }
 
-/// Decodes one interrupt-channel payload and forwards the pad's state when it changed.
-async fn report(session: &mut PadSession, payload: &[u8], at: Timestamp, ends: &RemoteEnds<'_>) {
+/// Decodes one interrupt-channel payload and forwards the pad's state when it changed,
+/// and its kind and battery when they changed. Returns the pad's kind when this report
+/// is the first to tell it.
+async fn report(
+    session: &mut PadSession,
+    payload: &[u8],
+    at: Timestamp,
+    ends: &RemoteEnds<'_>,
+) -> Option<PadKind> {
     // The kind shows in the first full report; the short report is the same for both.
     let kind = PadKind::from_full_report(payload);
     let decoder = match (&mut session.decoder, kind) {
@@ -269,17 +323,29 @@ async fn report(session: &mut PadSession, payload: &[u8], at: Timestamp, ends: &
             .insert(PadDecoder::new(kind.unwrap_or(PadKind::DualShock4))),
     };
     let Ok(decoded) = decoder.decode(payload) else {
-        return;
+        return None;
     };
     session.last_good_report = at;
     if decoded.mode == ReportMode::Full && !session.full_mode {
         info!("classic: the pad sends full reports");
         session.full_mode = true;
     }
+    let mut new_kind = None;
+    if let (ReportMode::Full, Some(kind)) = (decoded.mode, kind) {
+        let info = RemoteInfo::playstation(kind, decoded.battery);
+        if session.info.is_none_or(|sent| sent.kind != info.kind) {
+            new_kind = Some(kind);
+        }
+        if session.info != Some(info) {
+            session.info = Some(info);
+            ends.inputs.send(Input::RemoteInfo(info)).await;
+        }
+    }
     if session.last_state != Some(decoded.state) {
         session.last_state = Some(decoded.state);
         ends.inputs.send(Input::Gamepad(decoded.state)).await;
     }
+    new_kind
 }
 
 /// Waits until the base is at rest. The gate wakes one waiter (the BLE task may wait
