@@ -40,6 +40,7 @@ use embassy_futures::join::{join, join4, join5};
 
 use base_core::controller::{BootReport, Controller};
 use base_core::drives::DriveSettings;
+use base_core::registers::{BootInfo, UpdateReset};
 
 use crate::channels::Channels;
 use crate::hw::{
@@ -68,6 +69,8 @@ pub struct Hardware<CR, CT, P, F, E, Z, B, S, V, L, W> {
     pub watchdog: W,
     /// The chip's reset reason says the watchdog bit.
     pub reset_by_watchdog: bool,
+    /// A reset the firmware caused on purpose for an update (recorded before it reset).
+    pub update_reset: UpdateReset,
 }
 
 /// What the board knows about its wiring and the drives.
@@ -113,8 +116,8 @@ where
     let mut store = RegisterStore::new(hardware.flash, hardware.flash_range);
     let (registers, report) = store.load().await;
     info!(
-        "registers: {=u16} stored, {=u16} rejected, {=u16} dropped, blank store: {=bool}",
-        report.applied, report.rejected, report.dropped, report.blank
+        "registers: {=u16} stored, {=u16} rejected, {=u16} dropped, blank store: {=bool}, first boot: {=bool}",
+        report.applied, report.rejected, report.dropped, report.blank, report.first_boot
     );
     if hardware.reset_by_watchdog {
         warn!("the watchdog reset the chip");
@@ -123,6 +126,10 @@ where
         flash_fault: report.flash_fault(),
         watchdog_reset: hardware.reset_by_watchdog,
         flash_erases: store.erases(),
+        boot_info: BootInfo {
+            first_boot: report.first_boot,
+            update_reset: hardware.update_reset,
+        },
     };
     let controller = Controller::boot(control::core_now(), registers, &boot);
     let ((never, ..), ..) = join(

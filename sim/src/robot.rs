@@ -18,6 +18,7 @@
 //! second `run` is a reboot of the controller alone.
 
 use base_core::can::{Command, RawFrame, Report, Status, id};
+use base_core::registers::UpdateReset;
 use base_runtime::{Hardware, Settings, channels::Channels};
 use embassy_futures::select::{Either, select};
 use embassy_time::{Duration, Instant, Timer};
@@ -137,6 +138,7 @@ impl VirtualRobot {
             load_cell: self.load_cell.clone(),
             watchdog: self.watchdog.clone(),
             reset_by_watchdog: self.reset_by_watchdog,
+            update_reset: UpdateReset::None,
         };
         (hardware, Pc { peer })
     }

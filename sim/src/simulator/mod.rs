@@ -16,6 +16,7 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 
 use base_core::can::Mode;
+use base_core::registers::UpdateReset;
 use base_runtime::{Hardware, channels::Channels};
 use embassy_futures::select::{Either, Either3, Either4, select, select3, select4};
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
@@ -214,6 +215,7 @@ async fn controller(
             load_cell: robot.load_cell.clone(),
             watchdog: robot.watchdog.clone(),
             reset_by_watchdog,
+            update_reset: UpdateReset::None,
         };
         let channels = Channels::new();
         let firmware = embassy_futures::join::join(
