@@ -2,6 +2,7 @@
 //! [`CanRx`] and [`CanTx`], with the acceptance filters of
 //! [`base_core::can::filter`] and the bit rate chosen at build time.
 
+use crate::trial;
 use base_core::can::filter::COMMAND_FILTERS;
 use base_runtime::hw::{BusState, CanError, CanRx, CanTx};
 use embassy_time::Timer;
@@ -82,7 +83,9 @@ impl CanRx for Receiver {
     type Frame = EspTwaiFrame;
 
     async fn receive(&mut self) -> Result<EspTwaiFrame, CanError> {
-        self.rx.receive_async().await.map_err(can_error)
+        let frame = self.rx.receive_async().await.map_err(can_error)?;
+        trial::frame_received();
+        Ok(frame)
     }
 }
 
@@ -90,7 +93,11 @@ impl CanTx for Sender {
     type Frame = EspTwaiFrame;
 
     async fn transmit(&mut self, frame: &EspTwaiFrame) -> Result<(), CanError> {
-        self.tx.transmit_async(frame).await.map_err(can_error)
+        self.tx.transmit_async(frame).await.map_err(can_error)?;
+        // A new image's health checks read the status frames (trial.rs).
+        let bus_active = self.state() == BusState::Active;
+        trial::frame_sent(frame, bus_active);
+        Ok(())
     }
 
     // esp-hal's split halves do not expose the error state or the recovery (only the

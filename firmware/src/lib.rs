@@ -8,6 +8,7 @@ pub mod board;
 pub mod can;
 pub mod flash;
 pub mod rs485;
+pub mod trial;
 pub mod watchdog;
 
 /// Called by esp-backtrace's panic handler after it printed the panic, in the firmware

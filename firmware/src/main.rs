@@ -4,6 +4,7 @@
 #![no_std]
 #![no_main]
 
+use base_core::registers::UpdateReset;
 use base_runtime::hx711::{Gain, Hx711};
 use base_runtime::{Hardware, Settings, ble, channels::Channels};
 use defmt::{error, info, warn};
@@ -24,7 +25,7 @@ use base_controller_firmware::board::{self, BUTTON_PULL, ESTOP_PULL, SAFETY_ZONE
 use base_controller_firmware::flash::{self, SharedFlash};
 use base_controller_firmware::rs485::Rs485Port;
 use base_controller_firmware::watchdog::LivenessWatchdog;
-use base_controller_firmware::{can, watchdog};
+use base_controller_firmware::{can, trial, watchdog};
 
 // The application descriptor the ESP-IDF bootloader checks before it starts the image.
 esp_bootloader_esp_idf::esp_app_desc!();
@@ -45,6 +46,11 @@ async fn main(_spawner: embassy_executor::Spawner) {
     esp_alloc::heap_allocator!(size: HEAP_SIZE);
     let reset_reason = esp_hal::system::reset_reason();
     let mut board = board::take(peripherals);
+    // esp_hal::init stopped the bootloader's watchdog: ours guards everything from here,
+    // the new image's trial first of all (a hang before the arming write below would
+    // otherwise leave the robot hanging instead of rolling back).
+    let watchdog = LivenessWatchdog::start(board.rtc, board.status_led);
+    let trial = trial::begin(&mut board.flash);
     esp_rtos::start(
         TimerGroup::new(board.timg0).timer0,
         board.scheduler_interrupt,
@@ -108,11 +114,13 @@ async fn main(_spawner: embassy_executor::Spawner) {
             Delay::new(),
             Gain::ChannelA128,
         ),
-        watchdog: LivenessWatchdog::start(board.rtc, board.status_led),
-        // A software reset is a panic (see `custom_halt`): the firmware never resets
-        // itself otherwise. The status frame reports both as an abnormal reset.
-        reset_by_watchdog: board::reset_by_watchdog(reset_reason)
-            || board::reset_by_software(reset_reason),
+        watchdog,
+        // A software reset is a panic (see `custom_halt`) unless an update caused it (the
+        // activation, or a trial that failed): the status frame reports a panic as an
+        // abnormal reset, `boot_info` the update's resets.
+        reset_by_watchdog: trial.update_reset == UpdateReset::None
+            && (board::reset_by_watchdog(reset_reason) || board::reset_by_software(reset_reason)),
+        update_reset: trial.update_reset,
     };
     if hardware.reset_by_watchdog {
         warn!(
@@ -145,6 +153,10 @@ async fn main(_spawner: embassy_executor::Spawner) {
             }
         }
     };
-    let (never, ()) = join(base_runtime::run(hardware, settings, &CHANNELS), remote).await;
+    let ((never, ()), ()) = join(
+        join(base_runtime::run(hardware, settings, &CHANNELS), remote),
+        trial::watch(trial, shared_flash),
+    )
+    .await;
     never
 }
