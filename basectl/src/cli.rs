@@ -13,7 +13,7 @@ use crate::drive::{self, Speeds};
 use crate::heartbeat;
 use crate::monitor::{self, Until};
 use crate::registers;
-use crate::{config, info, log};
+use crate::{config, firmware, info, log};
 
 /// Commissioning of the base controller over CAN: monitor, drive, registers and the
 /// calibration wizards.
@@ -108,12 +108,46 @@ pub enum CliCommand {
     /// Commissioning checks with a person at the base.
     #[command(subcommand)]
     Commission(CommissionCommand),
+    /// The firmware: what runs, and updates over CAN with rollback.
+    #[command(subcommand)]
+    Firmware(FirmwareCommand),
     /// Send the PC heartbeat (006#01) every second.
     PcHeartbeat {
         /// Stop after this many seconds (default: until Ctrl-C).
         #[arg(long)]
         seconds: Option<u64>,
     },
+}
+
+#[derive(Debug, Subcommand)]
+pub enum FirmwareCommand {
+    /// The running version, its slot, and whether an update runs or it is on trial.
+    Info,
+    /// Check an image file offline (no bus needed).
+    Check { file: std::path::PathBuf },
+    /// Update to FILE (from `espflash save-image`): check, ask, save the registers,
+    /// write, activate, wait for it on trial, check its health, confirm.
+    Update {
+        file: std::path::PathBuf,
+        /// Do not ask.
+        #[arg(long)]
+        yes: bool,
+        /// Write even the version that runs.
+        #[arg(long)]
+        force: bool,
+        /// Write even an older version.
+        #[arg(long)]
+        allow_downgrade: bool,
+        /// Where the registers are saved first (default: beside FILE).
+        #[arg(long)]
+        save_registers: Option<std::path::PathBuf>,
+    },
+    /// Keep the image on trial.
+    Confirm,
+    /// Reject the image on trial: the previous one starts.
+    Rollback,
+    /// End a running update session (before activation).
+    Abort,
 }
 
 #[derive(Debug, Subcommand)]
@@ -234,6 +268,9 @@ pub fn run(cli: Cli, out: &mut dyn Write) -> Result<(), Error> {
     if let CliCommand::Reg(RegCommand::List) = cli.command {
         return Ok(registers::list(out)?);
     }
+    if let CliCommand::Firmware(FirmwareCommand::Check { file }) = &cli.command {
+        return firmware::check(file, cli.json, out);
+    }
     // Argument errors first: nothing is sent for a command that cannot run.
     let register_value = match &cli.command {
         CliCommand::Reg(RegCommand::Set { register, value }) => {
@@ -260,6 +297,37 @@ pub fn run(cli: Cli, out: &mut dyn Write) -> Result<(), Error> {
     {
         let format = format.unwrap_or_else(|| log::Format::for_path(file));
         return log::log(bus.as_mut(), file, format, *seconds, *count, out);
+    }
+    if let CliCommand::Firmware(command) = &cli.command {
+        let timeout = Duration::from_millis(cli.timeout_ms);
+        let bus = bus.as_mut();
+        return match command {
+            FirmwareCommand::Info => firmware::info(bus, timeout, cli.json, out),
+            FirmwareCommand::Check { .. } => unreachable!("checked above, without a bus"),
+            FirmwareCommand::Update {
+                file,
+                yes,
+                force,
+                allow_downgrade,
+                save_registers,
+            } => {
+                if let Ok(mut target) = firmware::ABORT_TARGET.lock() {
+                    *target = Some((cli.interface, channel.clone(), cli.bitrate));
+                }
+                let plan = firmware::UpdatePlan {
+                    file: file.clone(),
+                    yes: *yes,
+                    force: *force,
+                    allow_downgrade: *allow_downgrade,
+                    registers_file: save_registers.clone(),
+                    json: cli.json,
+                };
+                firmware::update(bus, &plan, timeout, out)
+            }
+            FirmwareCommand::Confirm => firmware::confirm(bus, timeout, out),
+            FirmwareCommand::Rollback => firmware::rollback(bus, timeout, out),
+            FirmwareCommand::Abort => firmware::abort(bus, timeout, out),
+        };
     }
     let mut base = Base::new(bus.as_mut(), Duration::from_millis(cli.timeout_ms));
     let base = &mut base;
@@ -356,6 +424,7 @@ pub fn run(cli: Cli, out: &mut dyn Write) -> Result<(), Error> {
             out,
         ),
         CliCommand::PcHeartbeat { seconds } => heartbeat::pc_heartbeat(base, seconds, out),
+        CliCommand::Firmware(_) => unreachable!("run above, on the bus itself"),
     }
 }
 

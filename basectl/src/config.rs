@@ -7,7 +7,7 @@
 //! only those (in an order in which every step keeps the rules), and reads each back.
 //!
 //! ```json
-//! { "basectl_config": 1, "firmware_version": "0.1", "regmap_version": 3,
+//! { "basectl_config": 1, "firmware_version": "0.1", "regmap_version": 4,
 //!   "registers": [ { "name": "rad_r", "address": 0, "value": 142, "unit": "mm" }, … ] }
 //! ```
 

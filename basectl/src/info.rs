@@ -5,8 +5,9 @@
 use std::io::Write;
 use std::time::{Duration, Instant};
 
+use base_core::panic_loop::{LOOP_PANICS, SHORT_LIFE_MS};
 use base_core::registers::{
-    BootInfo, Charge, Reg, RemoteBattery, RemoteInfo, RemoteKind, UpdateReset,
+    BLUETOOTH_ON_KEY, BootInfo, Charge, Reg, RemoteBattery, RemoteInfo, RemoteKind, UpdateReset,
 };
 use serde_json::{Value, json};
 
@@ -15,13 +16,13 @@ use crate::config::version_text;
 use crate::monitor::{fault_names, flag_names};
 use crate::rejection;
 
-/// The register map that brought `boot_info`.
-const BOOT_INFO_REGMAP: u16 = 5;
+/// The register map that brought `boot_info` (50).
+const BOOT_INFO_REGMAP: u16 = 4;
 
 /// The `boot` line: how this boot came about, from `boot_info`.
 fn boot_text(boot_info: Option<Option<BootInfo>>) -> String {
     let Some(read) = boot_info else {
-        return "not reported (firmware before register map 5)".to_owned();
+        return "not reported by this firmware (no register 50)".to_owned();
     };
     let Some(info) = read else {
         return "boot_info holds bits this basectl does not know".to_owned();
@@ -51,14 +52,53 @@ const LONGEST_LISTEN: Duration = Duration::from_secs(10);
 /// older firmware would refuse to read them.
 const REMOTE_REGMAP: u16 = 4;
 
+/// The Bluetooth remote's state, from `bluetooth_off` (36).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Bluetooth {
+    On,
+    OffAfterPanics,
+    /// A firmware older than register 36.
+    Unknown,
+}
+
+impl Bluetooth {
+    fn describe(self) -> String {
+        match self {
+            Bluetooth::On => "on".to_owned(),
+            Bluetooth::OffAfterPanics => format!(
+                "OFF after {LOOP_PANICS} panics, each within {} s of boot; turn it on with a \
+                 confirm press of the front button or `basectl reg set command 0x{BLUETOOTH_ON_KEY:04X}`",
+                SHORT_LIFE_MS / 1_000
+            ),
+            Bluetooth::Unknown => "not reported by this firmware (no register 36)".to_owned(),
+        }
+    }
+}
+
+fn bluetooth_state(base: &mut Base) -> Result<Bluetooth, Error> {
+    match base.read_register(Reg::BluetoothOff.address()) {
+        Ok(0) => Ok(Bluetooth::On),
+        Ok(_) => Ok(Bluetooth::OffAfterPanics),
+        Err(Error::ReadRefused { .. }) => Ok(Bluetooth::Unknown),
+        Err(error) => Err(error),
+    }
+}
+
+/// `boot_info`'s bits, or `None` from a firmware without register 50 (an early build
+/// of register map 4 refuses to read it).
+fn boot_info(base: &mut Base) -> Result<Option<Option<BootInfo>>, Error> {
+    match base.read_register(Reg::BootInfo.address()) {
+        Ok(bits) => Ok(Some(BootInfo::from_bits(bits))),
+        Err(Error::ReadRefused { .. }) => Ok(None),
+        Err(error) => Err(error),
+    }
+}
+
 pub fn info(base: &mut Base, json_output: bool, out: &mut dyn Write) -> Result<(), Error> {
     let [firmware, regmap, volt_time] =
         base.read_registers([Reg::FwVersion, Reg::RegmapVersion, Reg::VoltTime])?;
-    // `boot_info` came with register map 5; older firmware has no such register.
     let boot_info = if regmap >= BOOT_INFO_REGMAP {
-        Some(BootInfo::from_bits(
-            base.read_register(Reg::BootInfo.address())?,
-        ))
+        boot_info(base)?
     } else {
         None
     };
@@ -67,6 +107,7 @@ pub fn info(base: &mut Base, json_output: bool, out: &mut dyn Write) -> Result<(
     } else {
         None
     };
+    let bluetooth = bluetooth_state(base)?;
     let status = base.next_status()?;
     // The battery report comes every volt_time (5 s by default): wait for one.
     let listen = (Duration::from_millis(u64::from(volt_time)) + Duration::from_millis(500))
@@ -108,6 +149,11 @@ pub fn info(base: &mut Base, json_output: bool, out: &mut dyn Write) -> Result<(
             "pose": pose.map(|pose| json!({"x_mm": pose.x_mm, "y_mm": pose.y_mm, "heading_mrad": pose.heading_mrad})),
             "weight_g": base.weight_g(),
             "remote": remote_json(remote),
+            "bluetooth_off_after_panics": match bluetooth {
+                Bluetooth::On => Some(false),
+                Bluetooth::OffAfterPanics => Some(true),
+                Bluetooth::Unknown => None,
+            },
         });
         writeln!(out, "{object}")?;
         return Ok(());
@@ -150,6 +196,7 @@ pub fn info(base: &mut Base, json_output: bool, out: &mut dyn Write) -> Result<(
         },
         status.drive_alarm
     )?;
+    writeln!(out, "bluetooth       {}", bluetooth.describe())?;
     writeln!(out, "modbus errors   {}", status.modbus_errors)?;
     writeln!(
         out,

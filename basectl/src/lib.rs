@@ -10,6 +10,7 @@ pub mod cli;
 pub mod commission;
 pub mod config;
 pub mod drive;
+pub mod firmware;
 pub mod heartbeat;
 pub mod info;
 pub mod log;

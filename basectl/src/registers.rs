@@ -4,7 +4,8 @@
 use std::io::Write;
 
 use base_core::registers::{
-    Access, OPEN_PAIRING_WINDOW_KEY, RESTORE_DEFAULTS_KEY, Reg, RegisterInfo, TABLE, info,
+    Access, BLUETOOTH_ON_KEY, OPEN_PAIRING_WINDOW_KEY, RESTORE_DEFAULTS_KEY, Reg, RegisterInfo,
+    TABLE, info,
 };
 
 use crate::base::{Base, Error};
@@ -189,6 +190,9 @@ pub fn set(
         let done = match value {
             RESTORE_DEFAULTS_KEY => "every writable register is back at its default",
             OPEN_PAIRING_WINDOW_KEY => "the remote's pairing window is open",
+            BLUETOOTH_ON_KEY => {
+                "Bluetooth is on (the remote starts if a panic loop had switched it off)"
+            }
             _ => "done",
         };
         if json {
@@ -256,7 +260,7 @@ mod tests {
     #[test]
     fn unknown_registers_and_holes_are_refused() {
         assert!(lookup("no_such_register").is_err());
-        assert!(lookup("36").is_err(), "36-37 are kept free");
+        assert!(lookup("37").is_err(), "37 is kept free");
         assert_eq!(lookup("remote_battery").unwrap().address, 35);
         assert!(lookup("300").is_err());
     }

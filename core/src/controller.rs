@@ -110,6 +110,9 @@ pub struct BootReport {
     pub watchdog_reset: bool,
     /// The register store's page erases so far.
     pub flash_erases: u32,
+    /// The Bluetooth remote stays off: the last resets were a panic loop
+    /// ([`crate::panic_loop`]).
+    pub bluetooth_off_after_panics: bool,
     /// A first boot, an update's reset: register `boot_info`.
     pub boot_info: BootInfo,
 }
@@ -147,6 +150,10 @@ pub struct Output {
     /// restarts it) or closed (`false`). It is closed at boot. While it is closed the
     /// BLE task connects only to the bonded pad and accepts no pairing request.
     pub pairing_window: Option<bool>,
+    /// Bluetooth was off after a panic loop and is turned on now (a confirm press of
+    /// the front button, or [`crate::registers::BLUETOOTH_ON_KEY`]): start the remote
+    /// and forget the panics.
+    pub bluetooth_on: bool,
 }
 
 /// Counts and remembers rejected inputs for the status frame.
@@ -217,6 +224,9 @@ pub struct Controller {
     persist_pending: bool,
     /// Both drives confirmed de-excited (the drive link's word).
     drive_brakes_confirmed: bool,
+    /// A firmware update runs or a new image is on trial (the update task's word):
+    /// velocity, enable and the gamepad are refused.
+    update_lock: bool,
 }
 
 impl Controller {
@@ -249,6 +259,7 @@ impl Controller {
             feedback_check: FeedbackCheck::new(),
             persist_pending: false,
             drive_brakes_confirmed: false,
+            update_lock: false,
         }
     }
 
@@ -259,10 +270,23 @@ impl Controller {
         controller.faults.flash = report.flash_fault;
         controller.faults.watchdog_reset = report.watchdog_reset;
         controller.set_flash_erases(report.flash_erases);
+        controller.registers.set_counter(
+            Reg::BluetoothOff,
+            u16::from(report.bluetooth_off_after_panics),
+        );
         controller
             .registers
             .set_counter(Reg::BootInfo, report.boot_info.to_bits());
         controller
+    }
+
+    /// Turns the Bluetooth remote on if a panic loop switched it off at boot.
+    fn turn_bluetooth_on(&mut self, out: &mut Output) {
+        if self.registers.get(Reg::BluetoothOff) != 0 {
+            info!("Bluetooth on again");
+            self.registers.set_counter(Reg::BluetoothOff, 0);
+            out.bluetooth_on = true;
+        }
     }
 
     fn set_flash_erases(&mut self, erases: u32) {
@@ -282,6 +306,23 @@ impl Controller {
     /// ([`crate::drives::link::DriveLink::brakes_confirmed`]).
     pub fn set_drive_brakes_confirmed(&mut self, confirmed: bool) {
         self.drive_brakes_confirmed = confirmed;
+    }
+
+    /// The update task's word on whether a firmware update runs or an image is on
+    /// trial: while it does, motion commands are refused with `UpdateInProgress`.
+    pub fn set_update_lock(&mut self, locked: bool) {
+        self.update_lock = locked;
+    }
+
+    /// What an update's BEGIN needs to know: the base stands braked and nobody
+    /// controls it.
+    pub fn update_gate(&self, now: Timestamp) -> crate::update::session::MotionGate {
+        crate::update::session::MotionGate {
+            at_standstill: self.at_standstill(now),
+            brakes_applied: self.brakes_applied(),
+            control_active: self.supervisor.enable_fresh(now, &self.supervisor_params())
+                || self.supervisor.remote_in_control(),
+        }
     }
 
     /// The brakes hold the base: the supervisor commanded S-OFF and both drives
@@ -482,6 +523,17 @@ impl Controller {
                 return;
             }
         };
+        let moves = matches!(
+            command,
+            Command::Enable { refresh: true } | Command::Velocity { .. }
+        );
+        if moves && self.update_lock {
+            self.rejections.record(
+                Rejection::UpdateInProgress.code(),
+                frame_subject(frame.id()),
+            );
+            return;
+        }
         match command {
             Command::Enable { refresh } => {
                 self.supervise(now, supervisor::Event::CanEnable { refresh }, out)
@@ -634,6 +686,7 @@ impl Controller {
                 self.pairing.open(now);
                 out.pairing_window = Some(true);
             }
+            Ok(WriteOutcome::BluetoothOnRequested) => self.turn_bluetooth_on(out),
             Err(error) => self.reject_register(address, error),
         }
     }
@@ -794,6 +847,15 @@ impl Controller {
         }
         out.disconnect_remote |= effects.disconnect;
         let step = match effects.control {
+            Some(Control::Drive { dead_man: true, .. }) if self.update_lock => {
+                // The supervisor sees the dead-man released: the base stays braked.
+                self.rejections
+                    .record(Rejection::UpdateInProgress.code(), 0);
+                Some(supervisor::Event::Remote {
+                    dead_man: false,
+                    twist: Twist::ZERO,
+                })
+            }
             Some(Control::Drive { dead_man, twist }) => {
                 Some(supervisor::Event::Remote { dead_man, twist })
             }
@@ -808,6 +870,7 @@ impl Controller {
     fn power_event(&mut self, now: Timestamp, event: power::Event, out: &mut Output) {
         let power = self.power.step(now, event, &power_params(&self.registers));
         if power.confirm {
+            self.turn_bluetooth_on(out);
             self.supervise(now, supervisor::Event::ConfirmPressed, out);
         }
         if power.switch.is_some() {
@@ -1095,6 +1158,7 @@ mod tests {
             flash_fault: true,
             watchdog_reset: true,
             flash_erases: 70_000,
+            bluetooth_off_after_panics: false,
             boot_info: BootInfo::default(),
         };
         let mut controller = Controller::boot(at(0), Registers::defaults(), &report);
@@ -1218,6 +1282,64 @@ mod tests {
             })
         );
         controller
+    }
+
+    #[test]
+    fn an_update_lock_refuses_enable_velocity_and_the_dead_man_but_not_a_withdrawal() {
+        let mut controller = Controller::new(at(0), Registers::defaults());
+        controller.handle(at(0), Input::DrivesReady);
+        controller.set_update_lock(true);
+        for command in [
+            Command::Enable { refresh: true },
+            Command::Velocity {
+                linear_mm_s: 500,
+                rotation_mrad_s: 0,
+            },
+        ] {
+            let out = controller.handle(at(10), can(command));
+            assert_eq!(out.wheels, None, "{command:?}");
+            assert_eq!(out.excite, None, "{command:?}");
+            let status = controller.status(at(10));
+            assert_eq!(status.last_rejection, Rejection::UpdateInProgress.code());
+            assert_eq!(
+                status.last_rejection_subject,
+                frame_subject(command.encode().id())
+            );
+        }
+        controller.handle(
+            at(10),
+            Input::RemoteLink {
+                bonded: true,
+                connected: true,
+            },
+        );
+        let dead_man = Input::Gamepad(GamepadState {
+            left_y: 1.0,
+            buttons: crate::gamepad::Buttons::RIGHT_BUMPER,
+            ..GamepadState::default()
+        });
+        let out = controller.handle(at(15), dead_man);
+        assert_eq!((out.wheels, out.excite), (None, None));
+        let status = controller.status(at(15));
+        assert_eq!(status.last_rejection, Rejection::UpdateInProgress.code());
+        assert_eq!(status.control, crate::can::ControlSource::None);
+        assert_eq!(status.rejected_count, 3);
+        assert!(!controller.update_gate(at(15)).control_active);
+        // A withdrawal is never refused.
+        controller.handle(at(20), can(Command::Enable { refresh: false }));
+        assert_eq!(controller.status(at(20)).rejected_count, 3);
+        // Unlocked, the same commands drive again.
+        controller.set_update_lock(false);
+        controller.handle(at(30), can(Command::Enable { refresh: true }));
+        let out = controller.handle(
+            at(30),
+            can(Command::Velocity {
+                linear_mm_s: 500,
+                rotation_mrad_s: 0,
+            }),
+        );
+        assert!(out.wheels.is_some());
+        assert!(controller.update_gate(at(30)).control_active);
     }
 
     /// A reading's moment moves by a few ms from cycle to cycle (a command write may hold
@@ -1390,5 +1512,68 @@ mod tests {
         let out = controller.handle(at(1_000), Input::Tick);
         assert_eq!(out.excite, None);
         assert!(!controller.supervisor().brakes_applied());
+    }
+    fn booted_after_a_panic_loop() -> Controller {
+        let report = BootReport {
+            bluetooth_off_after_panics: true,
+            ..BootReport::default()
+        };
+        Controller::boot(at(0), Registers::defaults(), &report)
+    }
+
+    #[test]
+    fn bluetooth_off_after_panics_reads_1_until_the_key_turns_it_on_once() {
+        let mut controller = booted_after_a_panic_loop();
+        assert_eq!(controller.registers().get(Reg::BluetoothOff), 1);
+        let out = controller.handle(
+            at(10),
+            write(Reg::Command, crate::registers::BLUETOOTH_ON_KEY),
+        );
+        assert!(out.bluetooth_on);
+        assert_eq!(controller.registers().get(Reg::BluetoothOff), 0);
+        let again = controller.handle(
+            at(20),
+            write(Reg::Command, crate::registers::BLUETOOTH_ON_KEY),
+        );
+        assert!(!again.bluetooth_on, "on already: nothing to start");
+        assert_eq!(
+            controller.rejections.count, 0,
+            "the key is accepted either way"
+        );
+    }
+
+    #[test]
+    fn a_confirm_press_turns_bluetooth_on_after_panics_and_nothing_else_does() {
+        let mut controller = booted_after_a_panic_loop();
+        for (ms, input) in [
+            (
+                10,
+                write(Reg::Command, crate::registers::OPEN_PAIRING_WINDOW_KEY),
+            ),
+            (20, Input::DrivesReady),
+            (30, Input::Tick),
+        ] {
+            assert!(!controller.handle(at(ms), input).bluetooth_on, "{input:?}");
+        }
+        controller.handle(at(100), Input::Button(true));
+        let released = controller.handle(at(300), Input::Button(false));
+        assert!(released.bluetooth_on);
+        assert_eq!(controller.registers().get(Reg::BluetoothOff), 0);
+    }
+
+    #[test]
+    fn with_bluetooth_on_the_key_and_a_confirm_press_start_nothing() {
+        let mut controller = Controller::new(at(0), Registers::defaults());
+        let out = controller.handle(
+            at(10),
+            write(Reg::Command, crate::registers::BLUETOOTH_ON_KEY),
+        );
+        assert!(!out.bluetooth_on);
+        controller.handle(at(100), Input::Button(true));
+        assert!(
+            !controller
+                .handle(at(300), Input::Button(false))
+                .bluetooth_on
+        );
     }
 }

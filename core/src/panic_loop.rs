@@ -4,10 +4,11 @@
 //! A panic resets the chip. If something in radio range makes the Bluetooth stack panic
 //! (the guard in [`crate::hci_guard`] exists so that nothing known can), it would do so
 //! again after every boot, and the base would spend its life rebooting. This is the
-//! decision: the panic handler is to write each panic into a [`PanicHistory`] that
-//! survives the reset (two words of RTC RAM on the chip, the simulator's state across
-//! its reboot), and the boot to read it. (Only the decision exists so far; the chip,
-//! the simulator and the status report do not use it yet.)
+//! decision: the panic handler writes each panic into a [`PanicHistory`] that survives
+//! the reset (two words of RTC fast RAM on the chip, `board::panic_record` in the
+//! firmware; the virtual robot's `RtcRam` in the simulator), and the boot reads it. With
+//! Bluetooth off the remote task does not start (the runtime's `ble::wait_until_on`),
+//! and the controller reports it in register 36, `bluetooth_off`.
 //!
 //! ```text
 //!   panic at uptime < SHORT_LIFE_MS ──▶ short_panics + 1
@@ -19,9 +20,10 @@
 //!
 //! With [`LOOP_PANICS`] = 3 and [`SHORT_LIFE_MS`] = 30 s: three boots in a row that each
 //! panic within 30 s of starting, so at most 90 s of looping, switch Bluetooth off. The
-//! base is to stay fully controllable over CAN, and Bluetooth to come back on with a
-//! confirm press of the front button or a write of the pairing key to the command
-//! register ([`PanicHistory::turned_on`]).
+//! base stays fully controllable over CAN, and Bluetooth comes back on, without a
+//! reboot, with a confirm press of the front button or a write of
+//! [`crate::registers::BLUETOOTH_ON_KEY`] to the command register
+//! ([`PanicHistory::turned_on`]).
 
 use crate::time::Timestamp;
 

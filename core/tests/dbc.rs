@@ -209,6 +209,9 @@ const FEEDBACK_REASONS: [Rejection; 3] = [
     Rejection::Feedback(Finding::SpeedStale),
 ];
 
+/// Motion refused while a firmware update runs or an image is on trial (0x50).
+const UPDATE_REASONS: [Rejection; 1] = [Rejection::UpdateInProgress];
+
 /// Status byte 4 before anything was rejected.
 const NO_REJECTION: u8 = 0;
 
@@ -223,6 +226,7 @@ fn rejection_reasons() -> Vec<(u8, String)> {
     let scale = SCALE_CALIBRATION_ERRORS.iter().map(|e| reason(e.code(), e));
     let feedback = FEEDBACK_REASONS
         .iter()
+        .chain(UPDATE_REASONS.iter())
         .map(|r| (r.code(), r.name().to_string()));
     frame
         .chain(register)
@@ -585,6 +589,210 @@ fn reports() -> Vec<Report> {
     reports
 }
 
+/// The firmware update's frames: every command, data frame, reply, phase, step and error.
+fn update_cases() -> Vec<Case> {
+    use base_core::can::update::{
+        BeginFlags, DataFrame, Phase, Step, UpdateCommand, UpdateError, UpdateReply,
+    };
+    let pc = |frame: RawFrame, expected: Vec<(&'static str, Expect)>| Case {
+        frame,
+        sender: PC,
+        receiver: BASE_CONTROLLER,
+        expected,
+    };
+    let bc = |reply: UpdateReply, expected: Vec<(&'static str, Expect)>| Case {
+        frame: reply.encode(),
+        sender: BASE_CONTROLLER,
+        receiver: PC,
+        expected,
+    };
+    let mut cases = vec![
+        pc(
+            UpdateCommand::Query.encode(),
+            vec![("UpdateOpcode", named("Query"))],
+        ),
+        pc(
+            UpdateCommand::Begin {
+                session: 0xA5,
+                size: 0x1F_0000,
+                flags: BeginFlags {
+                    force: false,
+                    allow_downgrade: true,
+                },
+            }
+            .encode(),
+            vec![
+                ("UpdateOpcode", named("Begin")),
+                ("BeginSession", value(0xA5)),
+                ("BeginSize", value(0x1F_0000)),
+                ("BeginFlags", value(2)),
+            ],
+        ),
+        pc(
+            UpdateCommand::Digest {
+                session: 7,
+                part: 5,
+                bytes: [0x01, 0x02, 0x03, 0xF4],
+            }
+            .encode(),
+            vec![
+                ("UpdateOpcode", named("Digest")),
+                ("DigestSession", value(7)),
+                ("DigestPart", value(5)),
+                ("DigestBytes", value(0xF403_0201u32)),
+            ],
+        ),
+        pc(
+            UpdateCommand::Window {
+                session: 7,
+                index: 0x0102,
+                crc: 0xDEAD_BEEF,
+            }
+            .encode(),
+            vec![
+                ("UpdateOpcode", named("Window")),
+                ("WindowSession", value(7)),
+                ("WindowIndex", value(0x0102)),
+                ("WindowCrc", value(0xDEAD_BEEFu32)),
+            ],
+        ),
+        pc(
+            UpdateCommand::Finish { session: 7 }.encode(),
+            vec![
+                ("UpdateOpcode", named("Finish")),
+                ("FinishSession", value(7)),
+            ],
+        ),
+        pc(
+            UpdateCommand::Activate { session: 8 }.encode(),
+            vec![
+                ("UpdateOpcode", named("Activate")),
+                ("ActivateSession", value(8)),
+            ],
+        ),
+        pc(
+            UpdateCommand::Abort { session: 9 }.encode(),
+            vec![("UpdateOpcode", named("Abort")), ("AbortSession", value(9))],
+        ),
+        pc(
+            UpdateCommand::Confirm.encode(),
+            vec![("UpdateOpcode", named("Confirm"))],
+        ),
+        pc(
+            UpdateCommand::Rollback.encode(),
+            vec![("UpdateOpcode", named("Rollback"))],
+        ),
+        pc(
+            DataFrame {
+                seq: 0xC3,
+                bytes: [1, 2, 3, 4, 5, 6, 0xF7],
+            }
+            .encode(),
+            vec![
+                ("DataSeq", value(0xC3)),
+                ("DataBytes", value(0xF7_0605_0403_0201u64 as f64)),
+            ],
+        ),
+        bc(
+            UpdateReply::Version {
+                part: 4,
+                text: *b"0.3.1-",
+            },
+            vec![
+                ("UpdateReplyKind", named("Version")),
+                ("VersionPart", value(4)),
+                (
+                    "VersionText",
+                    value(u64::from_le_bytes([b'0', b'.', b'3', b'.', b'1', b'-', 0, 0]) as f64),
+                ),
+            ],
+        ),
+        bc(
+            UpdateReply::Ready {
+                session: 7,
+                window: 0x0102,
+                next: 0x0203,
+            },
+            vec![
+                ("UpdateReplyKind", named("Ready")),
+                ("ReadySession", value(7)),
+                ("ReadyWindow", value(0x0102)),
+                ("ReadyNext", value(0x0203)),
+            ],
+        ),
+        bc(
+            UpdateReply::Written {
+                session: 7,
+                window: 0x0304,
+            },
+            vec![
+                ("UpdateReplyKind", named("Written")),
+                ("WrittenSession", value(7)),
+                ("WrittenWindow", value(0x0304)),
+            ],
+        ),
+    ];
+    let phases = [
+        (Phase::Idle, "Idle"),
+        (Phase::Receiving, "Receiving"),
+        (Phase::Writing, "Writing"),
+        (Phase::Finished, "Finished"),
+        (Phase::Activating, "Activating"),
+        (Phase::OnTrial, "OnTrial"),
+    ];
+    for (phase, name) in phases {
+        cases.push(bc(
+            UpdateReply::State {
+                phase,
+                session: 7,
+                running_slot: 1,
+                windows_written: 0x0102,
+            },
+            vec![
+                ("UpdateReplyKind", named("State")),
+                ("UpdatePhase", named(name)),
+                ("StateSession", value(7)),
+                ("RunningSlot", value(1)),
+                ("WindowsWritten", value(0x0102)),
+            ],
+        ));
+    }
+    let steps = [
+        (Step::Begun, "Begun"),
+        (Step::Finished, "Finished"),
+        (Step::Activated, "Activated"),
+        (Step::Aborted, "Aborted"),
+        (Step::Confirmed, "Confirmed"),
+        (Step::RolledBack, "RolledBack"),
+    ];
+    for (step, name) in steps {
+        cases.push(bc(
+            UpdateReply::Done { session: 7, step },
+            vec![
+                ("UpdateReplyKind", named("Done")),
+                ("DoneSession", value(7)),
+                ("DoneStep", named(name)),
+            ],
+        ));
+    }
+    for error in UpdateError::ALL {
+        cases.push(bc(
+            UpdateReply::Refused {
+                opcode: 4,
+                error,
+                detail: 3,
+            },
+            vec![
+                ("UpdateReplyKind", named("Refused")),
+                ("RefusedOpcode", value(4)),
+                ("UpdateError", named(error.name())),
+                ("RefusedDetail", value(3)),
+            ],
+        ));
+    }
+    cases
+}
+
 fn cases() -> Vec<Case> {
     let commands = commands().into_iter().map(|command| Case {
         frame: command.encode(),
@@ -598,7 +806,7 @@ fn cases() -> Vec<Case> {
         receiver: PC,
         expected: report_signals(&report),
     });
-    commands.chain(reports).collect()
+    commands.chain(reports).chain(update_cases()).collect()
 }
 
 /// A signal a case checked, and the value-table name it matched, if any.
@@ -717,7 +925,12 @@ fn every_dbc_signal_and_value_name_is_checked_by_some_frame() {
 fn every_codec_id_has_a_dbc_message_from_its_sender_with_the_longest_encoded_dlc() {
     let dbc = parse_dbc();
     let cases = cases();
-    let directions = [(PC, &id::COMMANDS[..]), (BASE_CONTROLLER, &id::REPORTS[..])];
+    let directions = [
+        (PC, &id::COMMANDS[..]),
+        (BASE_CONTROLLER, &id::REPORTS[..]),
+        (PC, &id::UPDATE[..]),
+        (BASE_CONTROLLER, &[id::UPDATE_REPLY][..]),
+    ];
     for (sender, ids) in directions {
         for &can_id in ids {
             let message = message_for(&dbc, can_id);
@@ -755,7 +968,12 @@ fn every_codec_id_has_a_dbc_message_from_its_sender_with_the_longest_encoded_dlc
 #[test]
 fn the_dbc_has_no_message_the_codec_does_not_know() {
     let dbc = parse_dbc();
-    let known: BTreeSet<u16> = id::COMMANDS.into_iter().chain(id::REPORTS).collect();
+    let known: BTreeSet<u16> = id::COMMANDS
+        .into_iter()
+        .chain(id::REPORTS)
+        .chain(id::UPDATE)
+        .chain([id::UPDATE_REPLY])
+        .collect();
     let in_dbc: Vec<u16> = dbc.messages.iter().map(message_id).collect();
     let unique: BTreeSet<u16> = in_dbc.iter().copied().collect();
     assert_eq!(unique.len(), in_dbc.len(), "an ID has two messages");

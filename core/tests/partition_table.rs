@@ -124,3 +124,27 @@ fn every_usb_flash_erases_otadata() {
         assert!(line.contains("--erase-parts otadata"), "{line}");
     }
 }
+
+/// The update task, the trial and the simulator take their offsets from the core's
+/// table (`base_core::update::partitions`), the bootloader and espflash from the CSV:
+/// the two must name the same partitions at the same places, or an update would write
+/// where the bootloader does not look.
+#[test]
+fn the_csv_and_the_cores_table_agree() {
+    use base_core::update::partitions;
+    let table = table();
+    let in_csv: Vec<_> = table
+        .partitions()
+        .iter()
+        .map(|p| (p.name(), p.offset(), p.size()))
+        .collect();
+    let in_core: Vec<_> = partitions::TABLE
+        .iter()
+        .map(|p| (p.name.to_owned(), p.offset, p.len))
+        .collect();
+    assert_eq!(
+        in_csv, in_core,
+        "firmware/partitions.csv against the core's table"
+    );
+    assert_eq!(FLASH_SIZE, partitions::FLASH_SIZE);
+}

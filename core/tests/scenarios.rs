@@ -1005,7 +1005,7 @@ fn pairing_window_opens_on_its_command_and_closes_after_a_minute_or_on_a_new_bon
             // Only the exact key opens it.
             (
                 320_000,
-                raw(id::REGISTER_WRITE, &[40, 0xB1, 0xE1]),
+                raw(id::REGISTER_WRITE, &[40, 0xB1, 0xE2]),
                 &[
                     NoPairingChange,
                     Rejected {
@@ -1461,11 +1461,11 @@ fn register_writes_with_bad_values_are_rejected_and_change_nothing() {
             ),
             (
                 40,
-                raw(id::REGISTER_WRITE, &[36, 0x00, 0x02]),
+                raw(id::REGISTER_WRITE, &[37, 0x00, 0x02]),
                 &[
                     Rejected {
                         code: 0x10,
-                        subject: 36,
+                        subject: 37,
                     },
                     RejectedCount(5),
                 ],
@@ -1492,9 +1492,9 @@ fn register_writes_with_bad_values_are_rejected_and_change_nothing() {
             ),
             (
                 70,
-                raw(id::REGISTER_READ, &[1, 36]),
+                raw(id::REGISTER_READ, &[1, 37]),
                 &[Sends(Report::RegisterReadError {
-                    address: 36,
+                    address: 37,
                     reason: 0x10,
                     tag: Some(0),
                 })],

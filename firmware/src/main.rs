@@ -9,7 +9,7 @@ use base_runtime::hx711::{Gain, Hx711};
 use base_runtime::{Hardware, Settings, ble, channels::Channels};
 use defmt::{error, info, warn};
 use embassy_embedded_hal::adapter::BlockingAsync;
-use embassy_futures::join::join;
+use embassy_futures::join::join3;
 use esp_backtrace as _;
 use esp_hal::clock::CpuClock;
 use esp_hal::delay::Delay;
@@ -21,11 +21,13 @@ use esp_radio::ble::controller::BleConnector;
 use static_cell::StaticCell;
 use trouble_host::prelude::ExternalController;
 
-use base_controller_firmware::board::{self, BUTTON_PULL, ESTOP_PULL, SAFETY_ZONE_PULL};
+use base_controller_firmware::board::{
+    self, BUTTON_PULL, ESTOP_PULL, SAFETY_ZONE_PULL, panic_record,
+};
 use base_controller_firmware::flash::{self, SharedFlash};
 use base_controller_firmware::rs485::Rs485Port;
 use base_controller_firmware::watchdog::LivenessWatchdog;
-use base_controller_firmware::{can, trial, watchdog};
+use base_controller_firmware::{can, update, watchdog};
 
 // The application descriptor the ESP-IDF bootloader checks before it starts the image.
 esp_bootloader_esp_idf::esp_app_desc!();
@@ -45,12 +47,13 @@ async fn main(_spawner: embassy_executor::Spawner) {
     let peripherals = esp_hal::init(esp_hal::Config::default().with_cpu_clock(CpuClock::max()));
     esp_alloc::heap_allocator!(size: HEAP_SIZE);
     let reset_reason = esp_hal::system::reset_reason();
+    // A software reset is the panic handler's (see `custom_halt`).
+    let bluetooth = panic_record::at_boot(board::reset_by_software(reset_reason));
     let mut board = board::take(peripherals);
     // esp_hal::init stopped the bootloader's watchdog: ours guards everything from here,
     // the new image's trial first of all (a hang before the arming write below would
     // otherwise leave the robot hanging instead of rolling back).
     let watchdog = LivenessWatchdog::start(board.rtc, board.status_led);
-    let trial = trial::begin(&mut board.flash);
     esp_rtos::start(
         TimerGroup::new(board.timg0).timer0,
         board.scheduler_interrupt,
@@ -78,9 +81,28 @@ async fn main(_spawner: embassy_executor::Spawner) {
             );
         }
     }
+    let running_slot = base_controller_firmware::update::running_slot(&mut board.flash);
     let shared_flash = FLASH.init(SharedFlash::new(BlockingAsync::new(board.flash)));
     let (flash, flash_range) = flash::partition(shared_flash, flash::REGISTERS, registers);
     let (bond_flash, bond_range) = flash::partition(shared_flash, flash::BONDS, bonds);
+
+    // Updates over CAN. A new image arms its trial before any task runs (the watchdog
+    // already guards it); the record of an update's reset before this boot becomes
+    // `boot_info`. Without an app slot (a board still on the old partition table)
+    // there are no updates.
+    let mut update_flash = None;
+    let mut update_reset = UpdateReset::None;
+    if let Some(slot) = running_slot {
+        let whole = embassy_embedded_hal::flash::partition::Partition::new(
+            shared_flash,
+            0,
+            base_core::update::partitions::FLASH_SIZE,
+        );
+        let mut flash = base_runtime::update::UpdateFlash::new(whole, slot);
+        let role = base_runtime::update::arm(&mut flash, &CHANNELS.update).await;
+        update_reset = update::boot_cause(role, slot);
+        update_flash = Some((flash, role));
+    }
 
     let (can_rx, can_tx) = can::start(board.twai, board.can_tx, board.can_rx);
     let drives = match Rs485Port::new(
@@ -118,9 +140,10 @@ async fn main(_spawner: embassy_executor::Spawner) {
         // A software reset is a panic (see `custom_halt`) unless an update caused it (the
         // activation, or a trial that failed): the status frame reports a panic as an
         // abnormal reset, `boot_info` the update's resets.
-        reset_by_watchdog: trial.update_reset == UpdateReset::None
+        reset_by_watchdog: update_reset == UpdateReset::None
             && (board::reset_by_watchdog(reset_reason) || board::reset_by_software(reset_reason)),
-        update_reset: trial.update_reset,
+        bluetooth,
+        update_reset,
     };
     if hardware.reset_by_watchdog {
         warn!(
@@ -130,6 +153,13 @@ async fn main(_spawner: embassy_executor::Spawner) {
     }
 
     let remote = async {
+        // After a panic loop the radio stays untouched until Bluetooth is turned on.
+        ble::wait_until_on(
+            bluetooth,
+            &CHANNELS.remote_requests,
+            panic_record::turned_on,
+        )
+        .await;
         match BleConnector::new(board.bt, Default::default()) {
             Ok(connector) => {
                 let controller: ExternalController<_, HCI_SLOTS> =
@@ -153,9 +183,34 @@ async fn main(_spawner: embassy_executor::Spawner) {
             }
         }
     };
-    let ((never, ()), ()) = join(
-        join(base_runtime::run(hardware, settings, &CHANNELS), remote),
-        trial::watch(trial, shared_flash),
+    // The update task returns when the chip must restart (activated or rolled back):
+    // the cause is recorded for the next boot first.
+    let update = async {
+        let Some((mut flash, role)) = update_flash else {
+            return core::future::pending().await;
+        };
+        let config = base_runtime::update::UpdateConfig {
+            chip: update::CHIP,
+            project: base_runtime::update::PROJECT,
+            version: env!("CARGO_PKG_VERSION"),
+            trial_deadline_ms: base_runtime::update::TRIAL_DEADLINE_MS,
+        };
+        let reset = base_runtime::update::run(
+            &mut flash,
+            role,
+            &config,
+            &CHANNELS.update,
+            &CHANNELS.can_tx,
+        )
+        .await;
+        info!("update: {}: restarting", reset);
+        update::record_reset(reset);
+        esp_hal::system::software_reset()
+    };
+    let (never, (), ()) = join3(
+        base_runtime::run(hardware, settings, &CHANNELS),
+        remote,
+        update,
     )
     .await;
     never

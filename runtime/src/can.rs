@@ -13,6 +13,7 @@ use base_core::controller::Input;
 
 use crate::channels::{InputSender, RawMutex};
 use crate::hw::{BusState, CanError, CanRx, CanTx};
+use crate::update::UpdateLink;
 
 /// Frames the transmit queue holds. A PC may send a burst of register reads at once,
 /// and every reply is queued at once, while the bus sends one frame per ~0.2 ms: the
@@ -60,13 +61,15 @@ impl Default for FrameQueue {
 /// that keeps failing cannot starve the other tasks.
 const ERROR_BACKOFF_MS: u64 = 10;
 
-pub async fn run_rx<R: CanRx>(mut rx: R, inputs: InputSender<'_>) -> ! {
+pub async fn run_rx<R: CanRx>(mut rx: R, inputs: InputSender<'_>, update: &UpdateLink) -> ! {
     loop {
         match rx.receive().await {
             Ok(frame) => {
                 // Extended and remote frames are not part of the protocol.
-                if let Some(raw) = RawFrame::from_frame(&frame) {
-                    inputs.send(Input::CanFrame(raw)).await;
+                match RawFrame::from_frame(&frame) {
+                    Some(raw) if UpdateLink::takes(raw.id()) => update.offer(raw),
+                    Some(raw) => inputs.send(Input::CanFrame(raw)).await,
+                    None => {}
                 }
             }
             Err(error) => {

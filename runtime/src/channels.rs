@@ -19,6 +19,7 @@ use crate::control::ControlEnds;
 use crate::drive_link::{DriveBrakes, DriveDemand, DriveLinkEnds};
 use crate::liveness::Liveness;
 use crate::store::PendingWrites;
+use crate::update::UpdateLink;
 
 pub type RawMutex = CriticalSectionRawMutex;
 
@@ -57,6 +58,11 @@ pub struct Channels {
     /// a state (is the pairing window open, how many disconnects were asked for), and
     /// the remote task acts on the newest.
     pub remote_requests: Signal<RawMutex, RemoteRequest>,
+    /// CAN RX → update task: the update's frames, in a queue of their own so that an
+    /// image transfer never delays the controller's inputs. Update task → controller:
+    /// the motion lock; controller → update task: the motion gate (flags read before
+    /// and set after each input, as the brakes flag).
+    pub update: UpdateLink,
 }
 
 impl Channels {
@@ -69,6 +75,7 @@ impl Channels {
             pending_writes: PendingWrites::new(),
             liveness: Liveness::new(),
             remote_requests: Signal::new(),
+            update: UpdateLink::new(),
         }
     }
 
@@ -82,6 +89,7 @@ impl Channels {
             drive_brakes: &self.drive_brakes,
             remote_requests: &self.remote_requests,
             liveness: &self.liveness,
+            update: &self.update,
         }
     }
 

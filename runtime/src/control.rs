@@ -19,6 +19,7 @@ use crate::drive_link::{DriveBrakes, DriveDemand};
 use crate::hw::OutputPin;
 use crate::liveness::{CriticalTask, Liveness};
 use crate::store::PendingWrites;
+use crate::update::UpdateLink;
 
 /// Timeouts and periodic frames are checked this often (the controller's contract).
 pub const TICK: Duration = Duration::from_millis(10);
@@ -37,6 +38,7 @@ pub struct ControlEnds<'a> {
     pub drive_brakes: &'a DriveBrakes,
     pub remote_requests: &'a Signal<RawMutex, RemoteRequest>,
     pub liveness: &'a Liveness,
+    pub update: &'a UpdateLink,
 }
 
 pub async fn run<S: OutputPin>(
@@ -78,7 +80,10 @@ pub async fn run<S: OutputPin>(
         // The drops so far, for `can_tx_dropped`: a read of it answers the count
         // up to the input before it.
         controller.set_can_tx_dropped(channels.can_tx.dropped());
-        let out = controller.handle(core_now(), input);
+        controller.set_update_lock(channels.update.locked());
+        let now = core_now();
+        let out = controller.handle(now, input);
+        channels.update.set_gate(controller.update_gate(now));
         dispatch(&controller, out, &channels, &mut state, &mut pc_switch);
         // The other tasks run between two inputs even when the queue never empties.
         yield_now().await;
@@ -142,6 +147,9 @@ fn dispatch<S: OutputPin>(
     }
     if out.disconnect_remote {
         remote.disconnects = remote.disconnects.wrapping_add(1);
+    }
+    if out.bluetooth_on {
+        remote.bluetooth_on = true;
     }
     if remote != state.remote {
         state.remote = remote;

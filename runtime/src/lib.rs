@@ -35,11 +35,13 @@ pub mod inputs;
 pub mod liveness;
 pub mod sensors;
 pub mod store;
+pub mod update;
 
 use embassy_futures::join::{join, join4, join5};
 
 use base_core::controller::{BootReport, Controller};
 use base_core::drives::DriveSettings;
+use base_core::panic_loop::Bluetooth;
 use base_core::registers::{BootInfo, UpdateReset};
 
 use crate::channels::Channels;
@@ -69,7 +71,11 @@ pub struct Hardware<CR, CT, P, F, E, Z, B, S, V, L, W> {
     pub watchdog: W,
     /// The chip's reset reason says the watchdog bit.
     pub reset_by_watchdog: bool,
-    /// A reset the firmware caused on purpose for an update (recorded before it reset).
+    /// Whether the Bluetooth remote may start at this boot: off after a panic loop
+    /// ([`base_core::panic_loop`]), which the controller reports.
+    pub bluetooth: Bluetooth,
+    /// A reset the firmware caused on purpose for an update (recorded before it reset,
+    /// see [`base_core::update::trial::boot_cause`]).
     pub update_reset: UpdateReset,
 }
 
@@ -126,6 +132,7 @@ where
         flash_fault: report.flash_fault(),
         watchdog_reset: hardware.reset_by_watchdog,
         flash_erases: store.erases(),
+        bluetooth_off_after_panics: hardware.bluetooth == Bluetooth::OffAfterPanics,
         boot_info: BootInfo {
             first_boot: report.first_boot,
             update_reset: hardware.update_reset,
@@ -136,7 +143,7 @@ where
         join5(
             control::run(controller, channels.control_ends(), hardware.pc_switch),
             drive_link::run(hardware.drives, settings.drives, channels.drive_link_ends()),
-            can::run_rx(hardware.can_rx, channels.inputs.sender()),
+            can::run_rx(hardware.can_rx, channels.inputs.sender(), &channels.update),
             can::run_tx(hardware.can_tx, &channels.can_tx, channels.inputs.sender()),
             inputs::run(
                 inputs::InputPins {

@@ -9,7 +9,9 @@
 //! - the Modbus bytes of a control cycle and how busy they keep the RS-485 line, at
 //!   115200 and at 230400 baud;
 //! - CAN frames per second by ID and the bus load, in standby and while driving;
-//! - the fail-safe figures: reset run-on, a failing group frame, a stuck encoder.
+//! - the fail-safe figures: reset run-on, a failing group frame, a stuck encoder;
+//! - a firmware update's transfer of 600 KB over socketcand and over SLCAN, against the
+//!   simulator binary on the wall clock (build it first: `cargo build -p virtual-robot`).
 //!
 //! Run with `cargo run -p virtual-robot --example figures`.
 
@@ -74,6 +76,122 @@ fn main() {
     report_line(&record_buses(&robot_at_baud(FAST_BAUD)), cycle_ms);
     println!();
     report_can(&recording);
+    println!();
+    report_update();
+}
+
+/// The image the update figures move: 600 KB, about a C3 firmware.
+const UPDATE_IMAGE_BYTES: usize = 600_000;
+
+/// How long the transfer of a 600 KB image takes (BEGIN to the last window written,
+/// then ABORT: the simulator keeps its firmware), over socketcand and over SLCAN, and
+/// what share of the bus limit that is: 7 image bytes per frame at the frame rate of
+/// the virtual bus (8-byte frames with worst-case stuffing at 500 kbit/s).
+fn report_update() {
+    let Some(binary) = std::env::current_exe()
+        .ok()
+        .and_then(|exe| Some(exe.parent()?.parent()?.join("virtual-base-controller")))
+        .filter(|path| path.exists())
+    else {
+        println!(
+            "firmware update: not measured (build the simulator: cargo build -p virtual-robot)"
+        );
+        return;
+    };
+    let simulator = match virtual_robot::process::SimulatorProcess::start(&binary) {
+        Ok(simulator) => simulator,
+        Err(error) => {
+            println!("firmware update: not measured ({error})");
+            return;
+        }
+    };
+    let _ = simulator.wait_for_line("boot: firmware", std::time::Duration::from_secs(10));
+    let image = virtual_robot::app_flash::sim_image("9.9.9", UPDATE_IMAGE_BYTES - 400);
+    let data_frame =
+        virtual_robot::can::SimFrame::standard(id::UPDATE_DATA, &[0; 8]).expect("8 bytes");
+    let frame_s = virtual_robot::can::frame_time(&data_frame).as_micros() as f64 / 1e6;
+    let limit_s = image.len().div_ceil(7) as f64 * frame_s;
+    let open = |slcan: bool| -> Result<Box<dyn basectl::bus::Bus>, String> {
+        let bus: Box<dyn basectl::bus::Bus> = if slcan {
+            let link = simulator.link().to_string_lossy().into_owned();
+            Box::new(basectl::bus::SlcanPort::open(&link, BITRATE_BPS).map_err(|e| e.to_string())?)
+        } else {
+            let address = simulator.socketcand().to_string();
+            Box::new(basectl::bus::SocketcandBus::open(&address).map_err(|e| e.to_string())?)
+        };
+        Ok(bus)
+    };
+    // One connection at a time, each run its own session: a connection not read while
+    // the other transfers fills with the other's frames.
+    for (name, slcan, session) in [("SLCAN", true, 41), ("socketcand", false, 42)] {
+        let measured =
+            open(slcan).and_then(|mut bus| transfer_seconds(bus.as_mut(), session, &image));
+        match measured {
+            Ok(seconds) => println!(
+                "firmware update, 600 KB over {name}: {seconds:.1} s ({:.0} % of the bus limit of \
+                 {limit_s:.1} s; the virtual bus does not time the PC's frames)",
+                100.0 * limit_s / seconds
+            ),
+            Err(error) => println!("firmware update over {name}: not measured ({error})"),
+        }
+    }
+}
+
+/// BEGIN, the digest, every window, then ABORT: the seconds from BEGIN to the last
+/// window written.
+fn transfer_seconds(
+    bus: &mut dyn basectl::bus::Bus,
+    session: u8,
+    image: &[u8],
+) -> Result<f64, String> {
+    use base_core::can::update::{BeginFlags, UpdateCommand};
+    use base_core::update::session::DIGEST_PARTS;
+    use sha2::Digest;
+    // BEGIN needs the base standing braked: wait for Standby after the boot.
+    let mut base = basectl::base::Base::new(bus, std::time::Duration::from_millis(500));
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(15);
+    while !base
+        .next_status()
+        .is_ok_and(|status| status.mode == base_core::can::Mode::Standby)
+    {
+        if std::time::Instant::now() > deadline {
+            return Err("the base did not reach Standby".into());
+        }
+    }
+    let started = std::time::Instant::now();
+    let send = |bus: &mut dyn basectl::bus::Bus, command: UpdateCommand| {
+        bus.send(&command.encode())
+            .map_err(|error| error.to_string())
+    };
+    send(
+        bus,
+        UpdateCommand::Begin {
+            session,
+            size: image.len() as u32,
+            flags: BeginFlags::default(),
+        },
+    )?;
+    let digest = sha2::Sha256::digest(image);
+    for part in 0..DIGEST_PARTS {
+        let at = usize::from(part) * 4;
+        let bytes = [digest[at], digest[at + 1], digest[at + 2], digest[at + 3]];
+        send(
+            bus,
+            UpdateCommand::Digest {
+                session,
+                part,
+                bytes,
+            },
+        )?;
+    }
+    let stats = basectl::firmware::transfer(bus, session, image, |_, _, _| {})
+        .map_err(|error| error.to_string())?;
+    let seconds = started.elapsed().as_secs_f64();
+    send(bus, UpdateCommand::Abort { session })?;
+    if stats.retries > 0 {
+        println!("  ({} windows sent again)", stats.retries);
+    }
+    Ok(seconds)
 }
 
 /// A robot whose controller and drives both talk at `baud`.

@@ -33,8 +33,9 @@ use embedded_storage_async::nor_flash::NorFlash;
 
 use crate::file_flash::FileFlash;
 use crate::flash::{ERASE_SIZE, RamFlash};
-use crate::robot::{Pc, VirtualRobot};
+use crate::robot::{Pc, RtcRam, VirtualRobot};
 use crate::runtime::{QueueReceiver, block_on, block_on_realtime, cross_thread_queue};
+use base_core::panic_loop::Bluetooth;
 
 /// HCI commands the host may have in flight at once.
 pub const HCI_SLOTS: usize = 8;
@@ -272,19 +273,27 @@ impl RemoteRobot {
         C: trouble_host::Controller + ControllerCmdSync<LeSetScanParams>,
     {
         let (hardware, pc) = self.robot.boot();
+        let bluetooth = hardware.bluetooth;
         let channels = Channels::new();
         let address = remote::random_static_address(&ROBOT_MAC);
         let bond_flash = self.bond_flash.clone();
         {
             let firmware = join(
                 base_runtime::run(hardware, self.robot.settings, &channels),
-                remote::run(
-                    controller,
-                    address,
-                    bond_flash,
-                    0..BOND_FLASH_SIZE as u32,
-                    channels.remote_ends(),
-                ),
+                async {
+                    remote::wait_until_on(bluetooth, &channels.remote_requests, || {
+                        self.robot.rtc_ram.turned_on()
+                    })
+                    .await;
+                    remote::run(
+                        controller,
+                        address,
+                        bond_flash,
+                        0..BOND_FLASH_SIZE as u32,
+                        channels.remote_ends(),
+                    )
+                    .await
+                },
             );
             match select(firmware, script(&pc)).await {
                 Either::First((never, _)) => never,
@@ -323,9 +332,16 @@ impl LiveRemote {
     }
 }
 
-/// Runs the remote if there is one; without one, waits for ever (the base runs
-/// without a remote, as a chip without its radio does).
-pub async fn run_live_remote(remote: Option<LiveRemote>, channels: &Channels) {
+/// Runs the remote if there is one, once Bluetooth is on (`bluetooth`, the boot's
+/// panic-loop decision); without one, waits for ever (the base runs without a remote,
+/// as a chip without its radio does).
+pub async fn run_live_remote(
+    remote: Option<LiveRemote>,
+    bluetooth: Bluetooth,
+    rtc_ram: &RtcRam,
+    channels: &Channels,
+) {
+    remote::wait_until_on(bluetooth, &channels.remote_requests, || rtc_ram.turned_on()).await;
     match remote {
         Some(remote) => run_remotes(remote.controller, remote.bond_flash, channels).await,
         None => core::future::pending().await,

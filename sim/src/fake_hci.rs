@@ -49,6 +49,8 @@ const PAD_ADVERTISING: [u8; 7] = [0x02, 0x01, 0x06, 0x03, 0x19, 0xC4, 0x03];
 /// What the fake has done, for the test to check it ran at all.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct FakeStats {
+    /// HCI commands the host sent (zero: the host never touched the radio).
+    pub commands: u32,
     pub connections: u32,
     pub packets_delivered: u32,
     pub disconnects_by_host: u32,
@@ -122,6 +124,7 @@ impl Fake {
     }
 
     fn on_command(&mut self, opcode: u16, params: &[u8]) {
+        self.stats.commands += 1;
         match opcode {
             OP_LE_CREATE_CONNECTION => {
                 self.status(opcode, 0);

@@ -17,8 +17,12 @@
 //! controller loses power. The drives, flash, pins and sensors outlive a run, so a
 //! second `run` is a reboot of the controller alone.
 
+use std::sync::{Arc, Mutex, PoisonError};
+
 use base_core::can::{Command, RawFrame, Report, Status, id};
+use base_core::panic_loop::{Bluetooth, PanicHistory};
 use base_core::registers::UpdateReset;
+use base_core::time::Timestamp;
 use base_runtime::{Hardware, Settings, channels::Channels};
 use embassy_futures::select::{Either, select};
 use embassy_time::{Duration, Instant, Timer};
@@ -28,7 +32,7 @@ use crate::can::{CanPeer, CanRxPort, CanTxPort, VirtualCan};
 use crate::drives::{DrivesConfig, DrivesHandle, DrivesPort};
 use crate::flash::RamFlash;
 use crate::io::{SimBattery, SimLoadCell, SimPin, SimWatchdog};
-use crate::runtime::block_on;
+use crate::runtime::{block_on, now};
 
 /// The register store's partition: 4 pages of 4 KiB, as on the chip.
 pub const FLASH_SIZE: u32 = 4 * 4096;
@@ -64,6 +68,8 @@ pub struct VirtualRobot {
     pub watchdog: SimWatchdog,
     /// Whether the next boot reports a watchdog reset.
     pub reset_by_watchdog: bool,
+    /// The chip's RAM that survives a reset: the panic handler's record.
+    pub rtc_ram: RtcRam,
     /// From power-on (the start of [`Self::run`]) until the firmware runs, as a chip's
     /// bootloader and start-up take about 0.3 s. The line is silent meanwhile. Zero by
     /// default.
@@ -99,6 +105,7 @@ impl VirtualRobot {
             load_cell: SimLoadCell::new(8_000, 100.0),
             watchdog: SimWatchdog::new(WATCHDOG_TIMEOUT),
             reset_by_watchdog: false,
+            rtc_ram: RtcRam::default(),
             boot_time: Duration::from_ticks(0),
         }
     }
@@ -138,6 +145,7 @@ impl VirtualRobot {
             load_cell: self.load_cell.clone(),
             watchdog: self.watchdog.clone(),
             reset_by_watchdog: self.reset_by_watchdog,
+            bluetooth: self.rtc_ram.boot(),
             update_reset: UpdateReset::None,
         };
         (hardware, Pc { peer })
@@ -159,12 +167,89 @@ impl VirtualRobot {
         });
     }
 
+    /// Runs `boot` (a run of this robot whose script ends in [`controller_panics`]) and
+    /// takes the panic as the chip's panic handler does: recorded in [`Self::rtc_ram`]
+    /// with the uptime, then the reset. Any other panic (a failed assertion in the
+    /// script) is passed on.
+    pub fn until_panic(&self, boot: impl FnOnce()) {
+        let booted = now();
+        match std::panic::catch_unwind(std::panic::AssertUnwindSafe(boot)) {
+            Ok(()) => panic!("the run ended without the controller's panic"),
+            Err(payload) if payload.is::<ControllerPanic>() => {
+                let uptime = now() - booted;
+                self.rtc_ram
+                    .record_panic(Timestamp::from_millis(uptime.as_millis()));
+            }
+            Err(payload) => std::panic::resume_unwind(payload),
+        }
+    }
+
     /// Presses the front button for `hold_ms`, then releases it.
     pub async fn press_button(&self, hold_ms: u64) {
         self.button.set_level(PinState::Low);
         wait_ms(hold_ms).await;
         self.button.set_level(PinState::High);
     }
+}
+
+/// The two words of the chip's RTC RAM that survive a reset but not a power-on, where
+/// the panic handler leaves its [`PanicHistory`] for the next boot (the firmware's
+/// `board::panic_record`). Shared by every boot of one robot, as the chip's RAM is.
+#[derive(Debug, Clone)]
+pub struct RtcRam(Arc<Mutex<[u32; 2]>>);
+
+impl Default for RtcRam {
+    /// Fresh from a power-on: noise, no history.
+    fn default() -> Self {
+        let ram = RtcRam(Arc::new(Mutex::new([0; 2])));
+        ram.power_on();
+        ram
+    }
+}
+
+impl RtcRam {
+    fn update<T>(&self, change: impl FnOnce(&mut PanicHistory) -> T) -> T {
+        let mut words = self.0.lock().unwrap_or_else(PoisonError::into_inner);
+        let mut history = PanicHistory::decode(*words);
+        let result = change(&mut history);
+        *words = history.encode();
+        result
+    }
+
+    /// The boot's decision on Bluetooth, as the firmware's start makes it.
+    pub fn boot(&self) -> Bluetooth {
+        self.update(PanicHistory::at_boot)
+    }
+
+    /// The panic handler's record: the controller panicked `uptime` after its boot.
+    pub fn record_panic(&self, uptime: Timestamp) {
+        self.update(|history| history.on_panic(uptime));
+    }
+
+    /// Bluetooth was turned on by hand: the panics are forgotten.
+    pub fn turned_on(&self) {
+        self.update(PanicHistory::turned_on);
+    }
+
+    /// Panics in a row, each soon after its boot, so far.
+    pub fn short_panics(&self) -> u8 {
+        self.update(|history| history.short_panics())
+    }
+
+    /// The power was off: the RAM holds whatever it powers up with.
+    pub fn power_on(&self) {
+        *self.0.lock().unwrap_or_else(PoisonError::into_inner) = [0x5A5A_A5A5, 0x0003_FFFC];
+    }
+}
+
+/// The payload of the virtual controller's panic ([`controller_panics`]).
+#[derive(Debug)]
+pub struct ControllerPanic;
+
+/// The controller panics here, as a firmware task would (on the chip: a bug, or a
+/// packet that crashes the Bluetooth stack); see [`VirtualRobot::until_panic`].
+pub fn controller_panics() -> ! {
+    std::panic::panic_any(ControllerPanic)
 }
 
 /// Waits `ms` of virtual time.

@@ -118,6 +118,24 @@ fn advance_to_next_alarm() -> bool {
     any
 }
 
+/// Removes the alarms of an executor's waker when that executor returns (or unwinds):
+/// the future they would wake is gone. Left in this thread's clock, they would keep
+/// the waker alive for ever (a leak that libFuzzer's leak check reports on every input
+/// of the fuzz targets that run the robot) and make a later [`block_on`] jump the clock
+/// to a time nothing waits for.
+struct ForgetAlarmsOf(Waker);
+
+impl Drop for ForgetAlarmsOf {
+    fn drop(&mut self) {
+        CLOCK.with(|clock| {
+            clock
+                .borrow_mut()
+                .alarms
+                .retain(|alarm| !alarm.waker.will_wake(&self.0));
+        });
+    }
+}
+
 struct Flag(AtomicBool);
 
 impl Wake for Flag {
@@ -137,6 +155,7 @@ pub fn block_on<F: Future>(future: F) -> F::Output {
     let mut future = pin!(future);
     let woken = Arc::new(Flag(AtomicBool::new(true)));
     let waker = Waker::from(woken.clone());
+    let _forget = ForgetAlarmsOf(waker.clone());
     let mut cx = Context::from_waker(&waker);
     loop {
         if woken.0.swap(false, Ordering::SeqCst) {
@@ -207,6 +226,7 @@ pub fn block_on_realtime<F: Future>(future: F) -> F::Output {
         thread: thread::current(),
     });
     let waker = Waker::from(wake.clone());
+    let _forget = ForgetAlarmsOf(waker.clone());
     let mut cx = Context::from_waker(&waker);
     loop {
         if wake.woken.swap(false, Ordering::SeqCst) {
@@ -360,6 +380,19 @@ mod tests {
         let order = order.into_inner();
         assert_eq!(order[0], (100, start + Duration::from_millis(100)));
         assert_eq!(order[1], (300, start + Duration::from_millis(300)));
+    }
+
+    #[test]
+    fn a_finished_run_leaves_no_timer_behind_to_move_the_next_runs_clock() {
+        // Ends after 1 ms with a 100 s timer still pending.
+        block_on(embassy_futures::select::select(
+            Timer::after_secs(100),
+            Timer::after_millis(1),
+        ));
+        let before = now();
+        let stuck = std::panic::catch_unwind(|| block_on(core::future::pending::<()>()));
+        assert!(stuck.is_err(), "nothing can wake it: a deadlock");
+        assert_eq!(now(), before, "no stale timer moved the clock");
     }
 
     #[test]

@@ -17,12 +17,13 @@ use std::sync::{Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
 
 use base_core::can::{Command, Mode, Status};
-use base_core::registers::{OPEN_PAIRING_WINDOW_KEY, Reg};
+use base_core::registers::{BLUETOOTH_ON_KEY, OPEN_PAIRING_WINDOW_KEY, Reg};
+use embassy_futures::join::join;
 use embassy_futures::select::select;
 use embassy_time::Timer;
 use peer::Peer;
 use virtual_robot::ble::{BOND_FLASH_SIZE, RemoteRobot};
-use virtual_robot::robot::Pc;
+use virtual_robot::robot::{Pc, controller_panics};
 
 /// The pad's random static address (the two top bits set).
 const PAD_ADDRESS: &str = "C1:11:22:33:44:55";
@@ -723,4 +724,51 @@ fn security_requests_and_pairing_from_an_impostor_never_pair_and_the_bond_stays(
         assert_eq!(bond, robot.bond_flash.contents(0..BOND_FLASH_SIZE as u32));
         owner_is_back_within_2_s(&mut peer, &robot, pc, "impostor").await;
     });
+}
+
+#[test]
+fn after_three_panics_soon_after_boot_bluetooth_stays_off_and_the_key_brings_the_bonded_pad_back() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        pair(&mut peer, pc, "pad", PAD_ADDRESS).await;
+    });
+    // Three boots that each die within 0.2 s, as with the attacker in range.
+    for _ in 0..3 {
+        robot.robot.until_panic(|| {
+            robot.run(peer.controller(), async |_pc| {
+                Timer::after_millis(150).await;
+                controller_panics()
+            })
+        });
+    }
+    robot.run(peer.controller(), async |pc| {
+        status(pc, 5_000, "the drives are set up", |s| {
+            s.mode != Mode::Starting
+        })
+        .await;
+        assert_eq!(pc.read_register(Reg::BluetoothOff as u8).await, Some(1));
+        peer.wait_for(0, &["disconnected", "pad"], 5_000).await;
+        let mark = peer.mark();
+        peer.cmd("advertise pad").await;
+        // The robot PC drives as always.
+        let driving = async {
+            pc.drive(300, 0, 1_500).await;
+            pc.drive(0, 0, 500).await;
+        };
+        join(driving, wheels(&robot, 1_500, true)).await;
+        wheels(&robot, 3_000, false).await;
+        // The bonded pad advertises all along, and the radio stays untouched.
+        assert!(peer.events_since(mark, &["central-scan"]).is_empty());
+        assert!(peer.events_since(mark, &["central-connect"]).is_empty());
+        assert!(!pc.status().expect("status").flags.remote_connected);
+        write_register(pc, Reg::Command, BLUETOOTH_ON_KEY);
+        peer.wait_for(mark, &["encrypted", "pad", "1"], 10_000)
+            .await;
+        status(pc, 3_000, "the pad is back", |s| s.flags.remote_connected).await;
+        assert_eq!(pc.read_register(Reg::BluetoothOff as u8).await, Some(0));
+        drive_forward(&mut peer, &robot, pc).await;
+    });
+    assert_eq!(robot.robot.rtc_ram.short_panics(), 0);
 }

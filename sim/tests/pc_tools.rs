@@ -368,6 +368,36 @@ fn config_save_then_factory_reset_then_config_load_restores_every_register() {
 }
 
 #[test]
+fn info_says_when_bluetooth_is_off_after_a_panic_loop_and_the_key_turns_it_on() {
+    let mut simulator = start_simulator();
+    let channel = simulator.socketcand().to_string();
+    let info = || run_ok(&["--channel", &channel, "info"]);
+    assert!(info().contains("bluetooth       on\n"), "{}", info());
+    for count in 1..=3 {
+        simulator.console("panic").unwrap();
+        let line = simulator.wait_for_line("panic:", Duration::from_secs(5));
+        let line = line.unwrap_or_else(|| panic!("no panic line\n{}", simulator.stderr_tail()));
+        assert!(
+            line.contains(&format!("soon after boot: {count}")),
+            "{line}"
+        );
+    }
+    let text = info();
+    assert!(
+        text.contains(
+            "bluetooth       OFF after 3 panics, each within 30 s of boot; turn it on with a \
+             confirm press of the front button or `basectl reg set command 0xB1E1`"
+        ),
+        "{text}"
+    );
+    let json = run_ok(&["--channel", &channel, "--json", "info"]);
+    let value: serde_json::Value = serde_json::from_str(&json).unwrap();
+    assert_eq!(value["bluetooth_off_after_panics"], true);
+    run_ok(&["--channel", &channel, "reg", "set", "command", "0xB1E1"]);
+    assert!(info().contains("bluetooth       on\n"), "{}", info());
+}
+
+#[test]
 fn info_tells_versions_mode_faults_and_counters_in_one_shot_also_as_json() {
     let simulator = start_simulator();
     let text = run_ok(&["--channel", &simulator.socketcand().to_string(), "info"]);

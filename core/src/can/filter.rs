@@ -72,6 +72,15 @@ mod tests {
     }
 
     #[test]
+    fn the_update_ids_pass_the_filters_without_widening_them() {
+        for id in id::UPDATE {
+            assert!(accepted(id), "{id:#05x}");
+        }
+        // The reply ID is the base controller's own, not for its receive FIFO.
+        assert!(!accepted(id::UPDATE_REPLY));
+    }
+
+    #[test]
     fn the_filters_pass_32_of_the_2048_ids() {
         let count = (0..=MAX_STANDARD_ID).filter(|&id| accepted(id)).count();
         assert_eq!(count, 32);

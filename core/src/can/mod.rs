@@ -7,6 +7,7 @@ pub mod filter;
 mod rejection;
 mod report;
 mod status;
+pub mod update;
 
 pub use command::Command;
 pub use rejection::Rejection;
@@ -56,6 +57,17 @@ pub mod id {
         SCALE_CALIBRATION,
         ODOMETRY_CALIBRATION,
     ];
+
+    /// PC → BC: firmware update command (ext).
+    pub const UPDATE_COMMAND: u16 = 0x2E8;
+    /// PC → BC: firmware image data, a sequence byte and 7 bytes (ext).
+    pub const UPDATE_DATA: u16 = 0x2EC;
+    /// BC → PC: firmware update reply (ext).
+    pub const UPDATE_REPLY: u16 = 0x2EA;
+
+    /// The update's IDs the base controller listens to; the update task takes them,
+    /// never the controller.
+    pub const UPDATE: [u16; 2] = [UPDATE_COMMAND, UPDATE_DATA];
 
     /// Every ID the base controller sends, e.g. for the PC-side receive filter.
     pub const REPORTS: [u16; 6] = [REGISTER_READ, WEIGHT, BATTERY, POSITION, HEADING, STATUS];
@@ -216,7 +228,12 @@ mod tests {
 
     #[test]
     fn every_protocol_id_fits_eleven_bits() {
-        for id in id::COMMANDS.iter().chain(id::REPORTS.iter()) {
+        for id in id::COMMANDS
+            .iter()
+            .chain(id::REPORTS.iter())
+            .chain(id::UPDATE.iter())
+            .chain([id::UPDATE_REPLY].iter())
+        {
             assert!(*id <= MAX_STANDARD_ID, "{id:#x}");
         }
     }

@@ -25,11 +25,14 @@ pub enum Rejection {
     /// Not a refused command: a drive's position counter and reported speed disagreed
     /// for two windows in a row, and the base stopped with a latched drive fault.
     Feedback(Finding),
+    /// Velocity, enable or the gamepad's dead-man while a firmware update runs or a
+    /// new image is on trial: refused, the base stays braked.
+    UpdateInProgress,
 }
 
 impl Rejection {
     /// Every reason this firmware reports, in code order.
-    pub const ALL: [Rejection; 21] = [
+    pub const ALL: [Rejection; 22] = [
         Rejection::Frame(FrameError::WrongLength),
         Rejection::Frame(FrameError::BadVelocityMarker),
         Rejection::Frame(FrameError::UnknownSubcommand),
@@ -51,6 +54,7 @@ impl Rejection {
         Rejection::OdometryDiscontinuity,
         Rejection::Feedback(Finding::PositionStuck),
         Rejection::Feedback(Finding::SpeedStale),
+        Rejection::UpdateInProgress,
     ];
 
     /// `None` for 0 (nothing rejected) and for codes this firmware does not define (a
@@ -69,6 +73,7 @@ impl Rejection {
             Rejection::OdometryDiscontinuity => 0x40,
             Rejection::Feedback(Finding::PositionStuck) => 0x41,
             Rejection::Feedback(Finding::SpeedStale) => 0x42,
+            Rejection::UpdateInProgress => 0x50,
         }
     }
 
@@ -98,6 +103,7 @@ impl Rejection {
             Rejection::OdometryDiscontinuity => "OdometryDiscontinuity",
             Rejection::Feedback(Finding::PositionStuck) => "PositionStuck",
             Rejection::Feedback(Finding::SpeedStale) => "SpeedStale",
+            Rejection::UpdateInProgress => "UpdateInProgress",
         }
     }
 
@@ -158,6 +164,9 @@ impl Rejection {
             }
             Rejection::Feedback(Finding::SpeedStale) => {
                 "a drive's position counter ran while its reported speed stood or lagged (stale speed): drive fault"
+            }
+            Rejection::UpdateInProgress => {
+                "velocity, enable or the gamepad while a firmware update runs or a new image is on trial"
             }
         }
     }

@@ -23,9 +23,9 @@ pub use record::{
 };
 pub use remote_info::{Charge, RemoteBattery, RemoteInfo, RemoteKind};
 pub use table::{
-    ADDRESS_COUNT, Access, FW_VERSION, LAST_MANUAL_ADDRESS, MOTOR_DIR_INVERT_LEFT,
-    MOTOR_DIR_INVERT_RIGHT, OPEN_PAIRING_WINDOW_KEY, REGMAP_VERSION, RESTORE_DEFAULTS_KEY, Reg,
-    RegisterInfo, TABLE, info,
+    ADDRESS_COUNT, Access, BLUETOOTH_ON_KEY, FW_VERSION, LAST_MANUAL_ADDRESS,
+    MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, OPEN_PAIRING_WINDOW_KEY, REGMAP_VERSION,
+    RESTORE_DEFAULTS_KEY, Reg, RegisterInfo, TABLE, info,
 };
 
 /// Why a register read or write was refused. The code goes on CAN (register-read error
@@ -34,7 +34,7 @@ pub use table::{
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum RegisterError {
-    /// No register at this address (36–37, 41–42 and 51–255).
+    /// No register at this address (37, 41–42 and 51–255).
     UnknownAddress = 0x10,
     /// The register is read-only (`fw_version`, `regmap_version`, the counters and the
     /// remote's kind and battery).
@@ -71,6 +71,9 @@ pub enum WriteOutcome {
     /// `command` got [`OPEN_PAIRING_WINDOW_KEY`]: no register changed, nothing to
     /// persist; the controller opens the pairing window.
     PairingWindowRequested,
+    /// `command` got [`BLUETOOTH_ON_KEY`]: no register changed, nothing to persist; the
+    /// controller turns Bluetooth on if a panic loop switched it off.
+    BluetoothOnRequested,
     /// The full scale offset changed (a write of 19, 44 or 45, or a tare): persist
     /// [`Registers::weight_offset_records`], all three at once.
     OffsetChanged,
@@ -347,6 +350,7 @@ impl Registers {
                     Ok(WriteOutcome::DefaultsRestored)
                 }
                 OPEN_PAIRING_WINDOW_KEY => Ok(WriteOutcome::PairingWindowRequested),
+                BLUETOOTH_ON_KEY => Ok(WriteOutcome::BluetoothOnRequested),
                 _ => Err(RegisterError::OutOfRange),
             };
         }

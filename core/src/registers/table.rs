@@ -1,11 +1,11 @@
 //! The register map: every address, its name, unit, default, valid range and access.
-//! Addresses 0–23 are the manual's (§10) and never move; 24–35, 38–40 and 43–49 are
+//! Addresses 0–23 are the manual's (§10) and never move; 24–36, 38–40 and 43–49 are
 //! this firmware's extensions. `docs/registers.md` is this table in prose.
 
 /// Every register by its manual name, in CamelCase; the discriminant is the CAN address.
 ///
-/// 36–37 are deliberately absent: they are kept free for the Bluetooth remote, and
-/// reading or writing them answers [`super::RegisterError::UnknownAddress`]; so are
+/// 37 is deliberately absent: it is kept free for the Bluetooth remote, and
+/// reading or writing it answers [`super::RegisterError::UnknownAddress`]; so do
 /// 41–42, kept for the next extensions.
 #[repr(u8)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -85,12 +85,17 @@ pub enum Reg {
     /// (ext) `remote_battery`, read-only: the remote's battery
     /// ([`super::RemoteBattery`]: level in bits 0–7, charge state in 8–15; 0 unknown).
     RemoteBattery = 35,
+    /// (ext) `bluetooth_off`, read-only: 1 while the Bluetooth remote is off after a
+    /// panic loop ([`crate::panic_loop`]); [`BLUETOOTH_ON_KEY`] to `command` or a confirm
+    /// press turns it on.
+    BluetoothOff = 36,
     /// (ext) `fw_version`, read-only: `(major << 8) | minor`.
     FwVersion = 38,
     /// (ext) `regmap_version`, read-only: version of this register map.
     RegmapVersion = 39,
     /// (ext) `command`, write-only, reads 0: [`RESTORE_DEFAULTS_KEY`] restores defaults,
-    /// [`OPEN_PAIRING_WINDOW_KEY`] opens the Bluetooth remote's pairing window.
+    /// [`OPEN_PAIRING_WINDOW_KEY`] opens the Bluetooth remote's pairing window,
+    /// [`BLUETOOTH_ON_KEY`] turns Bluetooth on after a panic loop.
     Command = 40,
     /// (ext) `weight_offset_hi`, raw: bits 16–23 of the full 24-bit scale offset.
     WeightOffsetHi = 44,
@@ -114,7 +119,7 @@ pub enum Reg {
 
 impl Reg {
     /// Every register, in address order.
-    pub const ALL: [Reg; 47] = [
+    pub const ALL: [Reg; 48] = [
         Reg::RadR,
         Reg::RadL,
         Reg::WheelDist,
@@ -151,6 +156,7 @@ impl Reg {
         Reg::PcSwitchPulse,
         Reg::RemoteKind,
         Reg::RemoteBattery,
+        Reg::BluetoothOff,
         Reg::FwVersion,
         Reg::RegmapVersion,
         Reg::Command,
@@ -165,11 +171,12 @@ impl Reg {
     ];
 
     /// The read-only values the firmware sets ([`super::Registers::set_counter`]): the
-    /// counters and the boot's bits. Nothing persists them.
-    pub const COUNTERS: [Reg; 4] = [
+    /// counters, Bluetooth's state and the boot's bits. Nothing persists them.
+    pub const COUNTERS: [Reg; 5] = [
         Reg::FlashErasesHi,
         Reg::FlashErasesLo,
         Reg::CanTxDropped,
+        Reg::BluetoothOff,
         Reg::BootInfo,
     ];
 
@@ -264,6 +271,10 @@ pub const RESTORE_DEFAULTS_KEY: u16 = 0xDEF0;
 /// lets a stranger's pad in.
 pub const OPEN_PAIRING_WINDOW_KEY: u16 = 0xB1E0;
 
+/// Writing this to [`Reg::Command`] turns the Bluetooth remote on again after a panic
+/// loop switched it off ([`Reg::BluetoothOff`]); with Bluetooth on it changes nothing.
+pub const BLUETOOTH_ON_KEY: u16 = 0xB1E1;
+
 /// [`Reg::MotorDir`] bit: invert the left motor's direction.
 pub const MOTOR_DIR_INVERT_LEFT: u16 = 0b01;
 /// [`Reg::MotorDir`] bit: invert the right motor's direction.
@@ -274,8 +285,9 @@ pub const MOTOR_DIR_INVERT_RIGHT: u16 = 0b10;
 /// 1: the first map. 2: `command` also takes [`OPEN_PAIRING_WINDOW_KEY`]. 3: the CAN
 /// transmit drops (43), the full 24-bit scale offset (44, 45), the store's erase count
 /// (46, 47), `stop_decel` (48) and `sec_motor_vel` (49); motion registers only at
-/// standstill. 4: the remote's kind (34) and battery (35). 5: `boot_info` (50).
-pub const REGMAP_VERSION: u16 = 5;
+/// standstill. 4: the remote's kind (34) and battery (35), `bluetooth_off` (36),
+/// [`BLUETOOTH_ON_KEY`] and `boot_info` (50).
+pub const REGMAP_VERSION: u16 = 4;
 
 /// [`Reg::FwVersion`]: `(major << 8) | minor` of the crate version, fixed at compile time.
 pub const FW_VERSION: u16 = ((parse_version_part(env!("CARGO_PKG_VERSION_MAJOR")) as u16) << 8)
@@ -344,7 +356,10 @@ impl RegisterInfo {
     /// rules are checked separately).
     pub const fn accepts(&self, value: u16) -> bool {
         match self.access {
-            Access::WriteOnly => matches!(value, RESTORE_DEFAULTS_KEY | OPEN_PAIRING_WINDOW_KEY),
+            Access::WriteOnly => matches!(
+                value,
+                RESTORE_DEFAULTS_KEY | OPEN_PAIRING_WINDOW_KEY | BLUETOOTH_ON_KEY
+            ),
             Access::ReadWrite | Access::ReadOnly => {
                 (self.zero_is_off && value == 0) || (value >= self.min && value <= self.max)
             }
@@ -386,10 +401,10 @@ use super::BootInfo;
 use super::remote_info::{RemoteBattery, RemoteKind};
 use Access::{ReadOnly, ReadWrite, WriteOnly};
 
-/// Every register in address order (36–37 and 41–42 are not assigned). Why each range is what it
+/// Every register in address order (37 and 41–42 are not assigned). Why each range is what it
 /// is: `docs/registers.md`.
 #[rustfmt::skip]
-pub static TABLE: [RegisterInfo; 47] = [
+pub static TABLE: [RegisterInfo; 48] = [
     row(Reg::RadR, "rad_r", "mm", 142, (10, 1000), ReadWrite, "right wheel radius"),
     row(Reg::RadL, "rad_l", "mm", 142, (10, 1000), ReadWrite, "left wheel radius"),
     row(Reg::WheelDist, "wheel_dist", "mm", 250, (50, 2000), ReadWrite, "distance between the wheels"),
@@ -426,9 +441,10 @@ pub static TABLE: [RegisterInfo; 47] = [
     row(Reg::PcSwitchPulse, "pc_switch_pulse", "ms", 500, (50, 2000), ReadWrite, "how long the PC power switch is closed"),
     row(Reg::RemoteKind, "remote_kind", "kind", 0, (0, RemoteKind::MAX_CODE), ReadOnly, "the connected remote: 0 none, 1 BLE pad, 2 DualShock 4, 3 DualSense"),
     row(Reg::RemoteBattery, "remote_battery", "state<<8 | %", 0, (0, RemoteBattery::MAX_REGISTER), ReadOnly, "the remote's battery: bits 0-7 percent, bits 8-15 1 level only, 2 discharging, 3 charging, 4 full, 5 fault; 0 unknown"),
+    row(Reg::BluetoothOff, "bluetooth_off", "flag", 0, (0, 1), ReadOnly, "1: Bluetooth is off after 3 panics each within 30 s of boot; 0xB1E1 to command or a confirm press turns it on"),
     row(Reg::FwVersion, "fw_version", "major.minor", FW_VERSION, (FW_VERSION, FW_VERSION), ReadOnly, "firmware version"),
     row(Reg::RegmapVersion, "regmap_version", "", REGMAP_VERSION, (REGMAP_VERSION, REGMAP_VERSION), ReadOnly, "register map version"),
-    row(Reg::Command, "command", "key", 0, (OPEN_PAIRING_WINDOW_KEY, RESTORE_DEFAULTS_KEY), WriteOnly, "0xDEF0 restores every writable register to its default; 0xB1E0 opens the remote's pairing window"),
+    row(Reg::Command, "command", "key", 0, (OPEN_PAIRING_WINDOW_KEY, RESTORE_DEFAULTS_KEY), WriteOnly, "0xDEF0 restores every writable register to its default; 0xB1E0 opens the remote's pairing window; 0xB1E1 turns Bluetooth on after a panic loop"),
     row(Reg::CanTxDropped, "can_tx_dropped", "frames", 0, (0, 65535), ReadOnly, "CAN frames dropped with a full transmit queue since boot (saturates)"),
     row(Reg::WeightOffsetHi, "weight_offset_hi", "raw", 0, (0, 255), ReadWrite, "bits 16-23 of the full scale offset (24-bit two's complement)"),
     row(Reg::WeightOffsetLo, "weight_offset_lo", "raw", 20490, (0, 65535), ReadWrite, "bits 0-15 of the full scale offset"),

@@ -31,7 +31,7 @@ const MANUAL: [(u8, &str, u16); 24] = [
 ];
 
 /// The extensions as the lead fixed them: address, name, default, min, max, 0 = off.
-const EXTENSIONS: [(u8, &str, u16, u16, u16, bool); 20] = [
+const EXTENSIONS: [(u8, &str, u16, u16, u16, bool); 21] = [
     (24, "gear_ratio", 1000, 100, 10000, false),
     (25, "enable_timeout", 500, 50, 5000, false),
     (26, "estop_decel", 4500, 100, 30000, false),
@@ -44,6 +44,7 @@ const EXTENSIONS: [(u8, &str, u16, u16, u16, bool); 20] = [
     (33, "pc_switch_pulse", 500, 50, 2000, false),
     (34, "remote_kind", 0, 0, 3, false),
     (35, "remote_battery", 0, 0, 0x0564, false),
+    (36, "bluetooth_off", 0, 0, 1, false),
     (43, "can_tx_dropped", 0, 0, 65535, false),
     (44, "weight_offset_hi", 0, 0, 255, false),
     (45, "weight_offset_lo", 20490, 0, 65535, false),
@@ -115,7 +116,7 @@ fn reg_enum_table_and_addresses_agree() {
         assert_eq!(Reg::from_address(reg as u8), Some(reg));
     }
     assert!(Reg::ALL.windows(2).all(|w| w[0] < w[1]));
-    for address in (36..=37).chain(41..=42).chain(51..=u8::MAX) {
+    for address in (37..=37).chain(41..=42).chain(51..=u8::MAX) {
         assert_eq!(Reg::from_address(address), None);
         assert_eq!(info(address), None);
     }
@@ -133,8 +134,9 @@ fn version_registers_read_the_build_and_map_versions() {
     let minor: u16 = parts.next().unwrap().parse().unwrap();
     let registers = Registers::defaults();
     assert_eq!(registers.read(38), Ok((major << 8) | minor));
-    // 4 since the remote's kind and battery came (34, 35); 5 since `boot_info` (50).
-    assert_eq!(registers.read(39), Ok(5));
+    // 4 since the remote's kind and battery (34, 35), `bluetooth_off` (36), the
+    // Bluetooth-on key and `boot_info` (50) came.
+    assert_eq!(registers.read(39), Ok(4));
 }
 
 #[test]
@@ -197,7 +199,7 @@ fn bad_writes_are_rejected_and_change_nothing() {
         (8, 49, OutOfRange),     // PS_rel_max_vel below the lowest speed level
         (28, 4, OutOfRange),     // motor_dir has two bits
         (40, 1, OutOfRange),     // command: not the restore key
-        (36, 1, UnknownAddress),
+        (36, 0, ReadOnly),       // bluetooth_off: only the panic-loop decision sets it
         (37, 1, UnknownAddress),
         (41, 1, UnknownAddress),
         (255, 1, UnknownAddress),
@@ -315,7 +317,7 @@ fn restore_key_brings_back_every_default() {
 }
 
 #[test]
-fn pairing_key_changes_no_register_and_command_takes_no_other_value() {
+fn pairing_and_bluetooth_keys_change_no_register_and_command_takes_no_other_value() {
     let mut registers = Registers::defaults();
     registers.write(0, 150).unwrap();
     let before = registers.clone();
@@ -323,8 +325,12 @@ fn pairing_key_changes_no_register_and_command_takes_no_other_value() {
         registers.write(40, OPEN_PAIRING_WINDOW_KEY),
         Ok(WriteOutcome::PairingWindowRequested)
     );
+    assert_eq!(
+        registers.write(40, BLUETOOTH_ON_KEY),
+        Ok(WriteOutcome::BluetoothOnRequested)
+    );
     assert_eq!(registers, before);
-    for value in [0, 1, 0xB1E1, 0xC000, 0xDEEF, 0xDEF1, u16::MAX] {
+    for value in [0, 1, 0xB1DF, 0xB1E2, 0xC000, 0xDEEF, 0xDEF1, u16::MAX] {
         assert_eq!(
             registers.write(40, value),
             Err(RegisterError::OutOfRange),
@@ -558,6 +564,10 @@ proptest! {
                 Ok(WriteOutcome::DefaultsRestored) => prop_assert_eq!(&registers, &Registers::defaults()),
                 Ok(WriteOutcome::PairingWindowRequested) => {
                     prop_assert_eq!((address, value), (40, OPEN_PAIRING_WINDOW_KEY));
+                    prop_assert_eq!(&registers, &before);
+                }
+                Ok(WriteOutcome::BluetoothOnRequested) => {
+                    prop_assert_eq!((address, value), (40, BLUETOOTH_ON_KEY));
                     prop_assert_eq!(&registers, &before);
                 }
                 Err(_) => prop_assert_eq!(&registers, &before),

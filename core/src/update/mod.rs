@@ -9,7 +9,13 @@
 //! rewrites its entry as `Aborted` ("armed"), so any reset from then on boots the
 //! previous slot; after its health checks it writes `Valid`.
 
+/// The project name `esp_app_desc!` records for this firmware (the firmware crate's
+/// name): an image naming another project is refused.
+pub const PROJECT: &str = "base-controller-firmware";
+
 pub mod boot;
 pub mod image;
 pub mod otadata;
+pub mod partitions;
+pub mod session;
 pub mod trial;

@@ -1,12 +1,10 @@
 //! What a starting image does about its own otadata entry: a new image arms itself
 //! before anything else can fail, so that a panic, a hang (the watchdog) or a power cut
-//! during its trial boots the previous slot; it confirms only after its health checks
-//! ([`healthy`]), and rejects itself when they have not passed by the deadline
-//! ([`TrialWatch`]).
+//! during its trial boots the previous slot; it confirms only after its health checks.
+//! The [`ResetRecord`] it leaves for the next boot tells an update's reset from a fault.
 
 use super::otadata::{OtaData, OtaDataError, OtaState, SectorWrite, Slot};
-use crate::can::{Mode, Status};
-use crate::time::Timestamp;
+use crate::registers::UpdateReset;
 
 /// Where a starting image stands.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -63,198 +61,185 @@ pub fn reject(otadata: &OtaData, running: Slot) -> Result<SectorWrite, OtaDataEr
     otadata.set_state(running, OtaState::Invalid)
 }
 
-/// How long a new image has to pass its health checks before it rejects itself: long
-/// enough for the drives to answer (the controller keeps asking them) and for the PC
-/// that sent the update to see the new version; short enough that a robot whose new
-/// image cannot prove itself runs the old one again within a minute.
-pub const TRIAL_DEADLINE_MS: u64 = 60_000;
-
-/// The trial's timing.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// What the chip keeps for the next boot across a reset (RTC RAM, which a power-on
+/// clears), so that a reset an update causes is reported as such ([`UpdateReset`]), not
+/// as a watchdog reset or a panic.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct TrialParams {
-    pub deadline_ms: u64,
+pub enum ResetRecord {
+    /// Nothing to report (also what a power-on, noise or a torn record reads as).
+    #[default]
+    Empty,
+    /// An image on trial runs from this slot: if the next boot starts the other slot,
+    /// the trial failed (a panic, a hang, or its deadline).
+    OnTrial(Slot),
+    /// Written just before the reset that follows an activation.
+    Activation,
+    /// Written just before the reset that follows the rejection of an image on trial
+    /// (its deadline passed without a confirm, or the PC asked for a rollback).
+    Rejection,
 }
 
-impl TrialParams {
-    pub const DEFAULT: Self = Self {
-        deadline_ms: TRIAL_DEADLINE_MS,
-    };
-}
+impl ResetRecord {
+    const MAGIC: u32 = 0x7219_A1B0;
+    const ON_TRIAL_OTA0: u32 = 1;
+    const ON_TRIAL_OTA1: u32 = 2;
+    const ACTIVATION: u32 = 3;
+    const REJECTION: u32 = 4;
 
-/// What the trial watch learns.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum TrialEvent {
-    /// The controller's status frame went out; `bus_active`: the CAN controller is
-    /// error-active after it, so another node acknowledged our frames.
-    StatusSent { status: Status, bus_active: bool },
-    /// Time passed.
-    Tick,
-}
-
-/// What the firmware does about its otadata entry.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum TrialEffect {
-    /// Nothing yet.
-    Wait,
-    /// The health checks passed: write [`confirm`].
-    Confirm,
-    /// The deadline passed without them: write [`reject`] and reset, so the previous
-    /// image starts.
-    Reject,
-}
-
-/// A running image's trial: watching its health until the deadline, then over.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum TrialWatch {
-    Watching {
-        since: Timestamp,
-    },
-    /// Confirmed or rejected: every later event is ignored.
-    Ended,
-}
-
-impl TrialWatch {
-    pub const fn start(now: Timestamp) -> Self {
-        Self::Watching { since: now }
+    /// Three words: a magic, the record and its complement, so that zeros, noise and a
+    /// write torn by a reset read as [`ResetRecord::Empty`].
+    pub const fn encode(self) -> [u32; 3] {
+        let value = match self {
+            Self::Empty => return [0; 3],
+            Self::OnTrial(Slot::Ota0) => Self::ON_TRIAL_OTA0,
+            Self::OnTrial(Slot::Ota1) => Self::ON_TRIAL_OTA1,
+            Self::Activation => Self::ACTIVATION,
+            Self::Rejection => Self::REJECTION,
+        };
+        [Self::MAGIC, value, !value]
     }
 
-    pub fn step(&mut self, now: Timestamp, event: TrialEvent, params: &TrialParams) -> TrialEffect {
-        let Self::Watching { since } = *self else {
-            return TrialEffect::Wait;
-        };
-        let effect = match event {
-            TrialEvent::StatusSent { status, bus_active } if healthy(&status, bus_active) => {
-                TrialEffect::Confirm
-            }
-            _ if now.millis_since(since) >= params.deadline_ms => TrialEffect::Reject,
-            _ => TrialEffect::Wait,
-        };
-        if effect != TrialEffect::Wait {
-            *self = Self::Ended;
+    pub const fn decode(words: [u32; 3]) -> Self {
+        let [magic, value, check] = words;
+        if magic != Self::MAGIC || check != !value {
+            return Self::Empty;
         }
-        effect
+        match value {
+            Self::ON_TRIAL_OTA0 => Self::OnTrial(Slot::Ota0),
+            Self::ON_TRIAL_OTA1 => Self::OnTrial(Slot::Ota1),
+            Self::ACTIVATION => Self::Activation,
+            Self::REJECTION => Self::Rejection,
+            _ => Self::Empty,
+        }
     }
 }
 
-/// The health checks of an image on trial, all read from a status frame it sent: the
-/// drives answered (the controller left `Starting`, neither drive is silent), CAN is up
-/// (the frame went out and the controller stays error-active, so another node
-/// acknowledged it), and the register store was read (no flash fault; a first boot's
-/// blank store is none).
-pub fn healthy(status: &Status, bus_active: bool) -> bool {
-    let faults = &status.faults;
-    bus_active
-        && status.mode != Mode::Starting
-        && !faults.left_drive_silent
-        && !faults.right_drive_silent
-        && !faults.flash
+/// At boot, after [`on_start`]: how this boot came about, from the record the last run
+/// left, and the record this run keeps (an image on trial names its slot, so that a
+/// reset that ends its trial without a confirm reads as a failed trial on the next
+/// boot; any other image keeps none).
+pub fn boot_cause(left: ResetRecord, role: StartRole, running: Slot) -> (UpdateReset, ResetRecord) {
+    let cause = match left {
+        ResetRecord::Empty => UpdateReset::None,
+        ResetRecord::Activation => UpdateReset::Activation,
+        ResetRecord::Rejection => UpdateReset::FailedTrial,
+        ResetRecord::OnTrial(slot) if slot != running => UpdateReset::FailedTrial,
+        // The same slot started again (its trial failed but no other slot boots): the
+        // reset was the panic or the watchdog that ended it.
+        ResetRecord::OnTrial(_) => UpdateReset::None,
+    };
+    let keep = if role.on_trial() {
+        ResetRecord::OnTrial(running)
+    } else {
+        ResetRecord::Empty
+    };
+    (cause, keep)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::can::Faults;
     use crate::update::otadata::{ERASED_ENTRY, Entry};
 
-    fn standby() -> Status {
-        Status {
-            mode: Mode::Standby,
-            ..Status::default()
+    #[test]
+    fn the_reset_record_round_trips_and_rejects_noise() {
+        let records = [
+            ResetRecord::Empty,
+            ResetRecord::OnTrial(Slot::Ota0),
+            ResetRecord::OnTrial(Slot::Ota1),
+            ResetRecord::Activation,
+            ResetRecord::Rejection,
+        ];
+        for record in records {
+            assert_eq!(ResetRecord::decode(record.encode()), record);
         }
+        let [magic, value, _] = ResetRecord::Activation.encode();
+        // Torn (the check word from before), zeros after a power-on, an unknown value.
+        assert_eq!(ResetRecord::decode([magic, value, 0]), ResetRecord::Empty);
+        assert_eq!(ResetRecord::decode([0; 3]), ResetRecord::Empty);
+        assert_eq!(ResetRecord::decode([magic, 9, !9]), ResetRecord::Empty);
     }
 
     #[test]
-    fn a_healthy_status_confirms_and_the_watch_ends() {
-        let params = TrialParams::DEFAULT;
-        let mut watch = TrialWatch::start(Timestamp::from_millis(0));
-        let sent = |status| TrialEvent::StatusSent {
-            status,
-            bus_active: true,
+    fn boot_cause_reports_update_resets_and_keeps_the_trial() {
+        let armed = StartRole::Trial {
+            arm: SectorWrite {
+                sector: 1,
+                entry: Entry::new(2, OtaState::Aborted),
+            },
         };
-        let starting = Status {
-            mode: Mode::Starting,
-            ..Status::default()
-        };
-        assert_eq!(
-            watch.step(Timestamp::from_millis(500), sent(starting), &params),
-            TrialEffect::Wait
-        );
-        assert_eq!(
-            watch.step(Timestamp::from_millis(1_500), sent(standby()), &params),
-            TrialEffect::Confirm
-        );
-        assert_eq!(watch, TrialWatch::Ended);
-        let late = Timestamp::from_millis(params.deadline_ms + 1);
-        assert_eq!(
-            watch.step(late, TrialEvent::Tick, &params),
-            TrialEffect::Wait
-        );
-    }
-
-    #[test]
-    fn each_failed_check_keeps_the_trial_waiting() {
+        let on_trial = |slot| ResetRecord::OnTrial(slot);
         let cases = [
-            ("CAN not acknowledged", standby(), false),
+            // what the last run left, the role, the slot, the cause, the record kept
             (
-                "a drive silent",
-                Status {
-                    faults: Faults {
-                        right_drive_silent: true,
-                        ..Faults::default()
-                    },
-                    ..standby()
-                },
-                true,
+                "power-on",
+                ResetRecord::Empty,
+                StartRole::Confirmed,
+                Slot::Ota0,
+                UpdateReset::None,
+                ResetRecord::Empty,
             ),
             (
-                "the store not read",
-                Status {
-                    faults: Faults {
-                        flash: true,
-                        ..Faults::default()
-                    },
-                    ..standby()
-                },
-                true,
+                "activation, new image on trial",
+                ResetRecord::Activation,
+                armed,
+                Slot::Ota1,
+                UpdateReset::Activation,
+                on_trial(Slot::Ota1),
+            ),
+            (
+                "activation, the bootloader refused the new image",
+                ResetRecord::Activation,
+                StartRole::Confirmed,
+                Slot::Ota0,
+                UpdateReset::Activation,
+                ResetRecord::Empty,
+            ),
+            (
+                "rejected by its deadline or the PC",
+                ResetRecord::Rejection,
+                StartRole::Confirmed,
+                Slot::Ota0,
+                UpdateReset::FailedTrial,
+                ResetRecord::Empty,
+            ),
+            (
+                "the trial image panicked or hung",
+                on_trial(Slot::Ota1),
+                StartRole::Confirmed,
+                Slot::Ota0,
+                UpdateReset::FailedTrial,
+                ResetRecord::Empty,
+            ),
+            (
+                "a confirmed image's later panic",
+                on_trial(Slot::Ota1),
+                StartRole::Confirmed,
+                Slot::Ota1,
+                UpdateReset::None,
+                ResetRecord::Empty,
+            ),
+            (
+                "no other slot boots",
+                on_trial(Slot::Ota1),
+                StartRole::LastResort,
+                Slot::Ota1,
+                UpdateReset::None,
+                ResetRecord::Empty,
+            ),
+            (
+                "a rollback bootloader's trial",
+                ResetRecord::Activation,
+                StartRole::PendingVerify,
+                Slot::Ota1,
+                UpdateReset::Activation,
+                on_trial(Slot::Ota1),
             ),
         ];
-        for (what, status, bus_active) in cases {
-            assert!(!healthy(&status, bus_active), "{what}");
-            let mut watch = TrialWatch::start(Timestamp::from_millis(0));
-            let event = TrialEvent::StatusSent { status, bus_active };
-            assert_eq!(
-                watch.step(Timestamp::from_millis(1_000), event, &TrialParams::DEFAULT),
-                TrialEffect::Wait,
-                "{what}"
-            );
+        for (what, left, role, running, cause, keep) in cases {
+            assert_eq!(boot_cause(left, role, running), (cause, keep), "{what}");
         }
-        assert!(healthy(&standby(), true));
-    }
-
-    #[test]
-    fn no_healthy_status_by_the_deadline_rejects_once() {
-        let params = TrialParams::DEFAULT;
-        let mut watch = TrialWatch::start(Timestamp::from_millis(1_000));
-        let just_before = Timestamp::from_millis(1_000 + params.deadline_ms - 1);
-        assert_eq!(
-            watch.step(just_before, TrialEvent::Tick, &params),
-            TrialEffect::Wait
-        );
-        let at = Timestamp::from_millis(1_000 + params.deadline_ms);
-        assert_eq!(
-            watch.step(at, TrialEvent::Tick, &params),
-            TrialEffect::Reject
-        );
-        // A healthy status after the verdict changes nothing.
-        let event = TrialEvent::StatusSent {
-            status: standby(),
-            bus_active: true,
-        };
-        assert_eq!(watch.step(at, event, &params), TrialEffect::Wait);
     }
 
     fn data(first: Entry, second: Entry) -> OtaData {

@@ -186,8 +186,7 @@ mod bt_dual_mode {
     /// Only the linker calls this, in place of the library's function.
     #[unsafe(no_mangle)]
     unsafe extern "C" fn __wrap_btdm_controller_enable(mode: esp_bt_mode_t) -> i32 {
-        let mode = if mode == esp_bt_mode_t_ESP_BT_MODE_BLE && DUAL_MODE.load(Ordering::Relaxed)
-        {
+        let mode = if mode == esp_bt_mode_t_ESP_BT_MODE_BLE && DUAL_MODE.load(Ordering::Relaxed) {
             esp_bt_mode_t_ESP_BT_MODE_BTDM
         } else {
             mode

@@ -14,6 +14,7 @@ compile_error!(
 #[cfg_attr(feature = "esp32c3", path = "esp32c3.rs")]
 #[cfg_attr(feature = "esp32c6", path = "esp32c6.rs")]
 mod chip;
+pub mod panic_record;
 
 pub use chip::{Battery, CHIP, reset_by_software, reset_by_watchdog, take};
 

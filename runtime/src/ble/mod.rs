@@ -7,6 +7,7 @@ mod bond;
 mod central;
 #[cfg(feature = "ble")]
 mod guard;
+mod switch;
 
 #[cfg(feature = "ble")]
 pub use bond::{BOND_RECORD_LEN, decode_bond, encode_bond};
@@ -14,6 +15,7 @@ pub use bond::{BOND_RECORD_LEN, decode_bond, encode_bond};
 pub use central::*;
 #[cfg(feature = "ble")]
 pub use guard::{GUARD_LINKS, GuardState, GuardedController};
+pub use switch::wait_until_on;
 
 use embassy_sync::signal::Signal;
 
@@ -29,6 +31,8 @@ pub struct RemoteRequest {
     /// Counts the controller's requests to switch the pad off; a change means "drop the
     /// link now" (a counter, so two requests in a row are not merged into one state).
     pub disconnects: u16,
+    /// Bluetooth, off after a panic loop, was turned on ([`wait_until_on`]).
+    pub bluetooth_on: bool,
 }
 
 /// The remote task's channel ends (see [`crate::channels::Channels`]).

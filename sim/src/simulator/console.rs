@@ -25,6 +25,8 @@ pub const HELP: &str = "\
                          brown-out does: the drives run on until the new boot
                          stops them; watchdog: as a watchdog bite or a panic
                          (the status frame then shows watchdog_reset)
+  panic                  the controller panics and resets; 3 panics in a row,
+                         each within 30 s of boot, leave Bluetooth off
   status                 print everything the simulator knows, on five lines
   help                   this list
   quit                   stop the simulator";
@@ -51,6 +53,8 @@ pub enum ConsoleCommand {
     Reboot {
         by_watchdog: bool,
     },
+    /// The controller panics (and so resets).
+    Panic,
     Status,
     Help,
     Quit,
@@ -148,12 +152,13 @@ pub fn parse_console_line(line: &str) -> Result<Option<ConsoleCommand>, ConsoleE
         ["reboot"] => ConsoleCommand::Reboot { by_watchdog: false },
         ["reboot", "watchdog"] => ConsoleCommand::Reboot { by_watchdog: true },
         ["reboot", ..] => return Err(ConsoleError::Usage("reboot [watchdog]")),
+        ["panic"] => ConsoleCommand::Panic,
         ["status"] => ConsoleCommand::Status,
         ["help"] => ConsoleCommand::Help,
         ["quit" | "exit"] => ConsoleCommand::Quit,
-        ["status" | "help" | "quit" | "exit", ..] => {
+        ["status" | "help" | "quit" | "exit" | "panic", ..] => {
             return Err(ConsoleError::Usage(
-                "status, help and quit take no arguments",
+                "status, help, quit and panic take no arguments",
             ));
         }
         [word, ..] => return Err(ConsoleError::UnknownCommand((*word).to_owned())),
@@ -212,6 +217,7 @@ mod tests {
                 "reboot watchdog",
                 ConsoleCommand::Reboot { by_watchdog: true },
             ),
+            ("panic", ConsoleCommand::Panic),
             ("status # comments are allowed", ConsoleCommand::Status),
             ("help", ConsoleCommand::Help),
             ("quit", ConsoleCommand::Quit),
@@ -265,7 +271,11 @@ mod tests {
             ("drive left silent maybe", "drive left|right silent on|off"),
             ("reboot now", "reboot [watchdog]"),
             ("reboot watchdog twice", "reboot [watchdog]"),
-            ("quit now", "status, help and quit take no arguments"),
+            ("quit now", "status, help, quit and panic take no arguments"),
+            (
+                "panic now",
+                "status, help, quit and panic take no arguments",
+            ),
         ] {
             assert_eq!(
                 parse_console_line(line),

@@ -17,6 +17,8 @@ use std::path::PathBuf;
 
 use base_core::can::Mode;
 use base_core::registers::UpdateReset;
+use base_core::update::trial::{self, ResetRecord};
+use base_runtime::update::ResetRequest;
 use base_runtime::{Hardware, channels::Channels};
 use embassy_futures::select::{Either, Either3, Either4, select, select3, select4};
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
@@ -24,6 +26,7 @@ use embassy_sync::signal::Signal;
 use embassy_time::{Instant, Timer};
 use embedded_hal::digital::PinState;
 
+use crate::app_flash::{self, Behaviour};
 use crate::can::{BITRATE_BPS, CanPeer, VirtualCan};
 use crate::drives::DrivesConfig;
 use crate::file_flash::FileFlash;
@@ -98,6 +101,10 @@ pub fn run(options: &Options) -> io::Result<()> {
     };
     let robot = VirtualRobot::with_drives(drives);
     let flash = FileFlash::open(&options.flash_path, FLASH_SIZE as usize)?;
+    let app_flash = FileFlash::open(
+        &app_flash_path(&options.flash_path),
+        base_core::update::partitions::FLASH_SIZE as usize,
+    )?;
     let port = SerialPort::open()?;
     let link = options
         .link
@@ -165,7 +172,7 @@ pub fn run(options: &Options) -> io::Result<()> {
             signals.receive(),
         );
         match select4(
-            controller(&view, options, flash, (can_rx, can_tx), remote),
+            controller(&view, options, (flash, app_flash), (can_rx, can_tx), remote),
             bridge(&port, &network, socketcan.as_ref(), &view),
             show_status(&view),
             ending,
@@ -180,8 +187,20 @@ pub fn run(options: &Options) -> io::Result<()> {
     Ok(())
 }
 
+/// The file that holds the app slots and otadata: beside the register store's file.
+pub fn app_flash_path(flash_path: &std::path::Path) -> PathBuf {
+    let mut name = flash_path
+        .file_stem()
+        .map(|stem| stem.to_os_string())
+        .unwrap_or_default();
+    name.push("-app.bin");
+    flash_path.with_file_name(name)
+}
+
 /// The controller: the firmware's tasks on the robot's hardware, booted again from
-/// scratch at every console `reboot`. A reboot drops the running firmware where it
+/// scratch at every console `reboot`, at every reset an update asks for, and after a
+/// panic. Each boot goes through the bootloader model: the slot otadata names starts,
+/// and its image's version says what the virtual firmware does (`app_flash`). A reboot drops the running firmware where it
 /// stands, as a reset does to the chip: the drives, the flash, the inputs and the
 /// sensors stay as they are (the drives keep their last command until the new boot
 /// stops them), and the controller's CAN node restarts on the same bus, so the
@@ -189,17 +208,72 @@ pub fn run(options: &Options) -> io::Result<()> {
 async fn controller(
     view: &View<'_>,
     options: &Options,
-    flash: FileFlash,
+    (flash, app_flash): (FileFlash, FileFlash),
     first_can: (crate::can::CanRxPort, crate::can::CanTxPort),
     mut remote: Option<crate::ble::LiveRemote>,
 ) -> ! {
     let robot = view.robot;
     let mut first_can = Some(first_can);
     let mut reset_by_watchdog = false;
+    // The chip's reset-cause record in RTC RAM, empty after the power-on.
+    let mut reset_record = ResetRecord::Empty;
+    let mut app = app_flash;
+    if app_flash::install_factory_image(&mut app).await {
+        view.output.message(&format!(
+            "app flash blank: firmware {} written to ota_0",
+            app_flash::FACTORY_VERSION
+        ));
+    }
     loop {
         let (can_rx, can_tx) = match first_can.take() {
             Some(ports) => ports,
             None => view.peer.reset_controller(),
+        };
+        let Some(booted) = app_flash::boot(&mut app).await else {
+            view.output.message(
+                "boot: no slot holds an image that loads: the controller stays dark \
+                 (remove the app flash file to start from the factory image)",
+            );
+            let reset = view.reboot.wait().await;
+            reset_by_watchdog = reset != Reset::Button;
+            reset_record = reset.record_after(reset_record);
+            continue;
+        };
+        let booted_at = now();
+        // As the chip's boot does, first thing: the panic-loop decision.
+        let bluetooth = robot.rtc_ram.boot();
+        let channels = Channels::new();
+        let mut update_flash = base_runtime::update::UpdateFlash::new(app.clone(), booted.slot);
+        let role = base_runtime::update::arm(&mut update_flash, &channels.update).await;
+        // As the chip's boot does: an update's reset before this boot is reported as
+        // such (`boot_info`), not as a watchdog reset.
+        let (update_reset, keep) = trial::boot_cause(reset_record, role, booted.slot);
+        reset_record = keep;
+        let behaviour = Behaviour::of(&booted.version);
+        view.output.message(&format!(
+            "boot: firmware {} from {:?}{}",
+            booted.version,
+            booted.slot,
+            if role.on_trial() { ", on trial" } else { "" }
+        ));
+        if behaviour == Behaviour::PanicsAtBoot {
+            view.output.message(&format!(
+                "firmware {} panicked at boot: the watchdog resets the chip",
+                booted.version
+            ));
+            Timer::after_millis(200).await;
+            // As the chip's panic handler does: the panic counts towards a panic loop.
+            robot
+                .rtc_ram
+                .record_panic(base_core::time::Timestamp::from_millis(
+                    (now() - booted_at).as_millis(),
+                ));
+            reset_by_watchdog = true;
+            continue;
+        }
+        let can_rx = app_flash::DeafToConfirm {
+            rx: can_rx,
+            deaf: behaviour == Behaviour::NeverConfirms,
         };
         let hardware = Hardware {
             can_rx,
@@ -214,26 +288,67 @@ async fn controller(
             battery: robot.battery.clone(),
             load_cell: robot.load_cell.clone(),
             watchdog: robot.watchdog.clone(),
-            reset_by_watchdog,
-            update_reset: UpdateReset::None,
+            reset_by_watchdog: reset_by_watchdog && update_reset == UpdateReset::None,
+            bluetooth,
+            update_reset,
         };
-        let channels = Channels::new();
         let firmware = embassy_futures::join::join(
             base_runtime::run(hardware, robot.settings, &channels),
-            crate::ble::run_live_remote(remote.take(), &channels),
+            crate::ble::run_live_remote(remote.take(), bluetooth, &robot.rtc_ram, &channels),
+        );
+        let config = base_runtime::update::UpdateConfig {
+            chip: app_flash::SIM_CHIP,
+            project: base_runtime::update::PROJECT,
+            version: &booted.version,
+            trial_deadline_ms: base_runtime::update::TRIAL_DEADLINE_MS,
+        };
+        let update = base_runtime::update::run(
+            &mut update_flash,
+            role,
+            &config,
+            &channels.update,
+            &channels.can_tx,
         );
         // The firmware (and its end of the HCI connection) is dropped at the end of
         // this statement: the chip is reset.
-        reset_by_watchdog = match select(firmware, view.reboot.wait()).await {
-            Either::First((never, ())) => never,
-            Either::Second(by_watchdog) => by_watchdog,
+        let reset = match select3(firmware, update, view.reboot.wait()).await {
+            Either3::First((never, ())) => never,
+            Either3::Second(request) => {
+                view.output
+                    .message(&format!("update: {request:?}: the controller resets"));
+                Reset::Update(request)
+            }
+            Either3::Third(reset) => reset,
         };
-        view.output.message(if reset_by_watchdog {
-            "reboot: the controller restarts as after a watchdog reset (the status frame \
-             reports watchdog_reset); the drives keep running until it stops them"
-        } else {
-            "reboot: the controller restarts as after a reset or brown-out; the drives \
-             keep running until it stops them"
+        // As the chip's panic handler does, before its reset.
+        if reset == Reset::Panic {
+            let uptime = (now() - booted_at).as_millis();
+            robot
+                .rtc_ram
+                .record_panic(base_core::time::Timestamp::from_millis(uptime));
+            view.output.message(&format!(
+                "panic: the controller panicked {uptime} ms after its boot and resets; \
+                 panics in a row soon after boot: {} (at {} Bluetooth stays off)",
+                robot.rtc_ram.short_panics(),
+                base_core::panic_loop::LOOP_PANICS
+            ));
+        }
+        reset_by_watchdog = matches!(reset, Reset::Watchdog | Reset::Panic);
+        reset_record = reset.record_after(reset_record);
+        view.output.message(match reset {
+            Reset::Watchdog | Reset::Panic => {
+                "reboot: the controller restarts as after a watchdog reset (the status frame \
+                 reports watchdog_reset); the drives keep running until it stops them"
+            }
+            Reset::Button => {
+                "reboot: the controller restarts as after a reset or brown-out; the drives \
+                 keep running until it stops them"
+            }
+            Reset::Update(_) => {
+                "reboot: the controller restarts into the image otadata names (a software \
+                 reset, not reported as watchdog_reset); the drives keep running until it \
+                 stops them"
+            }
         });
         // The radio restarts with the chip: a new host on the HCI transport.
         if let Some(spec) = &options.hci {
@@ -327,8 +442,36 @@ struct View<'a> {
     slcan: SlcanCounters,
     network: NetworkCounters,
     output: Output,
-    /// The console asked for a reboot: `true` as by the watchdog.
-    reboot: Signal<NoopRawMutex, bool>,
+    /// The console asked for a reboot.
+    reboot: Signal<NoopRawMutex, Reset>,
+}
+
+/// How the console resets the controller.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Reset {
+    /// The reset button or a brown-out.
+    Button,
+    /// A watchdog bite.
+    Watchdog,
+    /// A panic: recorded for the next boot's panic-loop decision, then the reset (the
+    /// status frame shows it as watchdog_reset, as the chip's does).
+    Panic,
+    /// The update asked for it: an image activated, rejected or rolled back (a software
+    /// reset, which the status frame does not report as a watchdog reset).
+    Update(ResetRequest),
+}
+
+impl Reset {
+    /// The reset-cause record in RTC RAM after this reset (`before`: what it held): the
+    /// update writes its cause just before its reset; the reset button or a brown-out
+    /// clears RTC RAM as a power-on does; a watchdog reset or a panic keeps it.
+    fn record_after(self, before: ResetRecord) -> ResetRecord {
+        match self {
+            Reset::Update(request) => request.record(),
+            Reset::Button => ResetRecord::Empty,
+            Reset::Watchdog | Reset::Panic => before,
+        }
+    }
 }
 
 impl View<'_> {
@@ -640,7 +783,12 @@ async fn serve_console(lines: &QueueReceiver<String>, view: &View<'_>) {
             ConsoleCommand::DriveSilent { wheel, silent } => {
                 robot.drives.set_silent(wheel.slave(), silent)
             }
-            ConsoleCommand::Reboot { by_watchdog } => view.reboot.signal(by_watchdog),
+            ConsoleCommand::Reboot { by_watchdog } => view.reboot.signal(if by_watchdog {
+                Reset::Watchdog
+            } else {
+                Reset::Button
+            }),
+            ConsoleCommand::Panic => view.reboot.signal(Reset::Panic),
             ConsoleCommand::Status => view.output.message(&view.status_report()),
             ConsoleCommand::Help => view.output.message(HELP),
             ConsoleCommand::Quit => return,

@@ -1,0 +1,632 @@
+use super::*;
+use crate::can::update::UpdateCommand as C;
+use crate::update::image::synthetic_image;
+use std::vec::Vec as StdVec;
+
+const PROJECT: &str = "base-controller";
+const SID: u8 = 0x5A;
+const AT_REST: MotionGate = MotionGate {
+    at_standstill: true,
+    brakes_applied: true,
+    control_active: false,
+};
+
+fn params() -> Params<'static> {
+    Params {
+        chip: Chip::Esp32c3,
+        project: PROJECT,
+        running_version: "0.2.0",
+        running_slot: 0,
+        slot_len: 0x1F_0000,
+        trial_deadline_ms: 60_000,
+    }
+}
+
+fn at(ms: u64) -> Timestamp {
+    Timestamp::from_millis(ms)
+}
+
+fn image(version: &str) -> StdVec<u8> {
+    // Three windows and a bit: the last window is short.
+    let payload: StdVec<u8> = (0..3 * WINDOW_LEN + 100)
+        .map(|i| (i * 7 + 3) as u8)
+        .collect();
+    synthetic_image(Chip::Esp32c3, PROJECT, version, &payload)
+}
+
+/// A PC side driving the updater, and a flash that records what was written where.
+struct Bench {
+    updater: Updater,
+    now: u64,
+    slot: StdVec<u8>,
+    written: StdVec<u32>,
+    flash_fails: bool,
+}
+
+impl Bench {
+    fn new() -> Self {
+        Self {
+            updater: Updater::new(at(0), false, &params()),
+            now: 0,
+            slot: std::vec![0xFF; 0x1F_0000],
+            written: StdVec::new(),
+            flash_fails: false,
+        }
+    }
+
+    /// One event; a flash operation it asks for is done at once, as the update task does.
+    fn step(&mut self, event: Event) -> StdVec<UpdateReply> {
+        self.now += 1;
+        let mut effects = self.updater.step(at(self.now), event, &params());
+        let mut replies: StdVec<UpdateReply> = effects.replies.iter().copied().collect();
+        while let Some(op) = effects.flash.take() {
+            if let FlashOp::WriteWindow { offset } = op {
+                let window = self.updater.window().to_vec();
+                let at = offset as usize;
+                self.slot[at..at + window.len()].copy_from_slice(&window);
+                self.written.push(offset);
+            }
+            effects =
+                self.updater
+                    .step(at(self.now), Event::FlashDone(!self.flash_fails), &params());
+            replies.extend(effects.replies.iter().copied());
+        }
+        replies
+    }
+
+    fn command(&mut self, command: UpdateCommand) -> StdVec<UpdateReply> {
+        self.step(Event::Command(command, AT_REST))
+    }
+
+    fn begin(&mut self, image: &[u8], flags: BeginFlags) -> StdVec<UpdateReply> {
+        let mut replies = self.command(C::Begin {
+            session: SID,
+            size: image.len() as u32,
+            flags,
+        });
+        let digest = Sha256::digest(image);
+        for part in 0..DIGEST_PARTS {
+            let at = usize::from(part) * 4;
+            replies.extend(self.command(C::Digest {
+                session: SID,
+                part,
+                bytes: digest[at..at + 4].try_into().unwrap(),
+            }));
+        }
+        replies
+    }
+
+    fn frames(bytes: &[u8]) -> StdVec<DataFrame> {
+        bytes
+            .chunks(DATA_BYTES)
+            .enumerate()
+            .map(|(i, chunk)| {
+                let mut data = [0; DATA_BYTES];
+                data[..chunk.len()].copy_from_slice(chunk);
+                DataFrame {
+                    seq: i as u8,
+                    bytes: data,
+                }
+            })
+            .collect()
+    }
+
+    fn window(&mut self, image: &[u8], index: u16) -> StdVec<UpdateReply> {
+        let start = usize::from(index) * WINDOW_LEN;
+        let bytes = &image[start..start + window_len(image.len() as u32, index)];
+        let mut replies = self.command(C::Window {
+            session: SID,
+            index,
+            crc: window_crc(bytes),
+        });
+        for frame in Self::frames(bytes) {
+            replies.extend(self.step(Event::Data(frame)));
+        }
+        replies
+    }
+
+    fn transfer(&mut self, image: &[u8]) -> StdVec<UpdateReply> {
+        let mut replies = StdVec::new();
+        for index in 0..window_count(image.len() as u32) {
+            replies.extend(self.window(image, index));
+        }
+        replies
+    }
+}
+
+fn refused(error: UpdateError) -> impl Fn(&UpdateReply) -> bool {
+    move |reply| matches!(reply, UpdateReply::Refused { error: e, .. } if *e == error)
+}
+
+fn done(step: Step) -> UpdateReply {
+    UpdateReply::Done { session: SID, step }
+}
+
+#[test]
+fn a_whole_update_writes_every_window_once_then_activates() {
+    let image = image("0.3.0");
+    let mut bench = Bench::new();
+    assert_eq!(
+        bench.begin(&image, BeginFlags::default()),
+        [done(Step::Begun)]
+    );
+    assert!(bench.updater.locks_motion());
+    let replies = bench.transfer(&image);
+    let windows = window_count(image.len() as u32);
+    let written: StdVec<_> = replies
+        .iter()
+        .filter(|reply| matches!(reply, UpdateReply::Written { .. }))
+        .collect();
+    assert_eq!(written.len(), usize::from(windows));
+    assert!(
+        !replies
+            .iter()
+            .any(|r| matches!(r, UpdateReply::Refused { .. }))
+    );
+    // READY after every full sub-block of a 4 KiB window (586 frames: 24 of them).
+    let readies = replies
+        .iter()
+        .filter(|r| matches!(r, UpdateReply::Ready { window: 0, .. }))
+        .count();
+    assert_eq!(readies, 1 + (586 - 1) / 24);
+    assert_eq!(&bench.slot[..image.len()], &image[..]);
+    assert_eq!(
+        bench.written,
+        (0..u32::from(windows))
+            .map(|i| i * 4096)
+            .collect::<StdVec<_>>()
+    );
+    assert_eq!(
+        bench.command(C::Finish { session: SID }),
+        [done(Step::Finished)]
+    );
+    let mut effects = bench.updater.step(
+        at(100),
+        Event::Command(C::Activate { session: SID }, AT_REST),
+        &params(),
+    );
+    assert_eq!(effects.flash, Some(FlashOp::Activate));
+    effects = bench
+        .updater
+        .step(at(101), Event::FlashDone(true), &params());
+    assert_eq!(effects.replies.as_slice(), [done(Step::Activated)]);
+    assert!(effects.reset);
+}
+
+#[test]
+fn begin_needs_a_standing_braked_base_and_no_control_source() {
+    let image = image("0.3.0");
+    let cases = [
+        (
+            MotionGate {
+                at_standstill: false,
+                ..AT_REST
+            },
+            UpdateError::NotAtRest,
+        ),
+        (
+            MotionGate {
+                brakes_applied: false,
+                ..AT_REST
+            },
+            UpdateError::NotAtRest,
+        ),
+        (
+            MotionGate {
+                control_active: true,
+                ..AT_REST
+            },
+            UpdateError::ControlActive,
+        ),
+    ];
+    for (gate, error) in cases {
+        let mut bench = Bench::new();
+        let replies = bench.step(Event::Command(
+            C::Begin {
+                session: SID,
+                size: image.len() as u32,
+                flags: BeginFlags::default(),
+            },
+            gate,
+        ));
+        assert!(replies.iter().any(refused(error)), "{gate:?}: {replies:?}");
+        assert!(!bench.updater.locks_motion(), "{gate:?}");
+    }
+}
+
+#[test]
+fn a_second_pc_is_refused_busy_and_cannot_touch_the_running_session() {
+    let image = image("0.3.0");
+    let mut bench = Bench::new();
+    bench.begin(&image, BeginFlags::default());
+    let other = SID + 1;
+    let intruders = [
+        C::Begin {
+            session: other,
+            size: 1000,
+            flags: BeginFlags::default(),
+        },
+        C::Window {
+            session: other,
+            index: 0,
+            crc: 0,
+        },
+        C::Abort { session: other },
+        C::Finish { session: other },
+    ];
+    for command in intruders {
+        let replies = bench.command(command);
+        assert!(
+            replies.iter().any(refused(UpdateError::Busy)),
+            "{command:?}"
+        );
+    }
+    // The session carries on undisturbed.
+    bench.transfer(&image);
+    assert_eq!(
+        bench.command(C::Finish { session: SID }),
+        [done(Step::Finished)]
+    );
+}
+
+#[test]
+fn a_corrupted_window_is_refused_and_written_only_when_resent_intact() {
+    let image = image("0.3.0");
+    let mut bench = Bench::new();
+    bench.begin(&image, BeginFlags::default());
+    bench.window(&image, 0);
+    // Window 1 with a flipped byte on the wire.
+    let mut corrupt = image.clone();
+    corrupt[WINDOW_LEN + 10] ^= 0x40;
+    let start = WINDOW_LEN;
+    let crc = window_crc(&image[start..start + WINDOW_LEN]);
+    let mut replies = bench.command(C::Window {
+        session: SID,
+        index: 1,
+        crc,
+    });
+    for frame in Bench::frames(&corrupt[start..start + WINDOW_LEN]) {
+        replies.extend(bench.step(Event::Data(frame)));
+    }
+    assert!(replies.iter().any(refused(UpdateError::BadCrc)));
+    assert_eq!(bench.written, [0]);
+    // Resent intact: written.
+    let replies = bench.window(&image, 1);
+    assert!(replies.contains(&UpdateReply::Written {
+        session: SID,
+        window: 1
+    }));
+    assert_eq!(bench.written, [0, 4096]);
+}
+
+#[test]
+fn lost_duplicate_and_early_frames_each_get_a_defined_answer() {
+    let image = image("0.3.0");
+    let mut bench = Bench::new();
+    bench.begin(&image, BeginFlags::default());
+    let bytes = &image[..WINDOW_LEN];
+    let frames = Bench::frames(bytes);
+    bench.command(C::Window {
+        session: SID,
+        index: 0,
+        crc: window_crc(bytes),
+    });
+    for frame in &frames[..5] {
+        assert!(bench.step(Event::Data(*frame)).is_empty());
+    }
+    // A duplicate: dropped, answered once.
+    let replies = bench.step(Event::Data(frames[4]));
+    assert!(
+        replies.iter().any(refused(UpdateError::Duplicate)),
+        "{replies:?}"
+    );
+    assert!(bench.step(Event::Data(frames[3])).is_empty());
+    // Frame 5 lost: 6 is out of order, answered once with READY from 5.
+    let replies = bench.step(Event::Data(frames[6]));
+    assert!(replies.iter().any(refused(UpdateError::OutOfOrder)));
+    assert!(replies.contains(&UpdateReply::Ready {
+        session: SID,
+        window: 0,
+        next: 5
+    }));
+    assert!(bench.step(Event::Data(frames[7])).is_empty());
+    // The PC goes back to 5 and completes the window.
+    let mut replies = StdVec::new();
+    for frame in &frames[5..] {
+        replies.extend(bench.step(Event::Data(*frame)));
+    }
+    assert!(replies.contains(&UpdateReply::Written {
+        session: SID,
+        window: 0
+    }));
+    assert_eq!(&bench.slot[..WINDOW_LEN], bytes);
+}
+
+#[test]
+fn frames_after_an_abort_or_without_a_session_are_refused() {
+    let image = image("0.3.0");
+    let mut bench = Bench::new();
+    let frame = Bench::frames(&image[..7])[0];
+    let replies = bench.step(Event::Data(frame));
+    assert!(replies.iter().any(refused(UpdateError::NoSession)));
+    bench.begin(&image, BeginFlags::default());
+    // Data before any WINDOW.
+    let replies = bench.step(Event::Data(frame));
+    assert!(replies.iter().any(refused(UpdateError::WrongWindow)));
+    assert_eq!(
+        bench.command(C::Abort { session: SID }),
+        [done(Step::Aborted)]
+    );
+    assert!(!bench.updater.locks_motion());
+    let replies = bench.step(Event::Data(frame));
+    assert!(replies.iter().any(refused(UpdateError::NoSession)));
+    let replies = bench.command(C::Window {
+        session: SID,
+        index: 0,
+        crc: 0,
+    });
+    assert!(replies.iter().any(refused(UpdateError::NoSession)));
+    assert!(bench.written.is_empty());
+}
+
+#[test]
+fn windows_out_of_turn_are_refused_and_a_lost_written_reply_is_repeated() {
+    let image = image("0.3.0");
+    let mut bench = Bench::new();
+    bench.begin(&image, BeginFlags::default());
+    let replies = bench.command(C::Window {
+        session: SID,
+        index: 2,
+        crc: 0,
+    });
+    assert!(replies.iter().any(refused(UpdateError::WrongWindow)));
+    bench.window(&image, 0);
+    let replies = bench.command(C::Window {
+        session: SID,
+        index: 0,
+        crc: 0,
+    });
+    assert_eq!(
+        replies,
+        [UpdateReply::Written {
+            session: SID,
+            window: 0
+        }]
+    );
+    assert_eq!(bench.written, [0]);
+}
+
+#[test]
+fn image_checks_refuse_before_any_write() {
+    let other_chip = synthetic_image(Chip::Esp32c6, PROJECT, "0.3.0", &[0; 5000]);
+    let other_project = synthetic_image(Chip::Esp32c3, "other", "0.3.0", &[0; 5000]);
+    let cases: [(StdVec<u8>, BeginFlags, UpdateError); 5] = [
+        (other_chip, BeginFlags::default(), UpdateError::BadImage),
+        (other_project, BeginFlags::default(), UpdateError::BadImage),
+        (
+            image("0.1.9"),
+            BeginFlags::default(),
+            UpdateError::Downgrade,
+        ),
+        (
+            image("0.2.0"),
+            BeginFlags::default(),
+            UpdateError::SameVersion,
+        ),
+        (
+            image("0.2.0"),
+            BeginFlags {
+                force: false,
+                allow_downgrade: true,
+            },
+            UpdateError::SameVersion,
+        ),
+    ];
+    for (image, flags, error) in cases {
+        let mut bench = Bench::new();
+        bench.begin(&image, flags);
+        let replies = bench.window(&image, 0);
+        assert!(replies.iter().any(refused(error)), "{error:?}: {replies:?}");
+        assert!(bench.written.is_empty(), "{error:?}");
+        assert!(!bench.updater.locks_motion());
+    }
+    let allowed = [
+        (
+            image("0.1.9"),
+            BeginFlags {
+                force: false,
+                allow_downgrade: true,
+            },
+        ),
+        (
+            image("0.2.0"),
+            BeginFlags {
+                force: true,
+                allow_downgrade: false,
+            },
+        ),
+    ];
+    for (image, flags) in allowed {
+        let mut bench = Bench::new();
+        bench.begin(&image, flags);
+        bench.window(&image, 0);
+        assert_eq!(bench.written, [0], "{flags:?}");
+    }
+}
+
+#[test]
+fn an_image_larger_than_the_slot_is_refused_at_begin() {
+    let mut bench = Bench::new();
+    let replies = bench.command(C::Begin {
+        session: SID,
+        size: 0x1F_0001,
+        flags: BeginFlags::default(),
+    });
+    assert!(replies.iter().any(refused(UpdateError::TooLarge)));
+    assert!(!bench.updater.locks_motion());
+}
+
+#[test]
+fn finish_compares_the_sha256_and_refuses_an_incomplete_transfer() {
+    let image = image("0.3.0");
+    let mut bench = Bench::new();
+    bench.begin(&image, BeginFlags::default());
+    bench.window(&image, 0);
+    let replies = bench.command(C::Finish { session: SID });
+    assert!(replies.iter().any(refused(UpdateError::Incomplete)));
+    let replies = bench.command(C::Activate { session: SID });
+    assert!(replies.iter().any(refused(UpdateError::NotFinished)));
+    // The rest, with a wrong digest part announced.
+    for index in 1..window_count(image.len() as u32) {
+        bench.window(&image, index);
+    }
+    bench.command(C::Digest {
+        session: SID,
+        part: 7,
+        bytes: [0; 4],
+    });
+    let replies = bench.command(C::Finish { session: SID });
+    assert!(replies.iter().any(refused(UpdateError::DigestMismatch)));
+    assert!(!bench.updater.locks_motion());
+}
+
+#[test]
+fn a_silent_pc_ends_the_session_after_ten_seconds() {
+    let image = image("0.3.0");
+    let mut updater = Updater::new(at(0), false, &params());
+    updater.step(
+        at(0),
+        Event::Command(
+            C::Begin {
+                session: SID,
+                size: image.len() as u32,
+                flags: BeginFlags::default(),
+            },
+            AT_REST,
+        ),
+        &params(),
+    );
+    assert!(
+        updater
+            .step(at(9_999), Event::Tick, &params())
+            .replies
+            .is_empty()
+    );
+    assert!(updater.locks_motion());
+    let effects = updater.step(at(10_000), Event::Tick, &params());
+    assert!(effects.replies.iter().any(refused(UpdateError::TimedOut)));
+    assert!(!updater.locks_motion());
+}
+
+#[test]
+fn a_flash_failure_ends_the_session_with_a_defined_error() {
+    let image = image("0.3.0");
+    let mut bench = Bench::new();
+    bench.flash_fails = true;
+    bench.begin(&image, BeginFlags::default());
+    let replies = bench.window(&image, 0);
+    assert!(replies.iter().any(refused(UpdateError::FlashFailed)));
+    assert!(!bench.updater.locks_motion());
+}
+
+#[test]
+fn an_image_on_trial_locks_motion_until_confirmed_and_rejects_itself_at_the_deadline() {
+    let mut updater = Updater::new(at(0), true, &params());
+    assert!(updater.locks_motion());
+    assert_eq!(updater.phase(), Phase::OnTrial);
+    let begin = Event::Command(
+        C::Begin {
+            session: SID,
+            size: 5000,
+            flags: BeginFlags::default(),
+        },
+        AT_REST,
+    );
+    let effects = updater.step(at(1), begin, &params());
+    assert!(effects.replies.iter().any(refused(UpdateError::OnTrial)));
+    let effects = updater.step(at(2), Event::Command(C::Confirm, AT_REST), &params());
+    assert_eq!(effects.flash, Some(FlashOp::Confirm));
+    let effects = updater.step(at(3), Event::FlashDone(true), &params());
+    assert!(matches!(
+        effects.replies.as_slice(),
+        [UpdateReply::Done {
+            step: Step::Confirmed,
+            ..
+        }]
+    ));
+    assert!(!updater.locks_motion());
+    let effects = updater.step(at(4), Event::Command(C::Confirm, AT_REST), &params());
+    assert!(effects.replies.iter().any(refused(UpdateError::NotOnTrial)));
+
+    let mut unconfirmed = Updater::new(at(0), true, &params());
+    assert_eq!(
+        unconfirmed.step(at(59_999), Event::Tick, &params()).flash,
+        None
+    );
+    let effects = unconfirmed.step(at(60_000), Event::Tick, &params());
+    assert_eq!(effects.flash, Some(FlashOp::Reject));
+    let effects = unconfirmed.step(at(60_001), Event::FlashDone(true), &params());
+    assert!(effects.reset);
+}
+
+#[test]
+fn rollback_rejects_the_trial_image_and_resets() {
+    let mut updater = Updater::new(at(0), true, &params());
+    let effects = updater.step(at(1), Event::Command(C::Rollback, AT_REST), &params());
+    assert_eq!(effects.flash, Some(FlashOp::Reject));
+    let effects = updater.step(at(2), Event::FlashDone(true), &params());
+    assert!(effects.reset);
+    let mut confirmed = Updater::new(at(0), false, &params());
+    let effects = confirmed.step(at(1), Event::Command(C::Rollback, AT_REST), &params());
+    assert!(effects.replies.iter().any(refused(UpdateError::NotOnTrial)));
+    assert_eq!(effects.flash, None);
+}
+
+#[test]
+fn query_reports_the_phase_and_the_running_version() {
+    let mut updater = Updater::new(at(0), false, &params());
+    let effects = updater.step(at(1), Event::Command(C::Query, AT_REST), &params());
+    assert_eq!(effects.replies.len(), 1 + usize::from(VERSION_CHUNKS));
+    let mut version = StdVec::new();
+    for reply in &effects.replies[1..] {
+        if let UpdateReply::Version { text, .. } = reply {
+            version.extend_from_slice(text);
+        }
+    }
+    assert!(version.starts_with(b"0.2.0\0"));
+}
+
+#[test]
+fn release_numbers_compare_as_versions() {
+    assert_eq!(release("0.3.1"), Some((0, 3, 1)));
+    assert_eq!(release("0.3.1-sim-panic"), Some((0, 3, 1)));
+    assert_eq!(release("1.2"), None);
+    assert_eq!(release("abc"), None);
+    assert!(release("0.10.0") > release("0.9.9"));
+}
+
+#[test]
+fn an_abort_while_otadata_is_written_for_activation_is_refused() {
+    let image = image("0.3.0");
+    let mut bench = Bench::new();
+    bench.begin(&image, BeginFlags::default());
+    bench.transfer(&image);
+    bench.command(C::Finish { session: SID });
+    let effects = bench.updater.step(
+        at(100),
+        Event::Command(C::Activate { session: SID }, AT_REST),
+        &params(),
+    );
+    assert_eq!(effects.flash, Some(FlashOp::Activate));
+    // The activation write is under way: an abort cannot undo it.
+    let effects = bench.updater.step(
+        at(101),
+        Event::Command(C::Abort { session: SID }, AT_REST),
+        &params(),
+    );
+    assert!(effects.replies.iter().any(refused(UpdateError::Writing)));
+    let effects = bench
+        .updater
+        .step(at(102), Event::FlashDone(true), &params());
+    assert!(effects.reset, "the activated image must be started");
+}

@@ -1,0 +1,403 @@
+//! The firmware update task: it takes the update frames (0x2E8, 0x2EC) from the CAN
+//! receive task, runs the core's [`Updater`] and does the flash work it asks for,
+//! through an [`UpdateFlash`] that reaches only the inactive slot and otadata. It
+//! answers on 0x2EA, tells the controller whether motion is locked, and returns when
+//! the chip must reset (after activation or a rejected trial): the shell resets.
+//!
+//! Pacing: the core acknowledges a window only after it is erased, written and read
+//! back, and the PC sends at most a sub-block of frames before each acknowledgement,
+//! so the frames in flight never exceed [`UPDATE_QUEUE`]. While the flash works the
+//! frames wait in the queue; one that finds it full is dropped and counted, and the PC
+//! sends it again when its acknowledgement does not come.
+
+use core::cell::Cell;
+
+use embassy_futures::select::{Either, select};
+use embassy_sync::blocking_mutex::Mutex;
+use embassy_sync::channel::Channel;
+use embassy_time::{Instant, Timer};
+
+use base_core::can::update::{DataFrame, UpdateCommand, UpdateError, UpdateReply};
+use base_core::can::{FrameError, RawFrame, id};
+use base_core::time::Timestamp;
+use base_core::update::image::Chip;
+use base_core::update::otadata::{ENTRY_LEN, OtaData, SectorWrite, Slot};
+use base_core::update::partitions::{self, Partition};
+use base_core::update::session::{Event, FlashOp, MotionGate, Params, Updater};
+use base_core::update::trial::{self, ResetRecord, StartRole};
+
+use crate::can::FrameQueue;
+use crate::channels::RawMutex;
+use crate::hw::NorFlash;
+
+pub use base_core::update::PROJECT;
+
+/// Update frames the queue holds: a sub-block of 24 data frames and the PC's commands.
+pub const UPDATE_QUEUE: usize = 32;
+
+/// How often the session's timeouts are checked.
+const TICK_MS: u64 = 100;
+
+/// After the last reply before a reset, the transmit task gets this long to send it.
+const REPLY_FLUSH_MS: u64 = 50;
+
+/// How long an image on trial waits for CONFIRM before it rejects itself and resets.
+pub const TRIAL_DEADLINE_MS: u64 = 120_000;
+
+/// Between the CAN receive task, the controller task and the update task.
+pub struct UpdateLink {
+    frames: Channel<RawMutex, RawFrame, UPDATE_QUEUE>,
+    dropped: Mutex<RawMutex, Cell<u32>>,
+    locked: Mutex<RawMutex, Cell<bool>>,
+    gate: Mutex<RawMutex, Cell<MotionGate>>,
+}
+
+impl UpdateLink {
+    pub const fn new() -> Self {
+        Self {
+            frames: Channel::new(),
+            dropped: Mutex::new(Cell::new(0)),
+            // An image on trial is locked by [`arm`], before the tasks start.
+            locked: Mutex::new(Cell::new(false)),
+            gate: Mutex::new(Cell::new(MotionGate {
+                at_standstill: false,
+                brakes_applied: false,
+                control_active: false,
+            })),
+        }
+    }
+
+    /// Whether the CAN receive task hands `frame_id` to the update task.
+    pub fn takes(frame_id: u16) -> bool {
+        id::UPDATE.contains(&frame_id)
+    }
+
+    /// Queues an update frame without waiting: the CAN receive task must never stall
+    /// on it. A full queue drops the frame and counts it.
+    pub fn offer(&self, frame: RawFrame) {
+        if self.frames.try_send(frame).is_err() {
+            self.dropped
+                .lock(|dropped| dropped.set(dropped.get().wrapping_add(1)));
+        }
+    }
+
+    /// Update frames dropped because the queue was full.
+    pub fn dropped(&self) -> u32 {
+        self.dropped.lock(Cell::get)
+    }
+
+    /// Motion is refused: a session runs or an image is on trial.
+    pub fn locked(&self) -> bool {
+        self.locked.lock(Cell::get)
+    }
+
+    /// The controller's word on motion, after each input.
+    pub fn set_gate(&self, gate: MotionGate) {
+        self.gate.lock(|cell| cell.set(gate));
+    }
+
+    fn gate(&self) -> MotionGate {
+        self.gate.lock(Cell::get)
+    }
+
+    fn set_locked(&self, locked: bool) {
+        self.locked.lock(|cell| cell.set(locked));
+    }
+}
+
+impl Default for UpdateLink {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Why an [`UpdateFlash`] operation failed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum UpdateFlashError {
+    /// Outside the inactive slot, or not sector-aligned: refused, nothing touched.
+    OutOfBounds,
+    /// The flash reported an error.
+    Flash,
+    /// What was read back differs from what was written.
+    ReadBack,
+}
+
+/// The flash as the update task may see it: the slot that is not running and the two
+/// otadata sectors. Offsets are relative to the slot; nothing else can be addressed.
+pub struct UpdateFlash<F> {
+    flash: F,
+    running: Slot,
+    target: Partition,
+}
+
+/// Bytes compared per read during read-back.
+const CHUNK: usize = 256;
+
+impl<F: NorFlash> UpdateFlash<F> {
+    /// `flash` is the whole chip, laid out as [`partitions`] says.
+    pub fn new(flash: F, running: Slot) -> Self {
+        Self {
+            flash,
+            running,
+            target: partitions::slot(running.other()),
+        }
+    }
+
+    pub fn running(&self) -> Slot {
+        self.running
+    }
+
+    /// Erases the sector at `offset` in the inactive slot, writes `data` there (the
+    /// tail padded with 0xFF to the write size) and reads it back.
+    pub async fn write_window(&mut self, offset: u32, data: &[u8]) -> Result<(), UpdateFlashError> {
+        let sector = F::ERASE_SIZE as u32;
+        if !offset.is_multiple_of(sector)
+            || data.len() > F::ERASE_SIZE
+            || offset
+                .checked_add(sector)
+                .is_none_or(|end| end > self.target.len)
+        {
+            return Err(UpdateFlashError::OutOfBounds);
+        }
+        let at = self.target.offset + offset;
+        self.program(at, data).await
+    }
+
+    /// Reads both otadata entries.
+    pub async fn read_otadata(&mut self) -> Result<OtaData, UpdateFlashError> {
+        let mut first = [0u8; ENTRY_LEN];
+        let mut second = [0u8; ENTRY_LEN];
+        let base = partitions::OTADATA.offset;
+        let sector = partitions::OTADATA.len / 2;
+        self.flash
+            .read(base, &mut first)
+            .await
+            .map_err(|_| UpdateFlashError::Flash)?;
+        self.flash
+            .read(base + sector, &mut second)
+            .await
+            .map_err(|_| UpdateFlashError::Flash)?;
+        Ok(OtaData::decode(&first, &second))
+    }
+
+    /// Rewrites one otadata sector: erase, program the entry, read back.
+    pub async fn write_otadata(&mut self, write: SectorWrite) -> Result<(), UpdateFlashError> {
+        if write.sector > 1 {
+            return Err(UpdateFlashError::OutOfBounds);
+        }
+        let at = partitions::OTADATA.offset + write.sector as u32 * (partitions::OTADATA.len / 2);
+        self.program(at, &write.entry.encode()).await
+    }
+
+    async fn program(&mut self, at: u32, data: &[u8]) -> Result<(), UpdateFlashError> {
+        let sector = F::ERASE_SIZE as u32;
+        self.flash
+            .erase(at, at + sector)
+            .await
+            .map_err(|_| UpdateFlashError::Flash)?;
+        let aligned = data.len() - data.len() % F::WRITE_SIZE;
+        if aligned > 0 {
+            self.flash
+                .write(at, &data[..aligned])
+                .await
+                .map_err(|_| UpdateFlashError::Flash)?;
+        }
+        if aligned < data.len() {
+            let mut tail = [0xFFu8; 64];
+            let tail = &mut tail[..F::WRITE_SIZE];
+            tail[..data.len() - aligned].copy_from_slice(&data[aligned..]);
+            self.flash
+                .write(at + aligned as u32, tail)
+                .await
+                .map_err(|_| UpdateFlashError::Flash)?;
+        }
+        let mut back = [0u8; CHUNK];
+        for (index, expected) in data.chunks(CHUNK).enumerate() {
+            let read_len = expected.len().next_multiple_of(F::READ_SIZE);
+            let back = &mut back[..read_len];
+            self.flash
+                .read(at + (index * CHUNK) as u32, back)
+                .await
+                .map_err(|_| UpdateFlashError::Flash)?;
+            if &back[..expected.len()] != expected {
+                return Err(UpdateFlashError::ReadBack);
+            }
+        }
+        Ok(())
+    }
+}
+
+/// What the running image is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct UpdateConfig<'a> {
+    pub chip: Chip,
+    pub project: &'a str,
+    pub version: &'a str,
+    pub trial_deadline_ms: u64,
+}
+
+/// First thing at start, before the other tasks run: the image's role from otadata,
+/// and for a new image its arming write, so that any reset from here on boots the
+/// previous slot; an image on trial locks motion from the controller's first input.
+/// A flash that cannot be read counts as a confirmed image (nothing to arm; updates
+/// still work).
+pub async fn arm<F: NorFlash>(flash: &mut UpdateFlash<F>, link: &UpdateLink) -> StartRole {
+    let Ok(otadata) = flash.read_otadata().await else {
+        warn!("otadata unreadable: running as a confirmed image");
+        return StartRole::Confirmed;
+    };
+    let role = trial::on_start(&otadata, flash.running);
+    link.set_locked(role.on_trial());
+    if let StartRole::Trial { arm } = role {
+        info!("new image on trial: arming its otadata entry");
+        if flash.write_otadata(arm).await.is_err() {
+            error!("arming the trial failed");
+        }
+    }
+    if role == StartRole::LastResort {
+        warn!("started an image whose trial failed: no other slot boots");
+    }
+    role
+}
+
+/// Why the update task asks for a reset.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ResetRequest {
+    /// The new image is activated: boot it on trial.
+    Activated,
+    /// The image on trial was rejected (asked for, or its deadline passed).
+    RolledBack,
+}
+
+impl ResetRequest {
+    /// What the shell leaves for the next boot just before it resets, so that the boot
+    /// reports the update's reset rather than a watchdog reset.
+    pub const fn record(self) -> ResetRecord {
+        match self {
+            Self::Activated => ResetRecord::Activation,
+            Self::RolledBack => ResetRecord::Rejection,
+        }
+    }
+}
+
+fn core_now() -> Timestamp {
+    Timestamp::from_millis(Instant::now().as_millis())
+}
+
+/// Runs the update session until a reset is needed. `role` comes from [`arm`].
+pub async fn run<F: NorFlash>(
+    flash: &mut UpdateFlash<F>,
+    role: StartRole,
+    config: &UpdateConfig<'_>,
+    link: &UpdateLink,
+    can_tx: &FrameQueue,
+) -> ResetRequest {
+    let params = Params {
+        chip: config.chip,
+        project: config.project,
+        running_version: config.version,
+        running_slot: flash.running.index() as u8,
+        slot_len: partitions::SLOT_LEN,
+        trial_deadline_ms: config.trial_deadline_ms,
+    };
+    let mut updater = Updater::new(core_now(), role.on_trial(), &params);
+    link.set_locked(updater.locks_motion());
+    loop {
+        let event = match select(link.frames.receive(), Timer::after_millis(TICK_MS)).await {
+            Either::First(frame) => match decode(&frame) {
+                Ok(Some(Decoded::Command(command))) => Event::Command(command, link.gate()),
+                Ok(Some(Decoded::Data(data))) => Event::Data(data),
+                Ok(None) => continue,
+                Err(_) => {
+                    let opcode = frame.data().first().copied().unwrap_or(0);
+                    let opcode = if frame.id() == id::UPDATE_DATA {
+                        0
+                    } else {
+                        opcode
+                    };
+                    can_tx.send(
+                        UpdateReply::Refused {
+                            opcode,
+                            error: UpdateError::Malformed,
+                            detail: 0,
+                        }
+                        .encode(),
+                    );
+                    continue;
+                }
+            },
+            Either::Second(()) => Event::Tick,
+        };
+        let mut effects = updater.step(core_now(), event, &params);
+        loop {
+            for reply in &effects.replies {
+                can_tx.send(reply.encode());
+            }
+            // Locked or released before the controller's next input.
+            link.set_locked(updater.locks_motion());
+            let Some(op) = effects.flash else {
+                break;
+            };
+            let ok = match op {
+                FlashOp::WriteWindow { offset } => {
+                    flash.write_window(offset, updater.window()).await.is_ok()
+                }
+                FlashOp::Activate => activate(flash).await,
+                FlashOp::Confirm => set_running_state(flash, trial::confirm).await,
+                FlashOp::Reject => set_running_state(flash, trial::reject).await,
+            };
+            if !ok {
+                warn!("update flash operation failed");
+            }
+            let reset_after = matches!(op, FlashOp::Activate | FlashOp::Reject);
+            effects = updater.step(core_now(), Event::FlashDone(ok), &params);
+            if effects.reset && reset_after {
+                for reply in &effects.replies {
+                    can_tx.send(reply.encode());
+                }
+                Timer::after_millis(REPLY_FLUSH_MS).await;
+                return match op {
+                    FlashOp::Activate => ResetRequest::Activated,
+                    _ => ResetRequest::RolledBack,
+                };
+            }
+        }
+    }
+}
+
+enum Decoded {
+    Command(UpdateCommand),
+    Data(DataFrame),
+}
+
+fn decode(frame: &RawFrame) -> Result<Option<Decoded>, FrameError> {
+    if let Some(command) = UpdateCommand::decode(frame.id(), frame.data())? {
+        return Ok(Some(Decoded::Command(command)));
+    }
+    Ok(DataFrame::decode(frame.id(), frame.data())?.map(Decoded::Data))
+}
+
+async fn activate<F: NorFlash>(flash: &mut UpdateFlash<F>) -> bool {
+    let Ok(otadata) = flash.read_otadata().await else {
+        return false;
+    };
+    match otadata.activate(flash.running.other()) {
+        Ok(write) => flash.write_otadata(write).await.is_ok(),
+        Err(_) => false,
+    }
+}
+
+async fn set_running_state<F: NorFlash>(
+    flash: &mut UpdateFlash<F>,
+    change: fn(&OtaData, Slot) -> Result<SectorWrite, base_core::update::otadata::OtaDataError>,
+) -> bool {
+    let Ok(otadata) = flash.read_otadata().await else {
+        return false;
+    };
+    match change(&otadata, flash.running) {
+        Ok(write) => flash.write_otadata(write).await.is_ok(),
+        Err(_) => false,
+    }
+}

@@ -1,0 +1,569 @@
+//! Firmware updates end to end: basectl's `firmware` functions against the simulator
+//! binary over socketcand, on the wall clock. The simulator boots every image through
+//! the bootloader model from its app flash file; the images are synthetic, and their
+//! version chooses what the virtual firmware does (`virtual_robot::app_flash`).
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use base_core::can::update::{BeginFlags, Phase, UpdateCommand, UpdateError, UpdateReply};
+use base_core::can::{Command, ControlSource, Mode, RawFrame, Report};
+use base_core::registers::{BootInfo, Reg, UpdateReset};
+use base_core::update::PROJECT;
+use base_core::update::image::Chip;
+use base_core::update::partitions;
+use base_core::update::session::DIGEST_PARTS;
+use basectl::base::{Base, Error};
+use basectl::bus::{Bus, BusError, SocketcandBus};
+use basectl::firmware::{self, UpdatePlan};
+use sha2::{Digest, Sha256};
+use virtual_robot::app_flash::{self, FACTORY_VERSION, sim_image};
+use virtual_robot::process::SimulatorProcess;
+
+const TIMEOUT: Duration = Duration::from_millis(500);
+/// Images of about 100 KiB keep each scenario short; the figures use 600 KB.
+const TEST_PAYLOAD: usize = 100 * 1024;
+
+fn start() -> SimulatorProcess {
+    let simulator = SimulatorProcess::start(env!("CARGO_BIN_EXE_virtual-base-controller"))
+        .expect("the simulator starts");
+    simulator
+        .wait_for_line("boot: firmware", Duration::from_secs(10))
+        .expect("the factory image boots");
+    simulator
+}
+
+fn connect(simulator: &SimulatorProcess) -> SocketcandBus {
+    SocketcandBus::open(&simulator.socketcand().to_string()).expect("socketcand connects")
+}
+
+fn image_file(simulator: &SimulatorProcess, version: &str) -> PathBuf {
+    let path = simulator.directory().join(format!("{version}.bin"));
+    std::fs::write(&path, sim_image(version, TEST_PAYLOAD)).unwrap();
+    path
+}
+
+fn plan(file: PathBuf) -> UpdatePlan {
+    UpdatePlan {
+        registers_file: Some(file.with_extension("registers.json")),
+        file,
+        yes: true,
+        force: false,
+        allow_downgrade: false,
+        json: true,
+    }
+}
+
+/// Waits until the base stands in Standby (drives set up after a boot).
+fn standby(bus: &mut dyn Bus) {
+    let mut base = Base::new(bus, TIMEOUT);
+    let deadline = Instant::now() + Duration::from_secs(15);
+    let mut last = None;
+    while Instant::now() < deadline {
+        match base.next_status() {
+            Ok(status) if status.mode == Mode::Standby => return,
+            other => last = Some(format!("{other:?}")),
+        }
+    }
+    panic!("the base did not reach Standby: {last:?}");
+}
+
+/// `boot_info`'s update reset and the status frame's watchdog_reset bit, once the base
+/// stands after its boot.
+fn boot_cause(bus: &mut dyn Bus) -> (UpdateReset, bool) {
+    standby(bus);
+    let mut base = Base::new(bus, TIMEOUT);
+    let bits = base.read_register(Reg::BootInfo.address()).unwrap();
+    let status = base.next_status().unwrap();
+    let info = BootInfo::from_bits(bits).expect("bits the firmware sets");
+    (info.update_reset, status.faults.watchdog_reset)
+}
+
+fn app_flash_bytes(simulator: &SimulatorProcess) -> Vec<u8> {
+    let path = virtual_robot::simulator::app_flash_path(&simulator.directory().join("flash.bin"));
+    std::fs::read(path).unwrap()
+}
+
+fn region(bytes: &[u8], partition: partitions::Partition) -> &[u8] {
+    &bytes[partition.offset as usize..partition.end() as usize]
+}
+
+#[test]
+fn a_healthy_update_runs_the_new_version_and_is_confirmed() {
+    let simulator = start();
+    let mut bus = connect(&simulator);
+    standby(&mut bus);
+    let file = image_file(&simulator, "0.2.0");
+    let mut out = Vec::new();
+    firmware::update(&mut bus, &plan(file.clone()), TIMEOUT, &mut out).unwrap();
+    let text = String::from_utf8(out).unwrap();
+    let report: serde_json::Value = serde_json::from_str(text.trim()).unwrap();
+    assert_eq!(report["outcome"], "confirmed", "{text}");
+    assert_eq!(report["to"], "0.2.0");
+    assert!(file.with_extension("registers.json").exists());
+    simulator
+        .wait_for_line(
+            "boot: firmware 0.2.0 from Ota1, on trial",
+            Duration::from_secs(1),
+        )
+        .expect("the new image booted on trial");
+    let running = firmware::query(&mut bus, TIMEOUT).unwrap();
+    assert_eq!(
+        (running.version.as_str(), running.phase, running.slot),
+        ("0.2.0", Phase::Idle, 1)
+    );
+    assert_eq!(
+        boot_cause(&mut bus),
+        (UpdateReset::Activation, false),
+        "the activation's reset is reported as such, not as a watchdog reset"
+    );
+    // Confirmed: a reset boots it again, not the factory image.
+    let mut simulator = simulator;
+    simulator.console("reboot").unwrap();
+    simulator
+        .wait_for_line("boot: firmware 0.2.0 from Ota1", Duration::from_secs(10))
+        .expect("the confirmed image boots again");
+    assert_eq!(boot_cause(&mut bus), (UpdateReset::None, false));
+}
+
+#[test]
+fn an_image_that_panics_at_boot_is_rolled_back_and_reported() {
+    let simulator = start();
+    let mut bus = connect(&simulator);
+    standby(&mut bus);
+    let file = image_file(&simulator, "0.2.0-sim-panic");
+    let mut out = Vec::new();
+    let error = firmware::update(&mut bus, &plan(file), TIMEOUT, &mut out).unwrap_err();
+    assert!(error.to_string().contains("did not start"), "{error}");
+    let text = String::from_utf8(out).unwrap();
+    assert!(text.contains("\"outcome\":\"rolled back\""), "{text}");
+    let running = firmware::query(&mut bus, TIMEOUT).unwrap();
+    assert_eq!(
+        (running.version.as_str(), running.phase, running.slot),
+        (FACTORY_VERSION, Phase::Idle, 0)
+    );
+    assert_eq!(
+        boot_cause(&mut bus),
+        (UpdateReset::FailedTrial, false),
+        "the trial's panic is reported as a failed trial, not as a watchdog reset"
+    );
+}
+
+#[test]
+fn a_rollback_the_pc_asks_for_is_reported_as_a_failed_trial() {
+    let simulator = start();
+    let mut bus = connect(&simulator);
+    standby(&mut bus);
+    // Deaf to CONFIRM: basectl's confirm goes unanswered and the image stays on trial.
+    let file = image_file(&simulator, "0.2.0-sim-noconfirm");
+    let mut out = Vec::new();
+    assert!(firmware::update(&mut bus, &plan(file), TIMEOUT, &mut out).is_err());
+    assert_eq!(
+        boot_cause(&mut bus),
+        (UpdateReset::Activation, false),
+        "on trial after the activation's reset"
+    );
+    firmware::rollback(&mut bus, TIMEOUT, &mut Vec::new()).unwrap();
+    simulator
+        .wait_for_line(
+            &format!("boot: firmware {FACTORY_VERSION} from Ota0"),
+            Duration::from_secs(10),
+        )
+        .expect("the previous image boots");
+    assert_eq!(
+        boot_cause(&mut bus),
+        (UpdateReset::FailedTrial, false),
+        "the rejection's reset is reported as a failed trial, not as a watchdog reset"
+    );
+}
+
+#[test]
+fn a_reset_in_the_middle_of_the_transfer_keeps_the_old_version_and_the_rerun_succeeds() {
+    let mut simulator = start();
+    let mut bus = connect(&simulator);
+    standby(&mut bus);
+    let file = image_file(&simulator, "0.2.0");
+    let address = simulator.socketcand().to_string();
+    let update_plan = plan(file);
+    let first = std::thread::spawn({
+        let update_plan = update_plan.clone();
+        move || {
+            let mut bus = SocketcandBus::open(&address).unwrap();
+            firmware::update(&mut bus, &update_plan, TIMEOUT, &mut Vec::new())
+        }
+    });
+    // Well into the transfer: a few windows are written.
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        let running = firmware::query(&mut bus, TIMEOUT).unwrap();
+        if running.phase != Phase::Idle {
+            break;
+        }
+        assert!(Instant::now() < deadline, "the transfer did not start");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    std::thread::sleep(Duration::from_millis(500));
+    simulator.console("reboot").unwrap();
+    assert!(
+        first.join().unwrap().is_err(),
+        "the interrupted update reports failure"
+    );
+    // A fresh connection: the server drops a client that stops reading while the
+    // image streams past (this one slept).
+    drop(bus);
+    let mut bus = connect(&simulator);
+    standby(&mut bus);
+    let running = firmware::query(&mut bus, TIMEOUT).unwrap();
+    assert_eq!(
+        (running.version.as_str(), running.phase),
+        (FACTORY_VERSION, Phase::Idle)
+    );
+    firmware::update(&mut bus, &update_plan, TIMEOUT, &mut Vec::new()).unwrap();
+    assert_eq!(firmware::query(&mut bus, TIMEOUT).unwrap().version, "0.2.0");
+}
+
+/// Sends enable and a forward velocity every 40 ms from its own connection, as a
+/// robot PC does, until dropped.
+struct Driver {
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Driver {
+    fn start(address: String) -> Self {
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let stopping = stop.clone();
+        let thread = std::thread::spawn(move || {
+            let mut bus = SocketcandBus::open(&address).unwrap();
+            while !stopping.load(std::sync::atomic::Ordering::SeqCst) {
+                bus.send(&Command::Enable { refresh: true }.encode())
+                    .unwrap();
+                bus.send(
+                    &Command::Velocity {
+                        linear_mm_s: 200,
+                        rotation_mrad_s: 0,
+                    }
+                    .encode(),
+                )
+                .unwrap();
+                std::thread::sleep(Duration::from_millis(40));
+            }
+        });
+        Self {
+            stop,
+            thread: Some(thread),
+        }
+    }
+}
+
+impl Drop for Driver {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::SeqCst);
+        if let Some(thread) = self.thread.take() {
+            let _ = thread.join();
+        }
+    }
+}
+
+fn receive_reply(bus: &mut dyn Bus, within: Duration) -> Option<UpdateReply> {
+    let deadline = Instant::now() + within;
+    while let Some(frame) = bus
+        .receive(deadline.saturating_duration_since(Instant::now()))
+        .unwrap()
+    {
+        if let Ok(Some(reply)) = UpdateReply::decode(frame.id(), frame.data()) {
+            return Some(reply);
+        }
+    }
+    None
+}
+
+fn x_mm(base: &mut Base) -> i32 {
+    loop {
+        if let Some(Report::Position { x_mm, .. }) = base.next_report(TIMEOUT).unwrap() {
+            return x_mm;
+        }
+    }
+}
+
+#[test]
+fn an_update_while_driving_is_refused_and_the_base_keeps_driving() {
+    let simulator = start();
+    let mut bus = connect(&simulator);
+    standby(&mut bus);
+    let driver = Driver::start(simulator.socketcand().to_string());
+    std::thread::sleep(Duration::from_secs(2));
+    // basectl refuses before it sends anything.
+    let file = image_file(&simulator, "0.2.0");
+    let error = firmware::update(&mut bus, &plan(file), TIMEOUT, &mut Vec::new()).unwrap_err();
+    assert!(error.to_string().contains("driving"), "{error}");
+    // A program that sends BEGIN anyway is refused by the controller.
+    bus.send(
+        &UpdateCommand::Begin {
+            session: 9,
+            size: 200_000,
+            flags: BeginFlags::default(),
+        }
+        .encode(),
+    )
+    .unwrap();
+    let reply = receive_reply(&mut bus, Duration::from_secs(1));
+    assert!(
+        matches!(
+            reply,
+            Some(UpdateReply::Refused {
+                error: UpdateError::NotAtRest | UpdateError::ControlActive,
+                ..
+            })
+        ),
+        "{reply:?}"
+    );
+    let mut base = Base::new(&mut bus, TIMEOUT);
+    let before = x_mm(&mut base);
+    std::thread::sleep(Duration::from_secs(1));
+    let status = base.next_status().unwrap();
+    let after = x_mm(&mut base);
+    assert_eq!(
+        (status.mode, status.control),
+        (Mode::Active, ControlSource::Can)
+    );
+    assert!(
+        after - before > 100,
+        "the base kept driving: {before} -> {after} mm"
+    );
+    drop(driver);
+}
+
+/// A bus that flips one bit in one data frame on the way out, once.
+struct CorruptOnce<B> {
+    bus: B,
+    sent_data_frames: u32,
+    corrupt_at: u32,
+}
+
+impl<B: Bus> Bus for CorruptOnce<B> {
+    fn send(&mut self, frame: &RawFrame) -> Result<(), BusError> {
+        if frame.id() == base_core::can::id::UPDATE_DATA {
+            self.sent_data_frames += 1;
+            if self.sent_data_frames == self.corrupt_at {
+                let mut data = frame.data().to_vec();
+                data[3] ^= 0x10;
+                return self.bus.send(&RawFrame::new(frame.id(), &data).unwrap());
+            }
+        }
+        self.bus.send(frame)
+    }
+
+    fn receive(&mut self, timeout: Duration) -> Result<Option<RawFrame>, BusError> {
+        self.bus.receive(timeout)
+    }
+}
+
+#[test]
+fn a_window_corrupted_on_the_wire_is_refused_and_sent_again() {
+    let simulator = start();
+    let mut bus = CorruptOnce {
+        bus: connect(&simulator),
+        sent_data_frames: 0,
+        // Inside the third window.
+        corrupt_at: 2 * 586 + 100,
+    };
+    standby(&mut bus);
+    let file = image_file(&simulator, "0.2.0");
+    let mut out = Vec::new();
+    firmware::update(&mut bus, &plan(file), TIMEOUT, &mut out).unwrap();
+    let report: serde_json::Value = serde_json::from_slice(&out).unwrap();
+    assert_eq!(report["outcome"], "confirmed");
+    assert!(report["retries"].as_u64().unwrap() >= 1, "{report}");
+    assert_eq!(firmware::query(&mut bus, TIMEOUT).unwrap().version, "0.2.0");
+}
+
+#[test]
+fn a_wrong_chip_image_is_refused_before_anything_is_written() {
+    let simulator = start();
+    let mut bus = connect(&simulator);
+    standby(&mut bus);
+    let flash_before = app_flash_bytes(&simulator);
+    let image = app_flash::synthetic_image(Chip::Esp32c6, PROJECT, "0.2.0", TEST_PAYLOAD);
+    // basectl's offline check names the chip; the controller refuses it by itself too.
+    let session = 77;
+    bus.send(
+        &UpdateCommand::Begin {
+            session,
+            size: image.len() as u32,
+            flags: BeginFlags::default(),
+        }
+        .encode(),
+    )
+    .unwrap();
+    let digest = Sha256::digest(&image);
+    for part in 0..DIGEST_PARTS {
+        let at = usize::from(part) * 4;
+        bus.send(
+            &UpdateCommand::Digest {
+                session,
+                part,
+                bytes: digest[at..at + 4].try_into().unwrap(),
+            }
+            .encode(),
+        )
+        .unwrap();
+    }
+    let error = firmware::transfer(&mut bus, session, &image, |_, _, _| {}).unwrap_err();
+    assert!(error.to_string().contains("BadImage"), "{error}");
+    let after = app_flash_bytes(&simulator);
+    for partition in partitions::TABLE {
+        if partition.offset < after.len() as u32 {
+            assert_eq!(
+                region(&after, partition),
+                region(&flash_before, partition),
+                "{} changed",
+                partition.name
+            );
+        }
+    }
+    assert!(region(&after, partitions::OTA_1).iter().all(|&b| b == 0xFF));
+    let running = firmware::query(&mut bus, TIMEOUT).unwrap();
+    assert_eq!(
+        (running.version.as_str(), running.phase),
+        (FACTORY_VERSION, Phase::Idle)
+    );
+}
+
+#[test]
+fn basectl_checks_an_image_file_offline() {
+    let directory = tempfile::tempdir().unwrap();
+    let good = directory.path().join("good.bin");
+    std::fs::write(&good, sim_image("0.2.0", 1000)).unwrap();
+    let mut out = Vec::new();
+    firmware::check(&good, false, &mut out).unwrap();
+    assert!(
+        String::from_utf8(out)
+            .unwrap()
+            .contains("firmware 0.2.0 for esp32c3")
+    );
+    let mut corrupt = sim_image("0.2.0", 1000);
+    corrupt[600] ^= 1;
+    let bad = directory.path().join("bad.bin");
+    std::fs::write(&bad, corrupt).unwrap();
+    let error = firmware::check(&bad, false, &mut Vec::new()).unwrap_err();
+    assert!(matches!(error, Error::InvalidInput(_)), "{error}");
+}
+
+#[test]
+fn an_update_over_slcan_is_confirmed_too() {
+    let simulator = start();
+    let mut bus =
+        basectl::bus::SlcanPort::open(simulator.link().to_str().unwrap(), 500_000).unwrap();
+    standby(&mut bus);
+    let file = image_file(&simulator, "0.2.0");
+    let mut out = Vec::new();
+    firmware::update(&mut bus, &plan(file), TIMEOUT, &mut out).unwrap();
+    let report: serde_json::Value = serde_json::from_slice(&out).unwrap();
+    assert_eq!(report["outcome"], "confirmed");
+    assert_eq!(firmware::query(&mut bus, TIMEOUT).unwrap().version, "0.2.0");
+}
+
+/// The update task's view of the flash reaches the inactive slot and otadata only:
+/// an offset past the slot is refused without touching anything, and a window
+/// written at the slot's last sector lands there and nowhere else.
+#[test]
+fn the_update_flash_writes_only_inside_the_inactive_slot() {
+    use base_core::update::otadata::Slot;
+    use base_runtime::update::{UpdateFlash, UpdateFlashError};
+    use virtual_robot::flash::RamFlash;
+    use virtual_robot::runtime::block_on;
+
+    let flash = RamFlash::new(partitions::FLASH_SIZE as usize);
+    // Everything outside the slots holds a pattern that must survive.
+    let pattern: Vec<u8> = (0..partitions::FLASH_SIZE)
+        .map(|i| (i % 251) as u8)
+        .collect();
+    let mut writer = flash.clone();
+    block_on(async {
+        use embedded_storage_async::nor_flash::NorFlash;
+        writer.erase(0, partitions::FLASH_SIZE).await.unwrap();
+        writer.write(0, &pattern).await.unwrap();
+    });
+    let before = flash.contents(0..partitions::FLASH_SIZE);
+    let mut update = UpdateFlash::new(flash.clone(), Slot::Ota0);
+    let last_sector = partitions::SLOT_LEN - 4096;
+    block_on(async {
+        assert_eq!(
+            update.write_window(partitions::SLOT_LEN, &[1; 16]).await,
+            Err(UpdateFlashError::OutOfBounds)
+        );
+        assert_eq!(
+            update.write_window(100, &[1; 16]).await,
+            Err(UpdateFlashError::OutOfBounds)
+        );
+        assert_eq!(
+            update.write_window(0, &[1; 4097]).await,
+            Err(UpdateFlashError::OutOfBounds)
+        );
+        update.write_window(last_sector, &[7; 4093]).await.unwrap();
+    });
+    let after = flash.contents(0..partitions::FLASH_SIZE);
+    let target = partitions::OTA_1.offset + last_sector;
+    for (at, (old, new)) in before.iter().zip(&after).enumerate() {
+        let at = at as u32;
+        if (target..target + 4096).contains(&at) {
+            let expected = if at < target + 4093 { 7 } else { 0xFF };
+            assert_eq!(*new, expected, "{at:#x}");
+        } else {
+            assert_eq!(
+                old, new,
+                "{at:#x} changed outside the inactive slot's sector"
+            );
+        }
+    }
+}
+
+/// While a session runs, the e-stop and the status frame work as always, and a
+/// velocity is refused with rejection 0x50.
+#[test]
+fn during_an_update_session_the_estop_and_status_work_and_motion_is_refused() {
+    let mut simulator = start();
+    let mut bus = connect(&simulator);
+    standby(&mut bus);
+    bus.send(
+        &UpdateCommand::Begin {
+            session: 5,
+            size: 200_000,
+            flags: BeginFlags::default(),
+        }
+        .encode(),
+    )
+    .unwrap();
+    let reply = receive_reply(&mut bus, Duration::from_secs(1));
+    assert!(
+        matches!(reply, Some(UpdateReply::Done { session: 5, .. })),
+        "{reply:?}"
+    );
+    bus.send(&Command::Enable { refresh: true }.encode())
+        .unwrap();
+    bus.send(
+        &Command::Velocity {
+            linear_mm_s: 200,
+            rotation_mrad_s: 0,
+        }
+        .encode(),
+    )
+    .unwrap();
+    simulator.console("estop on").unwrap();
+    let mut base = Base::new(&mut bus, TIMEOUT);
+    let deadline = Instant::now() + Duration::from_secs(5);
+    let status = loop {
+        let status = base.next_status().unwrap();
+        if status.mode == Mode::Emergency || Instant::now() > deadline {
+            break status;
+        }
+    };
+    assert_eq!(status.mode, Mode::Emergency);
+    assert!(status.flags.estop_pressed);
+    assert_eq!(status.control, ControlSource::None);
+    assert_eq!(
+        status.last_rejection,
+        base_core::can::Rejection::UpdateInProgress.code()
+    );
+}
