@@ -6,13 +6,44 @@ use std::io::Write;
 use std::time::{Duration, Instant};
 
 use base_core::panic_loop::{LOOP_PANICS, SHORT_LIFE_MS};
-use base_core::registers::{BLUETOOTH_ON_KEY, Charge, Reg, RemoteBattery, RemoteInfo, RemoteKind};
+use base_core::registers::{
+    BLUETOOTH_ON_KEY, BootInfo, Charge, Reg, RemoteBattery, RemoteInfo, RemoteKind, UpdateReset,
+};
 use serde_json::{Value, json};
 
 use crate::base::{Base, Error};
 use crate::config::version_text;
 use crate::monitor::{fault_names, flag_names};
 use crate::rejection;
+
+/// The register map that brought `boot_info` (50).
+const BOOT_INFO_REGMAP: u16 = 4;
+
+/// The `boot` line: how this boot came about, from `boot_info`.
+fn boot_text(boot_info: Option<Option<BootInfo>>) -> String {
+    let Some(read) = boot_info else {
+        return "not reported by this firmware (no register 50)".to_owned();
+    };
+    let Some(info) = read else {
+        return "boot_info holds bits this basectl does not know".to_owned();
+    };
+    let mut parts = Vec::new();
+    if info.first_boot {
+        parts.push("first boot: the register store was blank and now holds the defaults");
+    }
+    match info.update_reset {
+        UpdateReset::None => {}
+        UpdateReset::Activation => parts.push("started by an update (the new image's trial)"),
+        UpdateReset::FailedTrial => {
+            parts.push("rolled back: a new image's trial failed, the previous image runs")
+        }
+    }
+    if parts.is_empty() {
+        "normal".to_owned()
+    } else {
+        parts.join("; ")
+    }
+}
 
 /// The longest `info` waits for the battery report (it comes every `volt_time`).
 const LONGEST_LISTEN: Duration = Duration::from_secs(10);
@@ -53,9 +84,24 @@ fn bluetooth_state(base: &mut Base) -> Result<Bluetooth, Error> {
     }
 }
 
+/// `boot_info`'s bits, or `None` from a firmware without register 50 (an early build
+/// of register map 4 refuses to read it).
+fn boot_info(base: &mut Base) -> Result<Option<Option<BootInfo>>, Error> {
+    match base.read_register(Reg::BootInfo.address()) {
+        Ok(bits) => Ok(Some(BootInfo::from_bits(bits))),
+        Err(Error::ReadRefused { .. }) => Ok(None),
+        Err(error) => Err(error),
+    }
+}
+
 pub fn info(base: &mut Base, json_output: bool, out: &mut dyn Write) -> Result<(), Error> {
     let [firmware, regmap, volt_time] =
         base.read_registers([Reg::FwVersion, Reg::RegmapVersion, Reg::VoltTime])?;
+    let boot_info = if regmap >= BOOT_INFO_REGMAP {
+        boot_info(base)?
+    } else {
+        None
+    };
     let remote = if regmap >= REMOTE_REGMAP {
         Some(base.read_registers([Reg::RemoteKind, Reg::RemoteBattery])?)
     } else {
@@ -91,6 +137,8 @@ pub fn info(base: &mut Base, json_output: bool, out: &mut dyn Write) -> Result<(
             "flags": flags,
             "faults": faults,
             "flash_ok": !status.faults.flash,
+            "first_boot": boot_info.flatten().map(|info| info.first_boot),
+            "boot": boot_text(boot_info),
             "drive_alarm": status.drive_alarm,
             "rejected_count": status.rejected_count,
             "last_rejection": if status.last_rejection == 0 { None } else { Some(last_rejection) },
@@ -119,6 +167,7 @@ pub fn info(base: &mut Base, json_output: bool, out: &mut dyn Write) -> Result<(
     };
     writeln!(out, "firmware        {}", version_text(firmware))?;
     writeln!(out, "register map    {regmap}")?;
+    writeln!(out, "boot            {}", boot_text(boot_info))?;
     writeln!(
         out,
         "mode            {:?} (control: {:?})",

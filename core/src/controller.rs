@@ -17,8 +17,8 @@ use crate::odometry::{EncoderCounts, Odometry, OdometryParams};
 use crate::plausibility::{self, FeedbackCheck};
 use crate::power::{self, PowerControl, SwitchLevel};
 use crate::registers::{
-    MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, RESTORE_DEFAULTS_KEY, Reg, RegisterError,
-    Registers, RemoteInfo, RemoteKind, WriteOutcome,
+    BootInfo, MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, RESTORE_DEFAULTS_KEY, Reg,
+    RegisterError, Registers, RemoteInfo, RemoteKind, WriteOutcome,
 };
 use crate::remote::{self, Control, PairingWindow, Remote};
 use crate::scale::{self, RawAverage};
@@ -91,7 +91,7 @@ pub enum Input {
     },
     /// The CAN controller went bus-off or lost received frames.
     CanBusFault,
-    /// The register store was blank or corrupt at boot, or a write failed.
+    /// The register store was corrupt or unreadable at boot, or a write failed.
     FlashFault,
     /// The register store's page erases so far (its wear), for `flash_erases_hi`/`_lo`:
     /// sent at boot and whenever the count changed.
@@ -104,7 +104,7 @@ pub enum Input {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct BootReport {
-    /// The register store was blank or corrupt.
+    /// The register store was corrupt or unreadable ([`crate::registers::LoadReport::flash_fault`]).
     pub flash_fault: bool,
     /// The last reset was the watchdog's (a panic resets as the watchdog does).
     pub watchdog_reset: bool,
@@ -113,6 +113,8 @@ pub struct BootReport {
     /// The Bluetooth remote stays off: the last resets were a panic loop
     /// ([`crate::panic_loop`]).
     pub bluetooth_off_after_panics: bool,
+    /// A first boot, an update's reset: register `boot_info`.
+    pub boot_info: BootInfo,
 }
 
 /// Register changes the flash task must persist.
@@ -272,6 +274,9 @@ impl Controller {
             Reg::BluetoothOff,
             u16::from(report.bluetooth_off_after_panics),
         );
+        controller
+            .registers
+            .set_counter(Reg::BootInfo, report.boot_info.to_bits());
         controller
     }
 
@@ -1154,6 +1159,7 @@ mod tests {
             watchdog_reset: true,
             flash_erases: 70_000,
             bluetooth_off_after_panics: false,
+            boot_info: BootInfo::default(),
         };
         let mut controller = Controller::boot(at(0), Registers::defaults(), &report);
         let out = controller.handle(at(0), Input::Tick);
@@ -1235,6 +1241,24 @@ mod tests {
                 "after {input:?}"
             );
         }
+    }
+
+    #[test]
+    fn a_first_boot_and_an_update_reset_show_in_boot_info_and_not_as_faults() {
+        let boot_info = BootInfo {
+            first_boot: true,
+            update_reset: crate::registers::UpdateReset::Activation,
+        };
+        let report = BootReport {
+            boot_info,
+            ..BootReport::default()
+        };
+        let controller = Controller::boot(at(0), Registers::defaults(), &report);
+        assert_eq!(
+            controller.registers().read(Reg::BootInfo.address()),
+            Ok(boot_info.to_bits())
+        );
+        assert!(!controller.faults.flash && !controller.faults.watchdog_reset);
     }
 
     /// Drives ready, CAN enabled and driving forward at 500 mm/s since 0 ms.

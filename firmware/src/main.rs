@@ -6,6 +6,7 @@
 
 use core::ops::Range;
 
+use base_core::registers::UpdateReset;
 use base_runtime::hx711::{Gain, Hx711};
 use base_runtime::{Hardware, Settings, ble, channels::Channels};
 use defmt::{error, info, warn};
@@ -27,7 +28,7 @@ use base_controller_firmware::board::{
 use base_controller_firmware::flash::{self, FlashPartition, SharedFlash};
 use base_controller_firmware::rs485::Rs485Port;
 use base_controller_firmware::watchdog::LivenessWatchdog;
-use base_controller_firmware::{can, watchdog};
+use base_controller_firmware::{can, update, watchdog};
 
 // The application descriptor the ESP-IDF bootloader checks before it starts the image.
 esp_bootloader_esp_idf::esp_app_desc!();
@@ -50,6 +51,10 @@ async fn main(_spawner: embassy_executor::Spawner) {
     // A software reset is the panic handler's (see `custom_halt`).
     let bluetooth = panic_record::at_boot(board::reset_by_software(reset_reason));
     let mut board = board::take(peripherals);
+    // esp_hal::init stopped the bootloader's watchdog: ours guards everything from here,
+    // the new image's trial first of all (a hang before the arming write below would
+    // otherwise leave the robot hanging instead of rolling back).
+    let watchdog = LivenessWatchdog::start(board.rtc, board.status_led);
     esp_rtos::start(
         TimerGroup::new(board.timg0).timer0,
         board.scheduler_interrupt,
@@ -81,6 +86,24 @@ async fn main(_spawner: embassy_executor::Spawner) {
     let shared_flash = FLASH.init(SharedFlash::new(BlockingAsync::new(board.flash)));
     let (flash, flash_range) = flash::partition(shared_flash, flash::REGISTERS, registers);
     let (bond_flash, bond_range) = flash::partition(shared_flash, flash::BONDS, bonds);
+
+    // Updates over CAN. A new image arms its trial before any task runs (the watchdog
+    // already guards it); the record of an update's reset before this boot becomes
+    // `boot_info`. Without an app slot (a board still on the old partition table)
+    // there are no updates.
+    let mut update_flash = None;
+    let mut update_reset = UpdateReset::None;
+    if let Some(slot) = running_slot {
+        let whole = embassy_embedded_hal::flash::partition::Partition::new(
+            shared_flash,
+            0,
+            base_core::update::partitions::FLASH_SIZE,
+        );
+        let mut flash = base_runtime::update::UpdateFlash::new(whole, slot);
+        let role = base_runtime::update::arm(&mut flash, &CHANNELS.update).await;
+        update_reset = update::boot_cause(role, slot);
+        update_flash = Some((flash, role));
+    }
 
     let (can_rx, can_tx) = can::start(board.twai, board.can_tx, board.can_rx);
     let drives = match Rs485Port::new(
@@ -114,12 +137,14 @@ async fn main(_spawner: embassy_executor::Spawner) {
             Delay::new(),
             Gain::ChannelA128,
         ),
-        watchdog: LivenessWatchdog::start(board.rtc, board.status_led),
-        // A software reset is a panic (see `custom_halt`): the firmware never resets
-        // itself otherwise. The status frame reports both as an abnormal reset.
-        reset_by_watchdog: board::reset_by_watchdog(reset_reason)
-            || board::reset_by_software(reset_reason),
+        watchdog,
+        // A software reset is a panic (see `custom_halt`) unless an update caused it (the
+        // activation, or a trial that failed): the status frame reports a panic as an
+        // abnormal reset, `boot_info` the update's resets.
+        reset_by_watchdog: update_reset == UpdateReset::None
+            && (board::reset_by_watchdog(reset_reason) || board::reset_by_software(reset_reason)),
         bluetooth,
+        update_reset,
     };
     if hardware.reset_by_watchdog {
         warn!(
@@ -150,26 +175,14 @@ async fn main(_spawner: embassy_executor::Spawner) {
             }
         }
     };
-    // Updates over CAN. A new image arms its trial before any task runs; the update
-    // task returns when the chip must restart (activated or rolled back). Without an
-    // app slot (a board still on the old partition table) there is none.
-    let mut update_flash = None;
-    if let Some(slot) = running_slot {
-        let whole = embassy_embedded_hal::flash::partition::Partition::new(
-            shared_flash,
-            0,
-            base_core::update::partitions::FLASH_SIZE,
-        );
-        let mut flash = base_runtime::update::UpdateFlash::new(whole, slot);
-        let role = base_runtime::update::arm(&mut flash, &CHANNELS.update).await;
-        update_flash = Some((flash, role));
-    }
+    // The update task returns when the chip must restart (activated or rolled back):
+    // the cause is recorded for the next boot first.
     let update = async {
         let Some((mut flash, role)) = update_flash else {
             return core::future::pending().await;
         };
         let config = base_runtime::update::UpdateConfig {
-            chip: base_controller_firmware::update::CHIP,
+            chip: update::CHIP,
             project: base_runtime::update::PROJECT,
             version: env!("CARGO_PKG_VERSION"),
             trial_deadline_ms: base_runtime::update::TRIAL_DEADLINE_MS,
@@ -183,6 +196,7 @@ async fn main(_spawner: embassy_executor::Spawner) {
         )
         .await;
         info!("update: {}: restarting", reset);
+        update::record_reset(reset);
         esp_hal::system::software_reset()
     };
     let (never, (), ()) = join3(

@@ -1,11 +1,16 @@
 //! The firmware update's chip side: which app slot this image was started from (the
 //! bootloader's choice, read from the partition table's booted partition), the chip id
 //! images must carry, and the whole flash as the update task's NOR flash (it reaches
-//! only the inactive slot and otadata through `base_runtime::update::UpdateFlash`).
+//! only the inactive slot and otadata through `base_runtime::update::UpdateFlash`),
+//! and the reset-cause record the next boot reads to tell an update's reset from a
+//! fault.
 
+use base_core::registers::UpdateReset;
 use base_core::update::image::Chip;
 use base_core::update::otadata::Slot;
 use base_core::update::partitions;
+use base_core::update::trial::{self, ResetRecord, StartRole};
+use base_runtime::update::ResetRequest;
 use esp_bootloader_esp_idf::partitions::{PARTITION_TABLE_MAX_LEN, read_partition_table};
 use esp_storage::FlashStorage;
 
@@ -26,4 +31,33 @@ pub fn running_slot(flash: &mut FlashStorage<'_>) -> Option<Slot> {
     [Slot::Ota0, Slot::Ota1]
         .into_iter()
         .find(|&slot| partitions::slot(slot).offset == booted.offset())
+}
+
+/// The reset-cause record ([`ResetRecord`]) in RTC fast RAM: kept across software and
+/// watchdog resets, zeroed by esp-hal after a power-on (which reads as empty).
+#[esp_hal::ram(unstable(rtc_fast, persistent))]
+static mut RESET_RECORD: [u32; 3] = [0; 3];
+
+fn load() -> ResetRecord {
+    // SAFETY: a plain three-word read of our own static; whole records are written
+    // below, and a torn one fails the record's check word.
+    ResetRecord::decode(unsafe { (&raw const RESET_RECORD).read_volatile() })
+}
+
+fn store(record: ResetRecord) {
+    // SAFETY: as in `load`; one executor thread, no interrupt touches the record.
+    unsafe { (&raw mut RESET_RECORD).write_volatile(record.encode()) }
+}
+
+/// At boot, once the image's role is known (after its arming): whether an update's
+/// reset started this boot, and the record this run keeps for the next one.
+pub fn boot_cause(role: StartRole, running: Slot) -> UpdateReset {
+    let (cause, keep) = trial::boot_cause(load(), role, running);
+    store(keep);
+    cause
+}
+
+/// Just before the reset the update task asked for.
+pub fn record_reset(request: ResetRequest) {
+    store(request.record());
 }

@@ -10,6 +10,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use base_core::can::{Command, Mode, RawFrame, Rejection, Report, Status};
+use base_core::registers::{BootInfo, Reg, UpdateReset};
 use basectl::bus::{Bus, BusError};
 use ros2_client::log::LogLevel;
 use ros2_client::rosout::{NodeLoggingHandle, RosoutRaw};
@@ -325,6 +326,9 @@ struct State<'a> {
     /// The tag of the node's last register read (the reply echoes it).
     last_tag: u16,
     next_cycle_read: Instant,
+    /// How the base controller's current boot came about (register `boot_info`), read
+    /// with the cycle: `None` until it answers, or from firmware without it.
+    boot_info: Option<BootInfo>,
     /// Reset service calls waiting for the reset to show in the poses.
     reset_callers: Vec<RmwRequestId>,
 }
@@ -344,6 +348,7 @@ impl<'a> State<'a> {
             malformed_frames: 0,
             last_tag: 0,
             next_cycle_read: now,
+            boot_info: None,
             reset_callers: Vec::new(),
         }
     }
@@ -443,6 +448,12 @@ impl<'a> State<'a> {
                     tag,
                 };
                 bus.send(&read.encode())?;
+                // A reboot of the base changes it: read it as often as the cycle.
+                let boot_info = Command::RegisterRead {
+                    address: Reg::BootInfo.address(),
+                    tag: self.next_tag(),
+                };
+                bus.send(&boot_info.encode())?;
                 self.next_cycle_read = now + CYCLE_READ_PERIOD;
             }
             let timeouts = self.commands.counts.timeouts;
@@ -505,7 +516,12 @@ impl<'a> State<'a> {
             Report::RegisterValue {
                 value,
                 echo: Some(echo),
-            } => self.odometry.on_register_value(now, echo, value),
+            } => {
+                if echo.address == Reg::BootInfo.address() {
+                    self.boot_info = BootInfo::from_bits(value);
+                }
+                self.odometry.on_register_value(now, echo, value)
+            }
             Report::Battery {
                 percent,
                 voltage_mv,
@@ -610,7 +626,8 @@ impl<'a> State<'a> {
     }
 
     fn publish_status(&self, ros: &Ros, status: &Status) {
-        let diagnostic = diagnose(status, &self.settings.hardware_id, self.counts());
+        let mut diagnostic = diagnose(status, &self.settings.hardware_id, self.counts());
+        add_boot_info(&mut diagnostic, self.boot_info);
         self.publish_diagnostic(ros, diagnostic);
     }
 
@@ -658,6 +675,36 @@ pub struct BridgeCounts {
     pub malformed_frames: u64,
 }
 
+/// Adds how the base controller's boot came about (register `boot_info`): a
+/// `first_boot` value, and on a first boot, an update's reset or a rollback a note in
+/// the message. None of them changes the level: a first boot is no fault.
+pub fn add_boot_info(diagnostic: &mut DiagnosticStatus, boot_info: Option<BootInfo>) {
+    let first_boot = match boot_info {
+        Some(info) if info.first_boot => "yes",
+        Some(_) => "no",
+        None => "unknown",
+    };
+    diagnostic.values.push(KeyValue {
+        key: "first_boot".to_owned(),
+        value: first_boot.to_owned(),
+    });
+    let Some(info) = boot_info else {
+        return;
+    };
+    if info.first_boot {
+        diagnostic
+            .message
+            .push_str("; first boot: register defaults written");
+    }
+    match info.update_reset {
+        UpdateReset::None => {}
+        UpdateReset::Activation => diagnostic.message.push_str("; started by an update"),
+        UpdateReset::FailedTrial => diagnostic
+            .message
+            .push_str("; rolled back: a new image failed its trial"),
+    }
+}
+
 /// The status frame as one diagnostic: ERROR in an emergency, a fault mode or with a
 /// drive or CAN fault latched; WARN with another fault latched (flash, scale,
 /// watchdog reset) or while starting, awaiting the confirm press or recovering; OK
@@ -679,7 +726,7 @@ pub fn diagnose(status: &Status, hardware_id: &str, counts: BridgeCounts) -> Dia
     .filter_map(|(set, name)| set.then_some(name))
     .collect();
     // A drive or the CAN bus failing stops the base or loses frames; defaults loaded
-    // from a blank flash, a missing scale or a watchdog reset leave it able to drive.
+    // from a corrupt store, a missing scale or a watchdog reset leave it able to drive.
     let grave_fault = faults.left_drive_silent
         || faults.left_drive_alarm
         || faults.right_drive_silent
@@ -803,7 +850,46 @@ mod tests {
     }
 
     #[test]
-    fn defaults_loaded_from_a_blank_flash_are_a_warning() {
+    fn a_first_boot_is_named_without_raising_the_level() {
+        let status = Status {
+            mode: Mode::Standby,
+            ..Status::default()
+        };
+        let mut diagnostic = diagnose(&status, "base", BridgeCounts::default());
+        let level = diagnostic.level;
+        add_boot_info(
+            &mut diagnostic,
+            Some(BootInfo {
+                first_boot: true,
+                update_reset: UpdateReset::None,
+            }),
+        );
+        assert_eq!(diagnostic.level, level);
+        assert!(
+            diagnostic.message.contains("first boot"),
+            "{}",
+            diagnostic.message
+        );
+        let value = diagnostic
+            .values
+            .iter()
+            .find(|value| value.key == "first_boot")
+            .map(|value| value.value.as_str());
+        assert_eq!(value, Some("yes"));
+
+        let mut unknown = diagnose(&status, "base", BridgeCounts::default());
+        add_boot_info(&mut unknown, None);
+        assert!(!unknown.message.contains("first boot"));
+        assert!(
+            unknown
+                .values
+                .iter()
+                .any(|value| value.key == "first_boot" && value.value == "unknown")
+        );
+    }
+
+    #[test]
+    fn a_flash_fault_is_a_warning() {
         let status = Status {
             mode: Mode::Standby,
             faults: Faults {

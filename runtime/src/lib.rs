@@ -42,6 +42,7 @@ use embassy_futures::join::{join, join4, join5};
 use base_core::controller::{BootReport, Controller};
 use base_core::drives::DriveSettings;
 use base_core::panic_loop::Bluetooth;
+use base_core::registers::{BootInfo, UpdateReset};
 
 use crate::channels::Channels;
 use crate::hw::{
@@ -73,6 +74,9 @@ pub struct Hardware<CR, CT, P, F, E, Z, B, S, V, L, W> {
     /// Whether the Bluetooth remote may start at this boot: off after a panic loop
     /// ([`base_core::panic_loop`]), which the controller reports.
     pub bluetooth: Bluetooth,
+    /// A reset the firmware caused on purpose for an update (recorded before it reset,
+    /// see [`base_core::update::trial::boot_cause`]).
+    pub update_reset: UpdateReset,
 }
 
 /// What the board knows about its wiring and the drives.
@@ -118,8 +122,8 @@ where
     let mut store = RegisterStore::new(hardware.flash, hardware.flash_range);
     let (registers, report) = store.load().await;
     info!(
-        "registers: {=u16} stored, {=u16} rejected, {=u16} dropped, blank store: {=bool}",
-        report.applied, report.rejected, report.dropped, report.blank
+        "registers: {=u16} stored, {=u16} rejected, {=u16} dropped, blank store: {=bool}, first boot: {=bool}",
+        report.applied, report.rejected, report.dropped, report.blank, report.first_boot
     );
     if hardware.reset_by_watchdog {
         warn!("the watchdog reset the chip");
@@ -129,6 +133,10 @@ where
         watchdog_reset: hardware.reset_by_watchdog,
         flash_erases: store.erases(),
         bluetooth_off_after_panics: hardware.bluetooth == Bluetooth::OffAfterPanics,
+        boot_info: BootInfo {
+            first_boot: report.first_boot,
+            update_reset: hardware.update_reset,
+        },
     };
     let controller = Controller::boot(control::core_now(), registers, &boot);
     let ((never, ..), ..) = join(

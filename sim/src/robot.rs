@@ -21,6 +21,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 
 use base_core::can::{Command, RawFrame, Report, Status, id};
 use base_core::panic_loop::{Bluetooth, PanicHistory};
+use base_core::registers::UpdateReset;
 use base_core::time::Timestamp;
 use base_runtime::{Hardware, Settings, channels::Channels};
 use embassy_futures::select::{Either, select};
@@ -145,6 +146,7 @@ impl VirtualRobot {
             watchdog: self.watchdog.clone(),
             reset_by_watchdog: self.reset_by_watchdog,
             bluetooth: self.rtc_ram.boot(),
+            update_reset: UpdateReset::None,
         };
         (hardware, Pc { peer })
     }

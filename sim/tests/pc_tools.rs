@@ -406,7 +406,9 @@ fn info_tells_versions_mode_faults_and_counters_in_one_shot_also_as_json() {
         "firmware",
         register_map.as_str(),
         "mode            Standby",
-        "flash           ",
+        "flash           ok",
+        // A fresh flash file is blank: a first boot, not a flash fault.
+        "boot            first boot",
         "modbus errors",
         "battery",
     ] {
@@ -421,13 +423,15 @@ fn info_tells_versions_mode_faults_and_counters_in_one_shot_also_as_json() {
     let value: serde_json::Value = serde_json::from_str(&json).unwrap();
     assert_eq!(value["regmap_version"], REGMAP_VERSION);
     assert_eq!(value["mode"], "Standby");
-    // A fresh flash file is blank, which the controller reports as a flash fault.
+    // A fresh flash file is blank: the controller wrote the defaults and says so.
     let flash_fault = value["faults"]
         .as_array()
         .unwrap()
         .iter()
         .any(|fault| fault == "flash");
-    assert_eq!(value["flash_ok"], !flash_fault);
+    assert!(!flash_fault, "{json}");
+    assert_eq!(value["flash_ok"], true);
+    assert_eq!(value["first_boot"], true);
     assert!(value["battery_mv"].as_u64().is_some(), "{json}");
 }
 

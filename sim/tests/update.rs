@@ -8,6 +8,7 @@ use std::time::{Duration, Instant};
 
 use base_core::can::update::{BeginFlags, Phase, UpdateCommand, UpdateError, UpdateReply};
 use base_core::can::{Command, ControlSource, Mode, RawFrame, Report};
+use base_core::registers::{BootInfo, Reg, UpdateReset};
 use base_core::update::PROJECT;
 use base_core::update::image::Chip;
 use base_core::update::partitions;
@@ -67,6 +68,17 @@ fn standby(bus: &mut dyn Bus) {
     panic!("the base did not reach Standby: {last:?}");
 }
 
+/// `boot_info`'s update reset and the status frame's watchdog_reset bit, once the base
+/// stands after its boot.
+fn boot_cause(bus: &mut dyn Bus) -> (UpdateReset, bool) {
+    standby(bus);
+    let mut base = Base::new(bus, TIMEOUT);
+    let bits = base.read_register(Reg::BootInfo.address()).unwrap();
+    let status = base.next_status().unwrap();
+    let info = BootInfo::from_bits(bits).expect("bits the firmware sets");
+    (info.update_reset, status.faults.watchdog_reset)
+}
+
 fn app_flash_bytes(simulator: &SimulatorProcess) -> Vec<u8> {
     let path = virtual_robot::simulator::app_flash_path(&simulator.directory().join("flash.bin"));
     std::fs::read(path).unwrap()
@@ -100,12 +112,18 @@ fn a_healthy_update_runs_the_new_version_and_is_confirmed() {
         (running.version.as_str(), running.phase, running.slot),
         ("0.2.0", Phase::Idle, 1)
     );
+    assert_eq!(
+        boot_cause(&mut bus),
+        (UpdateReset::Activation, false),
+        "the activation's reset is reported as such, not as a watchdog reset"
+    );
     // Confirmed: a reset boots it again, not the factory image.
     let mut simulator = simulator;
     simulator.console("reboot").unwrap();
     simulator
         .wait_for_line("boot: firmware 0.2.0 from Ota1", Duration::from_secs(10))
         .expect("the confirmed image boots again");
+    assert_eq!(boot_cause(&mut bus), (UpdateReset::None, false));
 }
 
 #[test]
@@ -123,6 +141,39 @@ fn an_image_that_panics_at_boot_is_rolled_back_and_reported() {
     assert_eq!(
         (running.version.as_str(), running.phase, running.slot),
         (FACTORY_VERSION, Phase::Idle, 0)
+    );
+    assert_eq!(
+        boot_cause(&mut bus),
+        (UpdateReset::FailedTrial, false),
+        "the trial's panic is reported as a failed trial, not as a watchdog reset"
+    );
+}
+
+#[test]
+fn a_rollback_the_pc_asks_for_is_reported_as_a_failed_trial() {
+    let simulator = start();
+    let mut bus = connect(&simulator);
+    standby(&mut bus);
+    // Deaf to CONFIRM: basectl's confirm goes unanswered and the image stays on trial.
+    let file = image_file(&simulator, "0.2.0-sim-noconfirm");
+    let mut out = Vec::new();
+    assert!(firmware::update(&mut bus, &plan(file), TIMEOUT, &mut out).is_err());
+    assert_eq!(
+        boot_cause(&mut bus),
+        (UpdateReset::Activation, false),
+        "on trial after the activation's reset"
+    );
+    firmware::rollback(&mut bus, TIMEOUT, &mut Vec::new()).unwrap();
+    simulator
+        .wait_for_line(
+            &format!("boot: firmware {FACTORY_VERSION} from Ota0"),
+            Duration::from_secs(10),
+        )
+        .expect("the previous image boots");
+    assert_eq!(
+        boot_cause(&mut bus),
+        (UpdateReset::FailedTrial, false),
+        "the rejection's reset is reported as a failed trial, not as a watchdog reset"
     );
 }
 

@@ -386,8 +386,10 @@ fn the_odometry_calibration_over_can_is_persisted() {
 }
 
 #[test]
-fn the_first_status_frame_after_a_watchdog_reset_on_a_blank_flash_reports_both() {
+fn the_first_status_frame_after_a_watchdog_reset_on_a_corrupt_flash_reports_both() {
     let mut robot = VirtualRobot::new();
+    let size = robot.flash.size();
+    robot.flash.corrupt(0, &vec![0x5A; size]);
     robot.reset_by_watchdog = true;
     let first = robot.run(async |pc| pc.wait_for_status(100, |_| true).await);
     let status = first.expect("a status frame right after boot");

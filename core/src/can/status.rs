@@ -144,7 +144,8 @@ pub struct Faults {
     pub left_drive_alarm: bool,
     pub right_drive_silent: bool,
     pub right_drive_alarm: bool,
-    /// The store was blank or corrupt and defaults were loaded, or a write failed.
+    /// The store was corrupt or unreadable and defaults were loaded, or a write failed
+    /// (a blank store is a first boot: no fault).
     pub flash: bool,
     /// The load cell does not answer.
     pub scale: bool,

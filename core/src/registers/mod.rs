@@ -34,7 +34,7 @@ pub use table::{
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum RegisterError {
-    /// No register at this address (37, 41–42 and 50–255).
+    /// No register at this address (37, 41–42 and 51–255).
     UnknownAddress = 0x10,
     /// The register is read-only (`fw_version`, `regmap_version`, the counters and the
     /// remote's kind and battery).
@@ -94,13 +94,83 @@ pub struct LoadReport {
     pub dropped: u16,
     /// The store held no record at all.
     pub blank: bool,
+    /// The store was blank because it was erased throughout (a robot fresh from
+    /// flashing), and the defaults were written to it: a first boot, not a fault.
+    pub first_boot: bool,
 }
 
 impl LoadReport {
     /// Whether the status frame's flash fault bit should be set: the registers are not
-    /// (all) what was stored, because the store was blank or a record was rejected.
+    /// (all) what was stored, because a record was rejected, or the store held nothing
+    /// and that was not a first boot (it could not be read, was corrupt beyond repair,
+    /// or the defaults could not be written to it).
     pub fn flash_fault(&self) -> bool {
-        self.blank || self.rejected > 0
+        (self.blank && !self.first_boot) || self.rejected > 0
+    }
+}
+
+/// How this boot came about, for the read-only register [`Reg::BootInfo`]: set once at
+/// boot, so PC tools can tell a robot fresh from flashing, or one an update just reset,
+/// from one with a fault.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct BootInfo {
+    /// The register store was blank (erased throughout, fresh from flashing) and the
+    /// defaults were written to it ([`LoadReport::first_boot`]).
+    pub first_boot: bool,
+    /// The reset before this boot was one an update caused on purpose.
+    pub update_reset: UpdateReset,
+}
+
+/// A reset the firmware caused on purpose for an update, recorded before it resets so
+/// that the next boot reports it as such rather than as a watchdog reset.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum UpdateReset {
+    /// No update reset the chip (power-on, the reset pin, the watchdog, a panic).
+    #[default]
+    None,
+    /// An update was activated: this boot starts the new image on its trial.
+    Activation,
+    /// A new image's trial ended without its confirm (marked invalid): this boot starts
+    /// the previous image again, a rollback.
+    FailedTrial,
+}
+
+impl BootInfo {
+    const FIRST_BOOT: u16 = 1 << 0;
+    const ACTIVATION: u16 = 1 << 1;
+    const FAILED_TRIAL: u16 = 1 << 2;
+    /// Every bit the register may hold: its range.
+    pub const ALL_BITS: u16 = Self::FIRST_BOOT | Self::ACTIVATION | Self::FAILED_TRIAL;
+
+    /// The register's value.
+    pub const fn to_bits(self) -> u16 {
+        let first_boot = if self.first_boot { Self::FIRST_BOOT } else { 0 };
+        let reset = match self.update_reset {
+            UpdateReset::None => 0,
+            UpdateReset::Activation => Self::ACTIVATION,
+            UpdateReset::FailedTrial => Self::FAILED_TRIAL,
+        };
+        first_boot | reset
+    }
+
+    /// Reads the register; `None` for bits no firmware sets (undefined bits, or both
+    /// reset causes at once).
+    pub const fn from_bits(bits: u16) -> Option<Self> {
+        let update_reset = match bits & (Self::ACTIVATION | Self::FAILED_TRIAL) {
+            0 => UpdateReset::None,
+            Self::ACTIVATION => UpdateReset::Activation,
+            Self::FAILED_TRIAL => UpdateReset::FailedTrial,
+            _ => return None,
+        };
+        if bits & !Self::ALL_BITS != 0 {
+            return None;
+        }
+        Some(Self {
+            first_boot: bits & Self::FIRST_BOOT != 0,
+            update_reset,
+        })
     }
 }
 
@@ -267,10 +337,16 @@ impl Registers {
             // `command`: `accepts` let only its keys through.
             return match value {
                 RESTORE_DEFAULTS_KEY => {
-                    // The remote is still connected: what the tasks reported stays.
+                    // The remote is still connected: what the tasks reported stays;
+                    // so do the firmware's own values (counters, boot_info), facts
+                    // about this run rather than settings.
                     let remote = self.remote_info();
+                    let kept = Reg::COUNTERS.map(|reg| (reg, self.get(reg)));
                     *self = Self::defaults();
                     self.set_remote_info(remote);
+                    for (reg, value) in kept {
+                        self.set_counter(reg, value);
+                    }
                     Ok(WriteOutcome::DefaultsRestored)
                 }
                 OPEN_PAIRING_WINDOW_KEY => Ok(WriteOutcome::PairingWindowRequested),

@@ -112,11 +112,14 @@ pub enum Reg {
     StopDecel = 48,
     /// (ext) `sec_motor_vel`, 1/min: motor speed limit while someone is in the safety zone.
     SecMotorVel = 49,
+    /// (ext) `boot_info`, read-only bits: how this boot came about
+    /// ([`super::BootInfo`]): a first boot, an update's activation, a failed trial.
+    BootInfo = 50,
 }
 
 impl Reg {
     /// Every register, in address order.
-    pub const ALL: [Reg; 47] = [
+    pub const ALL: [Reg; 48] = [
         Reg::RadR,
         Reg::RadL,
         Reg::WheelDist,
@@ -164,15 +167,17 @@ impl Reg {
         Reg::FlashErasesLo,
         Reg::StopDecel,
         Reg::SecMotorVel,
+        Reg::BootInfo,
     ];
 
-    /// The read-only counters and states: the firmware sets them
-    /// ([`super::Registers::set_counter`]), nothing persists them.
-    pub const COUNTERS: [Reg; 4] = [
+    /// The read-only values the firmware sets ([`super::Registers::set_counter`]): the
+    /// counters, Bluetooth's state and the boot's bits. Nothing persists them.
+    pub const COUNTERS: [Reg; 5] = [
         Reg::FlashErasesHi,
         Reg::FlashErasesLo,
         Reg::CanTxDropped,
         Reg::BluetoothOff,
+        Reg::BootInfo,
     ];
 
     /// The register at a CAN address, or `None` for an unassigned one.
@@ -254,7 +259,7 @@ impl Reg {
 /// these survive any schema change; everything above is ours and may be redefined.
 pub const LAST_MANUAL_ADDRESS: u8 = 23;
 /// One past the highest address; the size of an array indexed by address.
-pub const ADDRESS_COUNT: usize = 50;
+pub const ADDRESS_COUNT: usize = 51;
 
 /// Writing this to [`Reg::Command`] restores every writable register to its default.
 /// A key rather than 1 so that a stray or mistyped write cannot wipe a calibration.
@@ -280,8 +285,8 @@ pub const MOTOR_DIR_INVERT_RIGHT: u16 = 0b10;
 /// 1: the first map. 2: `command` also takes [`OPEN_PAIRING_WINDOW_KEY`]. 3: the CAN
 /// transmit drops (43), the full 24-bit scale offset (44, 45), the store's erase count
 /// (46, 47), `stop_decel` (48) and `sec_motor_vel` (49); motion registers only at
-/// standstill. 4: the remote's kind (34) and battery (35), `bluetooth_off` (36) and
-/// [`BLUETOOTH_ON_KEY`].
+/// standstill. 4: the remote's kind (34) and battery (35), `bluetooth_off` (36),
+/// [`BLUETOOTH_ON_KEY`] and `boot_info` (50).
 pub const REGMAP_VERSION: u16 = 4;
 
 /// [`Reg::FwVersion`]: `(major << 8) | minor` of the crate version, fixed at compile time.
@@ -392,13 +397,14 @@ const fn or_off(mut info: RegisterInfo) -> RegisterInfo {
     info
 }
 
+use super::BootInfo;
 use super::remote_info::{RemoteBattery, RemoteKind};
 use Access::{ReadOnly, ReadWrite, WriteOnly};
 
 /// Every register in address order (37 and 41–42 are not assigned). Why each range is what it
 /// is: `docs/registers.md`.
 #[rustfmt::skip]
-pub static TABLE: [RegisterInfo; 47] = [
+pub static TABLE: [RegisterInfo; 48] = [
     row(Reg::RadR, "rad_r", "mm", 142, (10, 1000), ReadWrite, "right wheel radius"),
     row(Reg::RadL, "rad_l", "mm", 142, (10, 1000), ReadWrite, "left wheel radius"),
     row(Reg::WheelDist, "wheel_dist", "mm", 250, (50, 2000), ReadWrite, "distance between the wheels"),
@@ -446,6 +452,7 @@ pub static TABLE: [RegisterInfo; 47] = [
     row(Reg::FlashErasesLo, "flash_erases_lo", "erases", 0, (0, 65535), ReadOnly, "register-store page erases so far, low word"),
     row(Reg::StopDecel, "stop_decel", "(1/min)/s", 2000, (2000, 30000), ReadWrite, "the gentlest braking of any stop but the e-stop (lapse, cmd_timeout, dead-man release, link loss)"),
     row(Reg::SecMotorVel, "sec_motor_vel", "1/min", 150, (0, 4000), ReadWrite, "motor speed limit while someone is in the safety zone (0 = stand still)"),
+    row(Reg::BootInfo, "boot_info", "bits", 0, (0, BootInfo::ALL_BITS), ReadOnly, "bit0 first boot (blank store, defaults written), bit1 started by an update's activation, bit2 the last reset ended a failed trial (rolled back)"),
 ];
 
 /// The description of the register at `address`, or `None` if it is not assigned.

@@ -31,7 +31,7 @@ const MANUAL: [(u8, &str, u16); 24] = [
 ];
 
 /// The extensions as the lead fixed them: address, name, default, min, max, 0 = off.
-const EXTENSIONS: [(u8, &str, u16, u16, u16, bool); 20] = [
+const EXTENSIONS: [(u8, &str, u16, u16, u16, bool); 21] = [
     (24, "gear_ratio", 1000, 100, 10000, false),
     (25, "enable_timeout", 500, 50, 5000, false),
     (26, "estop_decel", 4500, 100, 30000, false),
@@ -52,6 +52,7 @@ const EXTENSIONS: [(u8, &str, u16, u16, u16, bool); 20] = [
     (47, "flash_erases_lo", 0, 0, 65535, false),
     (48, "stop_decel", 2000, 2000, 30000, false),
     (49, "sec_motor_vel", 150, 0, 4000, false),
+    (50, "boot_info", 0, 0, 7, false),
 ];
 
 fn persistent() -> impl Iterator<Item = &'static RegisterInfo> {
@@ -115,7 +116,7 @@ fn reg_enum_table_and_addresses_agree() {
         assert_eq!(Reg::from_address(reg as u8), Some(reg));
     }
     assert!(Reg::ALL.windows(2).all(|w| w[0] < w[1]));
-    for address in (37..=37).chain(41..=42).chain(50..=u8::MAX) {
+    for address in (37..=37).chain(41..=42).chain(51..=u8::MAX) {
         assert_eq!(Reg::from_address(address), None);
         assert_eq!(info(address), None);
     }
@@ -133,8 +134,8 @@ fn version_registers_read_the_build_and_map_versions() {
     let minor: u16 = parts.next().unwrap().parse().unwrap();
     let registers = Registers::defaults();
     assert_eq!(registers.read(38), Ok((major << 8) | minor));
-    // 4 since the remote's kind and battery (34, 35), `bluetooth_off` (36) and the
-    // Bluetooth-on key came.
+    // 4 since the remote's kind and battery (34, 35), `bluetooth_off` (36), the
+    // Bluetooth-on key and `boot_info` (50) came.
     assert_eq!(registers.read(39), Ok(4));
 }
 
@@ -382,7 +383,8 @@ fn blank_store_loads_defaults_and_raises_the_fault() {
             applied: 0,
             rejected: 0,
             dropped: 0,
-            blank: true
+            blank: true,
+            first_boot: false
         }
     );
     assert!(report.flash_fault());
@@ -456,7 +458,8 @@ fn newer_schema_keeps_wheel_dist_and_drops_enable_timeout() {
             applied: 1,
             rejected: 0,
             dropped: 1,
-            blank: false
+            blank: false,
+            first_boot: false
         }
     );
     assert!(!report.flash_fault());
@@ -852,4 +855,53 @@ fn restoring_the_defaults_keeps_the_connected_remote() {
         Ok(WriteOutcome::DefaultsRestored)
     );
     assert_eq!(registers.remote_info(), remote);
+}
+
+#[test]
+fn boot_info_bits_round_trip_and_undefined_bits_are_refused() {
+    for first_boot in [false, true] {
+        for update_reset in [
+            UpdateReset::None,
+            UpdateReset::Activation,
+            UpdateReset::FailedTrial,
+        ] {
+            let info = BootInfo {
+                first_boot,
+                update_reset,
+            };
+            assert!(info.to_bits() <= BootInfo::ALL_BITS);
+            assert_eq!(BootInfo::from_bits(info.to_bits()), Some(info));
+        }
+    }
+    assert_eq!(
+        BootInfo {
+            first_boot: true,
+            update_reset: UpdateReset::None
+        }
+        .to_bits(),
+        1
+    );
+    // Both reset causes at once, or a bit above bit 2: no firmware sends it.
+    assert_eq!(BootInfo::from_bits(0b110), None);
+    assert_eq!(BootInfo::from_bits(0b1000), None);
+}
+
+#[test]
+fn a_restore_keeps_the_values_the_firmware_sets() {
+    let mut registers = Registers::defaults();
+    for (reg, value) in [
+        (Reg::BootInfo, 1),
+        (Reg::FlashErasesLo, 70),
+        (Reg::CanTxDropped, 3),
+    ] {
+        registers.set_counter(reg, value);
+    }
+    registers.write(Reg::RadR.address(), 150).unwrap();
+    registers
+        .write(Reg::Command.address(), RESTORE_DEFAULTS_KEY)
+        .unwrap();
+    assert_eq!(registers.get(Reg::RadR), Reg::RadR.info().default);
+    assert_eq!(registers.get(Reg::BootInfo), 1);
+    assert_eq!(registers.get(Reg::FlashErasesLo), 70);
+    assert_eq!(registers.get(Reg::CanTxDropped), 3);
 }

@@ -38,8 +38,10 @@
 //!
 //! # Blank, damaged, power cuts
 //!
-//! - Blank store (nothing ever written, or erased): defaults, and the load report says
-//!   `blank`, so the flash fault bit shows that calibration is missing.
+//! - Blank store (erased throughout: a robot fresh from flashing): a first boot. The
+//!   load writes every default to the store (a restore of the defaults, see below) and
+//!   reports `first_boot`, which is no fault: the next boot reads a full store. If that
+//!   write fails, the report stays `blank` without `first_boot`: the flash fault.
 //! - A damaged item (sequential-storage's CRC fails) is skipped by sequential-storage,
 //!   which then yields the key's previous item, if any. The store scans the pages itself
 //!   after reading them and counts every damaged item as rejected, so the fault shows.
@@ -472,7 +474,8 @@ impl<F: NorFlash> RegisterStore<F> {
 
     /// Reads every record and builds the registers: defaults for anything missing or
     /// rejected, with the report [`LoadReport::flash_fault`] reads (see the module doc
-    /// for blank, damaged and unreadable stores). Never panics.
+    /// for blank, damaged and unreadable stores). A blank store gets the defaults
+    /// written (a first boot). Never panics.
     pub async fn load(&mut self) -> (Registers, LoadReport) {
         self.stored = [Slot::Unknown; ADDRESS_COUNT];
         self.journal_open = false;
@@ -508,6 +511,10 @@ impl<F: NorFlash> RegisterStore<F> {
                 }
                 if !matches!(repaired, Ok(true)) {
                     report.rejected = report.rejected.saturating_add(1);
+                }
+                if report.blank && report.rejected == 0 {
+                    // Erased throughout and nothing wrong found: fresh from flashing.
+                    report.first_boot = self.restore_defaults().await.is_ok();
                 }
                 (registers, report)
             }

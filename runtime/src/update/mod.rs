@@ -24,7 +24,7 @@ use base_core::update::image::Chip;
 use base_core::update::otadata::{ENTRY_LEN, OtaData, SectorWrite, Slot};
 use base_core::update::partitions::{self, Partition};
 use base_core::update::session::{Event, FlashOp, MotionGate, Params, Updater};
-use base_core::update::trial::{self, StartRole};
+use base_core::update::trial::{self, ResetRecord, StartRole};
 
 use crate::can::FrameQueue;
 use crate::channels::RawMutex;
@@ -269,6 +269,17 @@ pub enum ResetRequest {
     Activated,
     /// The image on trial was rejected (asked for, or its deadline passed).
     RolledBack,
+}
+
+impl ResetRequest {
+    /// What the shell leaves for the next boot just before it resets, so that the boot
+    /// reports the update's reset rather than a watchdog reset.
+    pub const fn record(self) -> ResetRecord {
+        match self {
+            Self::Activated => ResetRecord::Activation,
+            Self::RolledBack => ResetRecord::Rejection,
+        }
+    }
 }
 
 fn core_now() -> Timestamp {

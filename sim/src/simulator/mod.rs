@@ -16,6 +16,9 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 
 use base_core::can::Mode;
+use base_core::registers::UpdateReset;
+use base_core::update::trial::{self, ResetRecord};
+use base_runtime::update::ResetRequest;
 use base_runtime::{Hardware, channels::Channels};
 use embassy_futures::select::{Either, Either3, Either4, select, select3, select4};
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
@@ -212,6 +215,8 @@ async fn controller(
     let robot = view.robot;
     let mut first_can = Some(first_can);
     let mut reset_by_watchdog = false;
+    // The chip's reset-cause record in RTC RAM, empty after the power-on.
+    let mut reset_record = ResetRecord::Empty;
     let mut app = app_flash;
     if app_flash::install_factory_image(&mut app).await {
         view.output.message(&format!(
@@ -229,7 +234,9 @@ async fn controller(
                 "boot: no slot holds an image that loads: the controller stays dark \
                  (remove the app flash file to start from the factory image)",
             );
-            reset_by_watchdog = view.reboot.wait().await != Reset::Button;
+            let reset = view.reboot.wait().await;
+            reset_by_watchdog = reset != Reset::Button;
+            reset_record = reset.record_after(reset_record);
             continue;
         };
         let booted_at = now();
@@ -238,6 +245,10 @@ async fn controller(
         let channels = Channels::new();
         let mut update_flash = base_runtime::update::UpdateFlash::new(app.clone(), booted.slot);
         let role = base_runtime::update::arm(&mut update_flash, &channels.update).await;
+        // As the chip's boot does: an update's reset before this boot is reported as
+        // such (`boot_info`), not as a watchdog reset.
+        let (update_reset, keep) = trial::boot_cause(reset_record, role, booted.slot);
+        reset_record = keep;
         let behaviour = Behaviour::of(&booted.version);
         view.output.message(&format!(
             "boot: firmware {} from {:?}{}",
@@ -277,8 +288,9 @@ async fn controller(
             battery: robot.battery.clone(),
             load_cell: robot.load_cell.clone(),
             watchdog: robot.watchdog.clone(),
-            reset_by_watchdog,
+            reset_by_watchdog: reset_by_watchdog && update_reset == UpdateReset::None,
             bluetooth,
+            update_reset,
         };
         let firmware = embassy_futures::join::join(
             base_runtime::run(hardware, robot.settings, &channels),
@@ -304,7 +316,7 @@ async fn controller(
             Either3::Second(request) => {
                 view.output
                     .message(&format!("update: {request:?}: the controller resets"));
-                Reset::Update
+                Reset::Update(request)
             }
             Either3::Third(reset) => reset,
         };
@@ -322,6 +334,7 @@ async fn controller(
             ));
         }
         reset_by_watchdog = matches!(reset, Reset::Watchdog | Reset::Panic);
+        reset_record = reset.record_after(reset_record);
         view.output.message(match reset {
             Reset::Watchdog | Reset::Panic => {
                 "reboot: the controller restarts as after a watchdog reset (the status frame \
@@ -331,7 +344,7 @@ async fn controller(
                 "reboot: the controller restarts as after a reset or brown-out; the drives \
                  keep running until it stops them"
             }
-            Reset::Update => {
+            Reset::Update(_) => {
                 "reboot: the controller restarts into the image otadata names (a software \
                  reset, not reported as watchdog_reset); the drives keep running until it \
                  stops them"
@@ -445,7 +458,20 @@ enum Reset {
     Panic,
     /// The update asked for it: an image activated, rejected or rolled back (a software
     /// reset, which the status frame does not report as a watchdog reset).
-    Update,
+    Update(ResetRequest),
+}
+
+impl Reset {
+    /// The reset-cause record in RTC RAM after this reset (`before`: what it held): the
+    /// update writes its cause just before its reset; the reset button or a brown-out
+    /// clears RTC RAM as a power-on does; a watchdog reset or a panic keeps it.
+    fn record_after(self, before: ResetRecord) -> ResetRecord {
+        match self {
+            Reset::Update(request) => request.record(),
+            Reset::Button => ResetRecord::Empty,
+            Reset::Watchdog | Reset::Panic => before,
+        }
+    }
 }
 
 impl View<'_> {
