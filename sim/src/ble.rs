@@ -246,10 +246,17 @@ impl RemoteRobot {
     pub fn run<T>(&self, controller: HostController, script: impl AsyncFnOnce(&Pc) -> T) -> T {
         block_on_realtime(async {
             let (hardware, pc) = self.robot.boot();
+            let bluetooth = hardware.bluetooth;
             let channels = Channels::new();
             let firmware = join(
                 base_runtime::run(hardware, self.robot.settings, &channels),
-                run_remotes(controller, self.bond_flash.clone(), &channels),
+                async {
+                    remote::wait_until_on(bluetooth, &channels.remote_requests, || {
+                        self.robot.rtc_ram.turned_on()
+                    })
+                    .await;
+                    run_remotes(controller, self.bond_flash.clone(), &channels).await
+                },
             );
             match select(firmware, script(&pc)).await {
                 Either::First((never, _)) => never,
