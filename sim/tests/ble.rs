@@ -10,14 +10,18 @@
 //! Without Bumble the scenarios are skipped with a message, except in CI (CI=true),
 //! where they fail.
 
+#[path = "ble/common.rs"]
+mod common;
 #[path = "ble/peer.rs"]
 mod peer;
 
-use std::sync::{Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
 
-use base_core::can::{Command, Mode, Status};
-use base_core::registers::{BLUETOOTH_ON_KEY, OPEN_PAIRING_WINDOW_KEY, Reg};
+use base_core::can::Mode;
+use base_core::registers::{BLUETOOTH_ON_KEY, Reg};
+use common::{
+    bond_stored_for, last_decel, open_pairing_window, scenario, status, wheels, write_register,
+};
 use embassy_futures::join::join;
 use embassy_futures::select::select;
 use embassy_time::Timer;
@@ -28,41 +32,6 @@ use virtual_robot::robot::{Pc, controller_panics};
 /// The pad's random static address (the two top bits set).
 const PAD_ADDRESS: &str = "C1:11:22:33:44:55";
 const OTHER_PAD_ADDRESS: &str = "C2:66:77:88:99:AA";
-
-static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
-
-/// The scenario lock, or `None` (skip) when Bumble is missing outside CI.
-fn scenario() -> Option<MutexGuard<'static, ()>> {
-    let guard = ONE_AT_A_TIME.lock().unwrap_or_else(PoisonError::into_inner);
-    peer::bumble_available().then_some(guard)
-}
-
-fn write_register(pc: &Pc, reg: Reg, value: u16) {
-    pc.command(Command::RegisterWrite {
-        address: reg as u8,
-        value,
-    });
-}
-
-async fn open_pairing_window(pc: &Pc) {
-    // Flash (the bond too) waits until both drives confirmed their brakes, which the
-    // setup does: a controller that just booted cannot know whether the wheels turn.
-    status(pc, 5_000, "the drives are set up", |s| {
-        s.mode != Mode::Starting
-    })
-    .await;
-    write_register(pc, Reg::Command, OPEN_PAIRING_WINDOW_KEY);
-}
-
-async fn status(pc: &Pc, timeout_ms: u64, what: &str, check: impl Fn(&Status) -> bool) -> Status {
-    match pc.wait_for_status(timeout_ms, check).await {
-        Some(status) => status,
-        None => panic!(
-            "within {timeout_ms} ms: {what}; last status {:?}",
-            pc.status()
-        ),
-    }
-}
 
 /// Creates pad `name`, lets it advertise, opens the pairing window and waits until the
 /// pad is paired, subscribed and counted as connected.
@@ -97,45 +66,6 @@ async fn take_control(peer: &mut Peer, pc: &Pc, name: &str) {
         s.flags.remote_in_control
     })
     .await;
-}
-
-/// Waits until both wheels turn forward (or, `forward == false`, stand still).
-async fn wheels(robot: &RemoteRobot, timeout_ms: u64, forward: bool) {
-    let deadline = Instant::now() + Duration::from_millis(timeout_ms);
-    loop {
-        let left = robot.robot.drives.drive(1).forward_rpm();
-        let right = robot.robot.drives.drive(2).forward_rpm();
-        let done = if forward {
-            left > 10.0 && right > 10.0
-        } else {
-            left.abs() < 0.5 && right.abs() < 0.5
-        };
-        if done {
-            return;
-        }
-        assert!(
-            Instant::now() < deadline,
-            "wheels not {} within {timeout_ms} ms: {left:.1} / {right:.1} rpm",
-            if forward {
-                "turning forward"
-            } else {
-                "stopped"
-            }
-        );
-        Timer::after_millis(5).await;
-    }
-}
-
-/// Whether the bond partition holds a bond record for the pad at `address`: its
-/// address as the record stores it (least significant byte first).
-fn bond_stored_for(robot: &RemoteRobot, address: &str) -> bool {
-    let mut raw: Vec<u8> = address
-        .split(':')
-        .map(|pair| u8::from_str_radix(pair, 16).expect("hex address"))
-        .collect();
-    raw.reverse();
-    let flash = robot.bond_flash.contents(0..BOND_FLASH_SIZE as u32);
-    flash.windows(raw.len()).any(|window| window == raw)
 }
 
 #[test]
@@ -220,17 +150,6 @@ async fn drive_forward(peer: &mut Peer, robot: &RemoteRobot, pc: &Pc) {
     take_control(peer, pc, "pad").await;
     peer.cmd("stick pad LY 1.0").await;
     wheels(robot, 3_000, true).await;
-}
-
-/// The deceleration of the drives' last command, (1/min)/s.
-fn last_decel(robot: &RemoteRobot) -> i32 {
-    robot
-        .robot
-        .drives
-        .drive(1)
-        .command
-        .expect("the left drive was commanded")
-        .decel_rpm_per_s
 }
 
 /// A value of `Contr_acc_high` no other rule uses, to recognise its braking: above

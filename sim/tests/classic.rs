@@ -7,19 +7,22 @@
 //! As the BLE scenarios: each starts its own peer, one at a time on the wall clock;
 //! without Bumble they are skipped with a message, except in CI (CI=true).
 
+#[path = "ble/common.rs"]
+mod common;
 #[path = "ble/peer.rs"]
 mod peer;
 
-use std::sync::{Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
 
-use base_core::can::{Command, Mode, Status};
-use base_core::registers::{
-    Charge, OPEN_PAIRING_WINDOW_KEY, Reg, RemoteBattery, RemoteInfo, RemoteKind,
+use base_core::can::Mode;
+use base_core::registers::{Charge, Reg, RemoteBattery, RemoteInfo, RemoteKind};
+use common::{
+    bond_stored_for, drives_ready, last_decel, open_pairing_window, scenario, status, wheels,
+    write_register,
 };
 use embassy_time::Timer;
 use peer::Peer;
-use virtual_robot::ble::{BOND_FLASH_SIZE, RemoteRobot};
+use virtual_robot::ble::RemoteRobot;
 use virtual_robot::robot::Pc;
 
 /// The pads' public addresses (Sony's prefix).
@@ -28,43 +31,6 @@ const STRANGER_ADDRESS: &str = "A4:AE:12:00:00:02";
 /// A BLE pad's random static address.
 /// (used by the bonded-in-turn scenario)
 const BLE_PAD_ADDRESS: &str = "C1:11:22:33:44:55";
-
-static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
-
-fn scenario() -> Option<MutexGuard<'static, ()>> {
-    let guard = ONE_AT_A_TIME.lock().unwrap_or_else(PoisonError::into_inner);
-    peer::bumble_available().then_some(guard)
-}
-
-fn write_register(pc: &Pc, reg: Reg, value: u16) {
-    pc.command(Command::RegisterWrite {
-        address: reg as u8,
-        value,
-    });
-}
-
-async fn status(pc: &Pc, timeout_ms: u64, what: &str, check: impl Fn(&Status) -> bool) -> Status {
-    match pc.wait_for_status(timeout_ms, check).await {
-        Some(status) => status,
-        None => panic!(
-            "within {timeout_ms} ms: {what}; last status {:?}",
-            pc.status()
-        ),
-    }
-}
-
-async fn drives_ready(pc: &Pc) {
-    status(pc, 5_000, "the drives are set up", |s| {
-        s.mode != Mode::Starting
-    })
-    .await;
-}
-
-async fn open_pairing_window(pc: &Pc) {
-    // Flash (the bond too) waits until the drives confirmed their brakes.
-    drives_ready(pc).await;
-    write_register(pc, Reg::Command, OPEN_PAIRING_WINDOW_KEY);
-}
 
 /// Creates PlayStation pad `name` of `kind` (ds4, dualsense), puts it in pairing mode,
 /// opens the pairing window and waits until it is paired, streaming full reports and
@@ -96,33 +62,6 @@ async fn take_control(peer: &mut Peer, pc: &Pc, name: &str) {
         s.flags.remote_in_control
     })
     .await;
-}
-
-/// Waits until both wheels turn forward (or, `forward == false`, stand still).
-async fn wheels(robot: &RemoteRobot, timeout_ms: u64, forward: bool) {
-    let deadline = Instant::now() + Duration::from_millis(timeout_ms);
-    loop {
-        let left = robot.robot.drives.drive(1).forward_rpm();
-        let right = robot.robot.drives.drive(2).forward_rpm();
-        let done = if forward {
-            left > 10.0 && right > 10.0
-        } else {
-            left.abs() < 0.5 && right.abs() < 0.5
-        };
-        if done {
-            return;
-        }
-        assert!(
-            Instant::now() < deadline,
-            "wheels not {} within {timeout_ms} ms: {left:.1} / {right:.1} rpm",
-            if forward {
-                "turning forward"
-            } else {
-                "stopped"
-            }
-        );
-        Timer::after_millis(5).await;
-    }
 }
 
 /// Switches a bonded pad on: it pages the robot until the robot answers (a real pad
@@ -172,31 +111,8 @@ async fn zero_on_the_wire(robot: &RemoteRobot, timeout_ms: u64) -> Instant {
     }
 }
 
-/// The deceleration of the drives' last command, (1/min)/s.
-fn last_decel(robot: &RemoteRobot) -> i32 {
-    robot
-        .robot
-        .drives
-        .drive(1)
-        .command
-        .expect("the left drive was commanded")
-        .decel_rpm_per_s
-}
-
 /// A value of `Contr_acc_high` no other rule uses, to recognise its braking.
 const RELEASE_BRAKING: u16 = 2777;
-
-/// Whether the bond partition holds the pad's address as the Classic bond record
-/// stores it (least significant byte first).
-fn bond_stored_for(robot: &RemoteRobot, address: &str) -> bool {
-    let mut raw: Vec<u8> = address
-        .split(':')
-        .map(|pair| u8::from_str_radix(pair, 16).expect("hex address"))
-        .collect();
-    raw.reverse();
-    let flash = robot.bond_flash.contents(0..BOND_FLASH_SIZE as u32);
-    flash.windows(raw.len()).any(|window| window == raw)
-}
 
 #[test]
 fn a_dualshock4_pairs_in_the_window_drives_with_r1_held_and_release_stops() {
@@ -675,5 +591,76 @@ fn kind_and_battery_registers_follow_the_connected_pad() {
             "no remote after switch-off",
         )
         .await;
+    });
+}
+
+/// Pages the robot as `name` and waits for the outcome: `true` if the robot took the
+/// link (and, without the key, dropped it after the failed authentication), `false`
+/// if it rejected the page at once.
+async fn page_is_taken(peer: &mut Peer, name: &str) -> bool {
+    let mark = peer.mark();
+    peer.cmd(&format!("on {name}")).await;
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while Instant::now() < deadline {
+        if !peer.events_since(mark, &["page-failed", name]).is_empty() {
+            return false;
+        }
+        if !peer.events_since(mark, &["disconnected", name]).is_empty() {
+            assert!(
+                !peer
+                    .events_since(mark, &["classic-key-mismatch"])
+                    .is_empty(),
+                "a link without the key ends in the failed authentication"
+            );
+            return true;
+        }
+        Timer::after_millis(10).await;
+    }
+    panic!("{name}'s page had no outcome within 10 s");
+}
+
+#[test]
+fn after_failed_authentications_the_robot_backs_off_1_s_then_2_s() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        pair(&mut peer, pc, "pad", "ds4", PAD_ADDRESS).await;
+        peer.cmd("off pad").await;
+        status(pc, 3_000, "the switch-off is reported", |s| {
+            !s.flags.remote_connected
+        })
+        .await;
+        // The bonded address without the key: each link fails its authentication.
+        peer.cmd("forget pad").await;
+        let forgotten = peer.mark();
+        assert!(page_is_taken(&mut peer, "pad").await, "the first page");
+        let failed = Instant::now();
+        // Within the first back-off (1 s) a page is rejected at once ...
+        assert!(!page_is_taken(&mut peer, "pad").await, "a page 0 s after");
+        assert!(failed.elapsed() < Duration::from_millis(800));
+        // ... after it, taken (and failing again) ...
+        let wait = Duration::from_millis(1_300).saturating_sub(failed.elapsed());
+        Timer::after_millis(wait.as_millis() as u64).await;
+        assert!(page_is_taken(&mut peer, "pad").await, "a page 1.3 s after");
+        let failed_again = Instant::now();
+        // ... and the next back-off is twice as long: rejected 1.3 s after, taken 2.5 s after.
+        Timer::after_millis(1_300).await;
+        assert!(
+            !page_is_taken(&mut peer, "pad").await,
+            "a page 1.3 s after the second"
+        );
+        let wait = Duration::from_millis(2_500).saturating_sub(failed_again.elapsed());
+        Timer::after_millis(wait.as_millis() as u64).await;
+        assert!(
+            page_is_taken(&mut peer, "pad").await,
+            "a page 2.5 s after the second"
+        );
+        assert!(
+            peer.events_since(forgotten, &["encrypted", "pad"])
+                .is_empty(),
+            "no link without the key was ever encrypted"
+        );
+        assert!(peer.events_since(forgotten, &["paired"]).is_empty());
     });
 }
