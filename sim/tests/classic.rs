@@ -224,7 +224,7 @@ fn a_silent_pad_stops_the_base_within_the_report_watchdog() {
         eprintln!("classic report silence to zero on the wire: {stopped_after:?}");
         // The silent link is dropped.
         peer.wait_for(mark, &["disconnected", "pad"], 3_000).await;
-        status(pc, 1_000, "the link is reported down", |s| {
+        status(pc, 2_000, "the link is reported down", |s| {
             !s.flags.remote_connected
         })
         .await;
@@ -539,7 +539,8 @@ fn the_light_bar_is_green_when_ready_blue_with_r1_held_and_red_in_emergency() {
             "classic light bar (e-stop pressed → red on the pad): {:?}",
             pressed.elapsed()
         );
-        status(pc, 1_000, "the e-stop is seen", |s| {
+        // The status frame comes every `status_time` (1 s), so wait longer than that.
+        status(pc, 2_000, "the e-stop is seen", |s| {
             s.mode == Mode::Emergency
         })
         .await;
