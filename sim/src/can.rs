@@ -2,10 +2,15 @@
 //! [`CanTxPort`]) and the robot PC ([`CanPeer`]), which the test script plays.
 //!
 //! Frames the firmware sends take their time on the wire (500 kbit/s, see
-//! [`frame_time`]), so a transmit queue can fill; frames the PC sends arrive at once,
-//! because the script decides when they were sent. Faults are injected from the PC's
-//! side: bus-off, receive overrun and bus errors, error-passive. Everything shares one
-//! thread and the virtual clock of [`crate::runtime`].
+//! [`frame_time`]), so a transmit queue can fill. The PC has two ways to send: a test
+//! script's [`CanPeer::send`] arrives at once, because the script decides when it was
+//! sent; [`CanPeer::transmit`], which the simulator's PC programs use, takes its bus
+//! time like the firmware's frames. Both kinds of timed frame share one wire, one frame
+//! after the other, so a PC streaming data slows the firmware's frames down and the
+//! other way round (in the order they were offered: the bus arbitrates between frames
+//! waiting at the same moment by ID, which the simulator does not model). Faults are
+//! injected from the PC's side: bus-off, receive overrun and bus errors, error-passive.
+//! Everything shares one thread and the clock of [`crate::runtime`].
 
 use core::future::poll_fn;
 use core::task::Poll;
@@ -43,9 +48,9 @@ fn bit_time(bits: u32) -> Duration {
     Duration::from_micros((u64::from(bits) * 1_000_000).div_ceil(u64::from(BITRATE_BPS)))
 }
 
-/// A frame on the bus. A frame the firmware sent is stamped with the virtual time its
-/// last bit left the wire (when the PC would have it); one the PC sent, with the time
-/// it sent it (its frames take no bus time, see the module doc).
+/// A frame on the bus, stamped with the time its last bit left the wire (when the
+/// receivers have it); a frame a test script sent with [`CanPeer::send`], with the time
+/// it sent it (those take no bus time, see the module doc).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct SentFrame {
     pub at: Instant,
@@ -71,9 +76,20 @@ struct Bus {
     bus_off: bool,
     error_passive: bool,
     recoveries: u32,
+    /// When the last frame given bus time leaves the wire: the next one starts then at
+    /// the earliest.
+    busy_until: Instant,
 }
 
 impl Bus {
+    /// Gives `frame`, ready to go at `ready`, the wire after every frame before it;
+    /// returns when its last bit has left.
+    fn occupy(&mut self, frame: &SimFrame, ready: Instant) -> Instant {
+        let start = ready.max(self.busy_until);
+        self.busy_until = start + frame_time(frame);
+        self.busy_until
+    }
+
     fn deliver_to_firmware(&mut self, frame: SimFrame) {
         // A bus-off controller takes no part in the bus, so it receives nothing either.
         if self.bus_off {
@@ -117,6 +133,7 @@ impl VirtualCan {
             bus_off: false,
             error_passive: false,
             recoveries: 0,
+            busy_until: Instant::from_ticks(0),
         }));
         (
             CanRxPort { bus: bus.clone() },
@@ -186,14 +203,15 @@ pub struct CanTxPort {
 impl CanTx for CanTxPort {
     type Frame = SimFrame;
 
-    /// Occupies the bus for the frame's [`frame_time`], then hands the frame to the PC.
-    /// A controller that is or goes bus-off in that time fails with
-    /// [`CanError::BusOff`] and the frame is lost.
+    /// Occupies the bus for the frame's [`frame_time`], after any frame already on it or
+    /// waiting for it, then hands the frame to the PC. A controller that is or goes
+    /// bus-off in that time fails with [`CanError::BusOff`] and the frame is lost.
     async fn transmit(&mut self, frame: &SimFrame) -> Result<(), CanError> {
         if self.bus.borrow().bus_off {
             return Err(CanError::BusOff);
         }
-        Timer::after(frame_time(frame)).await;
+        let sent = self.bus.borrow_mut().occupy(frame, Instant::now());
+        Timer::at(sent).await;
         let mut bus = self.bus.borrow_mut();
         if bus.bus_off {
             return Err(CanError::BusOff);
@@ -263,6 +281,22 @@ impl CanPeer {
             frame,
         });
         bus.deliver_to_firmware(frame);
+    }
+
+    /// Sends `frame` as a PC program does through its CAN interface: it takes its
+    /// [`frame_time`] on the bus, after every frame already on it or waiting for it,
+    /// and reaches the firmware when its last bit has left; returns then, with that
+    /// time. `queued` is when the interface had the frame: a caller that comes late
+    /// (a wall clock that overslept) loses no bus time, its frames follow each other
+    /// on the wire as they would have. The firmware does not take it if the
+    /// acceptance filter drops it or its controller is bus-off.
+    pub async fn transmit(&self, frame: SimFrame, queued: Instant) -> Instant {
+        let sent = self.bus.borrow_mut().occupy(&frame, queued);
+        Timer::at(sent).await;
+        let mut bus = self.bus.borrow_mut();
+        bus.sent_by_pc.push(SentFrame { at: sent, frame });
+        bus.deliver_to_firmware(frame);
+        sent
     }
 
     /// Every frame the PC sent, oldest first, whether the firmware took it or not.

@@ -1,15 +1,16 @@
 //! A flash whose bytes are kept in a file, for the simulator: the register store's
-//! records survive a restart, as on the board. It is a [`RamFlash`] that writes its
-//! whole image to the file after every write and erase.
+//! records survive a restart, as on the board. It is a [`RamFlash`] that writes the
+//! bytes each write and erase changed to the file.
 
 use std::io;
+use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use embedded_storage_async::nor_flash::{
     ErrorType, MultiwriteNorFlash, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
 };
 
-use crate::flash::{ERASE_SIZE, FlashError, RamFlash};
+use crate::flash::{ERASE_SIZE, FlashError, FlashTiming, RamFlash};
 
 /// Why a file-backed flash operation failed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -82,9 +83,20 @@ impl FileFlash {
         &self.path
     }
 
-    fn save(&self) -> Result<(), FileFlashError> {
-        let image = self.flash.contents(0..self.flash.size() as u32);
-        std::fs::write(&self.path, image).map_err(|error| FileFlashError::Save(error.kind()))
+    /// Makes erases and writes stall the whole chip as `timing` says.
+    pub fn set_timing(&self, timing: FlashTiming) {
+        self.flash.set_timing(timing);
+    }
+
+    /// Writes the bytes of `range` to the file, where they belong.
+    fn save(&self, range: Range<u32>) -> Result<(), FileFlashError> {
+        use std::os::unix::fs::FileExt;
+        let bytes = self.flash.contents(range.clone());
+        std::fs::OpenOptions::new()
+            .write(true)
+            .open(&self.path)
+            .and_then(|file| file.write_all_at(&bytes, u64::from(range.start)))
+            .map_err(|error| FileFlashError::Save(error.kind()))
     }
 }
 
@@ -116,7 +128,7 @@ impl NorFlash for FileFlash {
             .erase(from, to)
             .await
             .map_err(FileFlashError::Flash)?;
-        self.save()
+        self.save(from..to)
     }
 
     async fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), FileFlashError> {
@@ -124,7 +136,7 @@ impl NorFlash for FileFlash {
             .write(offset, bytes)
             .await
             .map_err(FileFlashError::Flash)?;
-        self.save()
+        self.save(offset..offset + bytes.len() as u32)
     }
 }
 

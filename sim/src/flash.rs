@@ -22,6 +22,33 @@ pub const READ_SIZE: usize = 4;
 pub const WRITE_SIZE: usize = 4;
 /// Bytes per erase (one sector).
 pub const ERASE_SIZE: usize = 4096;
+/// Bytes the flash programs at once (one page): a write takes a page time for each
+/// page it touches.
+pub const PROGRAM_PAGE: usize = 256;
+
+/// How long flash operations stall the whole chip: esp-storage masks interrupts while
+/// the flash erases or programs, so nothing else runs meanwhile.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FlashTiming {
+    pub sector_erase: Duration,
+    pub page_program: Duration,
+}
+
+impl FlashTiming {
+    /// Operations take no time: the host tests' default.
+    pub const INSTANT: Self = Self {
+        sector_erase: Duration::from_ticks(0),
+        page_program: Duration::from_ticks(0),
+    };
+
+    /// The typical times of the 4 MB SPI NOR flashes on ESP32 modules: 45 ms to erase
+    /// a 4 KiB sector, 0.5 ms to program a 256-byte page (their datasheets give up to
+    /// 400 ms and 3 ms as the worst).
+    pub const TYPICAL: Self = Self {
+        sector_erase: Duration::from_millis(45),
+        page_program: Duration::from_micros(500),
+    };
+}
 
 /// Why a flash operation failed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -71,8 +98,7 @@ struct Chip {
     /// Steps left before the power dies; `None`: no cut planned.
     budget: Option<u64>,
     stats: FlashStats,
-    /// How long each page erase stalls the whole chip.
-    erase_stall: Duration,
+    timing: FlashTiming,
     /// Bytes that read as a fixed value whatever is written or erased: see
     /// [`RamFlash::stick_byte`].
     stuck: Vec<(usize, u8)>,
@@ -156,7 +182,7 @@ impl RamFlash {
                 powered: true,
                 budget: None,
                 stats: FlashStats::default(),
-                erase_stall: Duration::from_ticks(0),
+                timing: FlashTiming::INSTANT,
                 stuck: Vec::new(),
             })),
         }
@@ -166,7 +192,12 @@ impl RamFlash {
     /// nothing else runs), as esp-storage does by masking interrupts during a sector
     /// erase: typically 45 ms, up to 400 ms by the flash datasheets.
     pub fn set_erase_stall(&self, stall: Duration) {
-        self.chip.borrow_mut().erase_stall = stall;
+        self.chip.borrow_mut().timing.sector_erase = stall;
+    }
+
+    /// Makes erases and writes stall the whole chip as `timing` says.
+    pub fn set_timing(&self, timing: FlashTiming) {
+        self.chip.borrow_mut().timing = timing;
     }
 
     /// A separate chip with the same bytes (powered, counters at zero), for trying
@@ -287,7 +318,7 @@ impl NorFlash for RamFlash {
             chip.stats.bytes_erased += 1;
             if (index + 1).is_multiple_of(ERASE_SIZE) {
                 chip.stats.erases += 1;
-                crate::runtime::stall(chip.erase_stall);
+                crate::runtime::stall(chip.timing.sector_erase);
             }
         }
         chip.apply_stuck();
@@ -298,6 +329,8 @@ impl NorFlash for RamFlash {
         let mut chip = self.chip.borrow_mut();
         let range = chip.check(offset, bytes.len(), WRITE_SIZE)?;
         chip.stats.writes += 1;
+        let pages = range.end.div_ceil(PROGRAM_PAGE) - range.start / PROGRAM_PAGE;
+        crate::runtime::stall(chip.timing.page_program * pages as u32);
         for (index, &byte) in range.zip(bytes) {
             if !chip.step() {
                 chip.apply_stuck();

@@ -133,6 +133,70 @@ fn pc_frames_reach_the_firmware_when_sent() {
 }
 
 #[test]
+fn a_transmitted_pc_frame_reaches_the_firmware_after_its_bus_time() {
+    let (mut rx, _tx, peer) = VirtualCan::new();
+    let start = now();
+    let f = frame(id::UPDATE_DATA, &[0; 8]);
+    let (received, sent) = block_on(join(rx.receive(), peer.transmit(f, start)));
+    assert_eq!(received, Ok(f));
+    assert_eq!(sent, start + us(270));
+    assert_eq!(now(), start + us(270));
+    let logged: Vec<_> = peer.sent_by_pc().iter().map(|s| (s.at, s.frame)).collect();
+    assert_eq!(logged, [(start + us(270), f)]);
+}
+
+#[test]
+fn pc_and_firmware_frames_take_turns_on_one_wire() {
+    let (mut rx, mut tx, peer) = VirtualCan::new();
+    let start = now();
+    let data = frame(id::UPDATE_DATA, &[0; 8]);
+    let status = frame(id::STATUS, &[0; 8]);
+    // The PC's frame is offered first, so the firmware's waits for the wire.
+    let (pc_sent, (firmware_sent, received)) = block_on(join(
+        peer.transmit(data, start),
+        join(
+            async {
+                tx.transmit(&status).await.unwrap();
+                now()
+            },
+            rx.receive(),
+        ),
+    ));
+    assert_eq!(received, Ok(data));
+    assert_eq!(pc_sent, start + us(270));
+    assert_eq!(firmware_sent, start + us(540));
+    // And a PC frame offered while the firmware's is on the wire follows it.
+    let later = now();
+    let (_, pc_sent) = block_on(join(tx.transmit(&status), async {
+        Timer::after(us(100)).await;
+        peer.transmit(data, now()).await
+    }));
+    assert_eq!(pc_sent, later + us(540));
+}
+
+#[test]
+fn a_stream_from_the_pc_runs_at_the_bus_rate_even_when_its_sender_is_late() {
+    let (mut rx, _tx, peer) = VirtualCan::new();
+    let start = now();
+    let f = frame(id::UPDATE_DATA, &[0; 8]);
+    block_on(async {
+        // The interface had ten frames at `start`; the loop that puts them on the
+        // wire gets to them 1 ms late, as a wall clock may.
+        Timer::after_millis(1).await;
+        for _ in 0..10 {
+            peer.transmit(f, start).await;
+        }
+    });
+    let ends: Vec<_> = peer.sent_by_pc().iter().map(|s| s.at - start).collect();
+    let back_to_back: Vec<_> = (1..=10).map(|n| us(270 * n)).collect();
+    assert_eq!(ends, back_to_back);
+    assert_eq!(now(), start + us(2700));
+    for _ in 0..10 {
+        assert_eq!(block_on(rx.receive()), Ok(f));
+    }
+}
+
+#[test]
 fn pc_frames_are_logged_with_their_send_time_even_when_filtered_out() {
     let (mut rx, _tx, peer) = VirtualCan::new();
     rx.accept_only_standard(&[id::HEARTBEAT]);

@@ -30,6 +30,7 @@ use crate::app_flash::{self, Behaviour};
 use crate::can::{BITRATE_BPS, CanPeer, VirtualCan};
 use crate::drives::DrivesConfig;
 use crate::file_flash::FileFlash;
+use crate::flash::FlashTiming;
 use crate::robot::{FLASH_SIZE, Pc, VirtualRobot, wait_ms};
 use crate::runtime::{QueueReceiver, block_on_realtime, cross_thread_queue, now};
 use crate::slcan;
@@ -224,6 +225,10 @@ async fn controller(
             app_flash::FACTORY_VERSION
         ));
     }
+    // From here on the flash takes the chip's time, and the chip stands still meanwhile
+    // (the factory image above is the USB flash's work, not the controller's).
+    app.set_timing(FlashTiming::TYPICAL);
+    flash.set_timing(FlashTiming::TYPICAL);
     loop {
         let (can_rx, can_tx) = match first_can.take() {
             Some(ports) => ports,
@@ -507,13 +512,64 @@ impl View<'_> {
 
 /// The bus as the PC's programs see it: the SLCAN adapter, the socketcand clients
 /// and the SocketCAN interface are nodes beside the controller. Every frame one of
-/// them sends reaches the controller and every other node (not itself, as on a real
-/// bus); every frame the controller sends reaches them all.
+/// them sends takes its time on the wire (shared with the controller's frames), then
+/// reaches the controller and every other node (not itself, as on a real bus); every
+/// frame the controller sends reaches them all.
 async fn bridge(
     port: &SerialPort,
     network: &QueueReceiver<Event>,
     socketcan: Option<&socketcan::SocketCanLink>,
     view: &View<'_>,
+) -> ! {
+    let to_wire = WireQueue::new();
+    let on_wire = WireQueue::new();
+    match select(
+        serve_nodes(port, network, socketcan, view, (&to_wire, &on_wire)),
+        put_on_wire(view.peer, &to_wire, &on_wire),
+    )
+    .await
+    {
+        Either::First(never) | Either::Second(never) => never,
+    }
+}
+
+/// Who sent a frame on the PC's side.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum PcNode {
+    Slcan,
+    /// A socketcand client, or the SocketCAN interface ([`socketcan::NODE`]).
+    Network(u64),
+}
+
+/// Frames of the PC's nodes with the node that sent each: on their way to the wire
+/// with the time the node had them, or back from it with the time they were sent.
+type WireQueue = embassy_sync::channel::Channel<
+    NoopRawMutex,
+    (crate::can::SimFrame, PcNode, Instant),
+    PC_TRANSMIT_QUEUE,
+>;
+
+/// Frames waiting for the bus across all of the PC's nodes: about the queue of an
+/// SLCAN adapter or of a SocketCAN interface (10 frames by default, with the socket's
+/// buffer in front of it).
+const PC_TRANSMIT_QUEUE: usize = 32;
+
+/// The PC's frames, one after the other, each for its bus time (in turn with the
+/// controller's), then handed back for the other nodes.
+async fn put_on_wire(peer: &CanPeer, to_wire: &WireQueue, on_wire: &WireQueue) -> ! {
+    loop {
+        let (frame, sender, queued) = to_wire.receive().await;
+        let sent = peer.transmit(frame, queued).await;
+        on_wire.send((frame, sender, sent)).await;
+    }
+}
+
+async fn serve_nodes(
+    port: &SerialPort,
+    network: &QueueReceiver<Event>,
+    socketcan: Option<&socketcan::SocketCanLink>,
+    view: &View<'_>,
+    (to_wire, on_wire): (&WireQueue, &WireQueue),
 ) -> ! {
     let mut slcan = SlcanNode {
         channel: slcan::Channel::new(BITRATE_BPS),
@@ -533,42 +589,82 @@ async fn bridge(
                 false => core::future::pending().await,
             }
         };
-        match select3(port.events().receive(), view.peer.receive(), network_event).await {
-            Either3::First(Some(PortEvent::Line(line))) => {
+        match select4(
+            port.events().receive(),
+            view.peer.receive(),
+            network_event,
+            on_wire.receive(),
+        )
+        .await
+        {
+            Either4::First(Some(PortEvent::Line(line))) => {
                 if let Some(frame) = slcan.handle_line(&line) {
-                    view.peer.send_frame(frame);
-                    clients.offer(&frame, None);
+                    let queued = (frame, PcNode::Slcan, now());
+                    queue_for_wire(queued, (to_wire, on_wire), &slcan, &mut clients).await;
                 }
             }
-            Either3::First(Some(PortEvent::Closed)) => slcan.port_closed(),
-            Either3::First(None) => {
+            Either4::First(Some(PortEvent::Closed)) => slcan.port_closed(),
+            Either4::First(None) => {
                 view.output.message(
                     "slcan: the serial port failed; the PC is cut off, the controller runs on",
                 );
                 core::future::pending().await
             }
-            Either3::Second(frame) => {
+            Either4::Second(frame) => {
                 slcan.offer(&frame);
                 clients.offer(&frame, None);
             }
-            Either3::Third(Some(Event::Joined(client))) => clients.join(client),
-            Either3::Third(Some(Event::Frame { client, frame })) => {
-                view.peer.send_frame(frame);
+            Either4::Third(Some(Event::Joined(client))) => clients.join(client),
+            Either4::Third(Some(Event::Frame { client, frame })) => {
                 view.network.frames_in.set(view.network.frames_in.get() + 1);
-                slcan.offer(&frame);
-                clients.offer(&frame, Some(client));
+                let queued = (frame, PcNode::Network(client), now());
+                queue_for_wire(queued, (to_wire, on_wire), &slcan, &mut clients).await;
             }
-            Either3::Third(Some(Event::Refused { client, why })) => {
+            Either4::Third(Some(Event::Refused { client, why })) => {
                 view.output
                     .message(&format!("socketcand: client {client}: ignored: {why}"));
             }
-            Either3::Third(Some(Event::Left { client, why })) if client == socketcan::NODE => {
+            Either4::Third(Some(Event::Left { client, why })) if client == socketcan::NODE => {
                 view.output
                     .message(&format!("socketcan: {why}; the bus runs on without it"));
             }
-            Either3::Third(Some(Event::Left { client, why })) => clients.leave(client, &why),
+            Either4::Third(Some(Event::Left { client, why })) => clients.leave(client, &why),
             // No server (--no-socketcand).
-            Either3::Third(None) => network_open = false,
+            Either4::Third(None) => network_open = false,
+            Either4::Fourth((frame, sender, _)) => offer_sent(frame, sender, &slcan, &mut clients),
+        }
+    }
+}
+
+/// Queues a PC frame for the wire. While the queue is full the sender waits, as a CAN
+/// interface's full transmit queue blocks its writer (the serial port or the TCP
+/// connection is not read meanwhile; nothing is dropped), and the frames the wire
+/// sends in that time go on to the other nodes.
+async fn queue_for_wire(
+    mut frame: (crate::can::SimFrame, PcNode, Instant),
+    (to_wire, on_wire): (&WireQueue, &WireQueue),
+    slcan: &SlcanNode<'_>,
+    clients: &mut Clients<'_>,
+) {
+    while let Err(embassy_sync::channel::TrySendError::Full(back)) = to_wire.try_send(frame) {
+        frame = back;
+        let (sent, sender, _) = on_wire.receive().await;
+        offer_sent(sent, sender, slcan, clients);
+    }
+}
+
+/// A PC frame has left the wire: every node but its sender has it.
+fn offer_sent(
+    frame: crate::can::SimFrame,
+    sender: PcNode,
+    slcan: &SlcanNode<'_>,
+    clients: &mut Clients<'_>,
+) {
+    match sender {
+        PcNode::Slcan => clients.offer(&frame, None),
+        PcNode::Network(client) => {
+            slcan.offer(&frame);
+            clients.offer(&frame, Some(client));
         }
     }
 }
