@@ -228,6 +228,12 @@ pub fn transfer(
                 }
                 .encode(),
             )?;
+            // Frames of this attempt sent so far: a READY lets the sender go on up to
+            // SUB_BLOCK frames past the frame it names, without sending any twice,
+            // except after an OutOfOrder, where the READY that follows says where to
+            // go back to.
+            let mut sent = 0;
+            let mut go_back = false;
             loop {
                 let deadline = Instant::now() + REPLY_TIMEOUT;
                 let reply = match receive_reply(bus, deadline)? {
@@ -242,11 +248,17 @@ pub fn transfer(
                         window,
                         next,
                     } if owner == session && window == index => {
-                        let end = (usize::from(next) + usize::from(SUB_BLOCK)).min(frames.len());
-                        for frame in &frames[usize::from(next).min(end)..end] {
+                        let next = usize::from(next);
+                        if go_back {
+                            sent = next;
+                            go_back = false;
+                        }
+                        let end = (next + usize::from(SUB_BLOCK)).min(frames.len());
+                        for frame in &frames[sent.max(next).min(end)..end] {
                             bus.send(frame)?;
                             stats.frames += 1;
                         }
+                        sent = sent.max(end);
                     }
                     UpdateReply::Written {
                         session: owner,
@@ -257,7 +269,11 @@ pub fn transfer(
                         ..
                     } => continue 'window,
                     UpdateReply::Refused {
-                        error: UpdateError::OutOfOrder | UpdateError::Duplicate,
+                        error: UpdateError::OutOfOrder,
+                        ..
+                    } => go_back = true,
+                    UpdateReply::Refused {
+                        error: UpdateError::Duplicate,
                         ..
                     } => {}
                     UpdateReply::Refused { error, detail, .. } => {

@@ -335,10 +335,12 @@ fn an_update_while_driving_is_refused_and_the_base_keeps_driving() {
 }
 
 /// A bus that flips one bit in one data frame on the way out, once.
+/// Damages one data frame on its way: flips a bit in it, or loses it.
 struct CorruptOnce<B> {
     bus: B,
     sent_data_frames: u32,
     corrupt_at: u32,
+    lose: bool,
 }
 
 impl<B: Bus> Bus for CorruptOnce<B> {
@@ -346,6 +348,9 @@ impl<B: Bus> Bus for CorruptOnce<B> {
         if frame.id() == base_core::can::id::UPDATE_DATA {
             self.sent_data_frames += 1;
             if self.sent_data_frames == self.corrupt_at {
+                if self.lose {
+                    return Ok(());
+                }
                 let mut data = frame.data().to_vec();
                 data[3] ^= 0x10;
                 return self.bus.send(&RawFrame::new(frame.id(), &data).unwrap());
@@ -367,6 +372,7 @@ fn a_window_corrupted_on_the_wire_is_refused_and_sent_again() {
         sent_data_frames: 0,
         // Inside the third window.
         corrupt_at: 2 * 586 + 100,
+        lose: false,
     };
     standby(&mut bus);
     let file = image_file(&simulator, "0.2.0");
@@ -375,6 +381,27 @@ fn a_window_corrupted_on_the_wire_is_refused_and_sent_again() {
     let report: serde_json::Value = serde_json::from_slice(&out).unwrap();
     assert_eq!(report["outcome"], "confirmed");
     assert!(report["retries"].as_u64().unwrap() >= 1, "{report}");
+    assert_eq!(firmware::query(&mut bus, TIMEOUT).unwrap().version, "0.2.0");
+}
+
+#[test]
+fn a_data_frame_lost_on_the_wire_is_sent_again_from_where_the_controller_asks() {
+    let simulator = start();
+    let mut bus = CorruptOnce {
+        bus: connect(&simulator),
+        sent_data_frames: 0,
+        corrupt_at: 2 * 586 + 100,
+        lose: true,
+    };
+    standby(&mut bus);
+    let file = image_file(&simulator, "0.2.0");
+    let mut out = Vec::new();
+    firmware::update(&mut bus, &plan(file), TIMEOUT, &mut out).unwrap();
+    let report: serde_json::Value = serde_json::from_slice(&out).unwrap();
+    assert_eq!(report["outcome"], "confirmed");
+    // The next frame is out of order; the READY after it sends basectl back to the
+    // lost one, inside the same window: no window is sent again.
+    assert_eq!(report["retries"], 0, "{report}");
     assert_eq!(firmware::query(&mut bus, TIMEOUT).unwrap().version, "0.2.0");
 }
 

@@ -16,9 +16,12 @@
 //! ```
 //!
 //! A transfer moves the image in 4 KiB windows. For each, the PC announces the index
-//! and the CRC-32, then sends data frames (a sequence byte, 7 bytes), at most
-//! [`SUB_BLOCK`] before the controller answers READY with the next frame it expects: the
-//! controller paces the sender, so its receive queue never overflows. A complete
+//! and the CRC-32, then sends data frames (a sequence byte, 7 bytes). READY n says the
+//! controller has every frame before n; the PC may send up to [`SUB_BLOCK`] frames
+//! from n on and no further: the controller paces the sender, so its receive queue
+//! never overflows. READY comes every [`READY_EVERY`] frames, half the credit, so the
+//! next READY is on its way while the PC still has frames to send and the bus never
+//! waits for the round trip. A complete
 //! window whose CRC matches is erased, written and read back by the update task, then
 //! acknowledged with WRITTEN; a mismatch is answered `BadCrc` and the PC sends the
 //! window again. Window 0 holds the image header and app descriptor: they are checked
@@ -37,9 +40,12 @@ use crate::time::Timestamp;
 
 /// Bytes of one window: one flash sector.
 pub const WINDOW_LEN: usize = 4096;
-/// Data frames the PC may send before it waits for READY. The chip's CAN receive
-/// queue holds 32 frames; the rest is margin for the PC's other commands.
+/// Data frames the PC may send from the frame a READY names, before the next READY.
+/// The chip's CAN receive queue holds 32 frames; the rest is margin for the PC's other
+/// commands.
 pub const SUB_BLOCK: u16 = 24;
+/// The controller answers READY after every this many frames of a window.
+pub const READY_EVERY: u16 = SUB_BLOCK / 2;
 /// A session whose PC is silent this long ends, and the motion lock with it.
 pub const SILENCE_MS: u64 = 10_000;
 /// Parts of 4 bytes the SHA-256 is announced in.
@@ -535,7 +541,7 @@ impl Updater {
         }
         *next += 1;
         if *next < *frames {
-            if *next % SUB_BLOCK == 0 {
+            if *next % READY_EVERY == 0 {
                 effects.reply(UpdateReply::Ready {
                     session: transfer.session,
                     window: *index,

@@ -163,12 +163,21 @@ fn a_whole_update_writes_every_window_once_then_activates() {
             .iter()
             .any(|r| matches!(r, UpdateReply::Refused { .. }))
     );
-    // READY after every full sub-block of a 4 KiB window (586 frames: 24 of them).
-    let readies = replies
+    // READY at the window's start and after every 12 frames of a 4 KiB window (586
+    // frames), each naming the next frame it expects.
+    let readies: StdVec<u16> = replies
         .iter()
-        .filter(|r| matches!(r, UpdateReply::Ready { window: 0, .. }))
-        .count();
-    assert_eq!(readies, 1 + (586 - 1) / 24);
+        .filter_map(|r| match r {
+            UpdateReply::Ready {
+                window: 0, next, ..
+            } => Some(*next),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(
+        readies,
+        (0..=585 / 12).map(|n| n * 12).collect::<StdVec<_>>()
+    );
     assert_eq!(&bench.slot[..image.len()], &image[..]);
     assert_eq!(
         bench.written,
