@@ -13,7 +13,8 @@
 //! - a firmware update's transfer of 600 KB over socketcand and over SLCAN, against the
 //!   simulator binary on the wall clock (build it first: `cargo build -p virtual-robot`).
 //!
-//! Run with `cargo run -p virtual-robot --example figures`.
+//! Run with `cargo run -p virtual-robot --example figures`; `-- update` prints only the
+//! update's figures.
 
 use std::collections::{BTreeMap, BTreeSet};
 
@@ -46,6 +47,11 @@ const FAST_BAUD: u32 = 230_400;
 const FRAME_GAP_CHARS: f64 = 3.5;
 
 fn main() {
+    // `figures update`: only the update's figures, which take a minute on the wall clock.
+    if std::env::args().nth(1).as_deref() == Some("update") {
+        report_update();
+        return;
+    }
     let (velocity, estop) = measure_latencies(&VirtualRobot::new());
     report_latency(
         "CAN velocity frame → both drives have the new speed",
@@ -89,7 +95,9 @@ const UPDATE_IMAGE_BYTES: usize = 600_000;
 /// How long the transfer of a 600 KB image takes (BEGIN to the last window written,
 /// then ABORT: the simulator keeps its firmware), over socketcand and over SLCAN, and
 /// what share of the bus limit that is: 7 image bytes per frame at the frame rate of
-/// the virtual bus (8-byte frames with worst-case stuffing at 500 kbit/s).
+/// the virtual bus (8-byte frames with worst-case stuffing at 500 kbit/s). Every frame
+/// takes its bus time both ways, and the flash its typical erase and program times,
+/// stalling the controller as the chip does.
 fn report_update() {
     let Some(binary) = std::env::current_exe()
         .ok()
@@ -132,12 +140,77 @@ fn report_update() {
         match measured {
             Ok(seconds) => println!(
                 "firmware update, 600 KB over {name}: {seconds:.1} s ({:.0} % of the bus limit of \
-                 {limit_s:.1} s; the virtual bus does not time the PC's frames)",
+                 {limit_s:.1} s)",
                 100.0 * limit_s / seconds
             ),
             Err(error) => println!("firmware update over {name}: not measured ({error})"),
         }
     }
+    let address = simulator.socketcand().to_string();
+    let listen = |until: &dyn Fn() -> bool| -> Result<Vec<f64>, String> {
+        let mut bus = basectl::bus::SocketcandBus::open(&address).map_err(|e| e.to_string())?;
+        position_periods_ms(&mut bus, until)
+    };
+    let started = std::time::Instant::now();
+    let at_rest = listen(&|| started.elapsed() > std::time::Duration::from_secs(10));
+    let transferring = std::sync::atomic::AtomicBool::new(true);
+    let during = std::thread::scope(|scope| {
+        let transfer = scope.spawn(|| {
+            let result = basectl::bus::SocketcandBus::open(&address)
+                .map_err(|e| e.to_string())
+                .and_then(|mut bus| transfer_seconds(&mut bus, 43, &image));
+            transferring.store(false, std::sync::atomic::Ordering::Relaxed);
+            result
+        });
+        let periods = listen(&|| !transferring.load(std::sync::atomic::Ordering::Relaxed));
+        transfer
+            .join()
+            .map_err(|_| "the transfer panicked".to_string())
+            .and_then(|transfer| transfer)
+            .and(periods)
+    });
+    match (at_rest, during) {
+        (Ok(at_rest), Ok(during)) => {
+            for (label, periods) in [("at rest", &at_rest), ("during an update", &during)] {
+                let mean = periods.iter().sum::<f64>() / periods.len().max(1) as f64;
+                let max = periods.iter().copied().fold(0.0, f64::max);
+                println!(
+                    "control cycle {label} (0x0EC position frame period at the PC, {} \
+                     periods): mean {mean:.1} ms, max {max:.1} ms",
+                    periods.len()
+                );
+            }
+        }
+        (Err(error), _) | (_, Err(error)) => {
+            println!("control cycle during an update: not measured ({error})")
+        }
+    }
+}
+
+/// The periods between the position frames a PC receives until `done` says so.
+fn position_periods_ms(
+    bus: &mut dyn basectl::bus::Bus,
+    done: &dyn Fn() -> bool,
+) -> Result<Vec<f64>, String> {
+    let mut last: Option<std::time::Instant> = None;
+    let mut periods = Vec::new();
+    while !done() {
+        let Some(frame) = bus
+            .receive(std::time::Duration::from_millis(100))
+            .map_err(|error| error.to_string())?
+        else {
+            continue;
+        };
+        if frame.id() != id::POSITION {
+            continue;
+        }
+        let now = std::time::Instant::now();
+        if let Some(last) = last {
+            periods.push((now - last).as_secs_f64() * 1000.0);
+        }
+        last = Some(now);
+    }
+    Ok(periods)
 }
 
 /// BEGIN, the digest, every window, then ABORT: the seconds from BEGIN to the last
