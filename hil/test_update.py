@@ -55,6 +55,19 @@ def wait_for_boot_info(base, expected, timeout=15.0):
         time.sleep(0.3)
 
 
+def current_status(base):
+    """The next status frame sent from now on, not one queued before."""
+    base.flush()
+    return base.status()
+
+
+def standby_from_now(base):
+    """Waits for Standby in the status frames from now on (queued ones may be from
+    before a reset)."""
+    base.flush()
+    return base.wait_for_mode("Standby", timeout=15)
+
+
 def watchdog_reset(status):
     return bool(status.faults & 0x80)
 
@@ -98,7 +111,7 @@ def positions_and_statuses(frames):
 def assert_motion_refused(base):
     """Enable and changing speeds for 1.5 s: every one refused with 0x50, the base
     stays braked in Standby and its position does not move."""
-    rejected_before = base.status().rejected
+    rejected_before = current_status(base).rejected
     with ChangingSpeeds(base):
         time.sleep(0.3)
         frames = base.collect(1.2)
@@ -129,9 +142,9 @@ def test_a_healthy_update_runs_on_trial_is_confirmed_and_survives_a_reset(
     print(f"\n{len(image.data)} bytes in {seconds:.1f} s, "
           f"{client.resent_windows} windows sent again")
     assert trial.slot != before.slot, "the new image runs from the other slot"
-    base.wait_for_mode("Standby", timeout=15)
+    standby_from_now(base)
     assert boot_info(base) == p.BOOT_ACTIVATED, "the activation's reset starts the trial"
-    assert not watchdog_reset(base.status()), "an activation is no watchdog reset"
+    assert not watchdog_reset(current_status(base)), "an activation is no watchdog reset"
     # While the image is on trial, nothing drives the base.
     assert_motion_refused(base)
 
@@ -144,7 +157,7 @@ def test_a_healthy_update_runs_on_trial_is_confirmed_and_survives_a_reset(
     assert wait_for_boot_info(base, 0) == 0, "a plain reset after the confirm"
     after = client.wait_for_running(image.version, "idle", timeout=START_TIMEOUT)
     assert after.slot == trial.slot, "the confirmed image starts again, not the old one"
-    assert not watchdog_reset(base.wait_for_mode("Standby", timeout=15))
+    assert not watchdog_reset(standby_from_now(base))
 
 
 def test_an_image_that_fails_on_the_target_is_rolled_back(base, client, update_images):
@@ -184,7 +197,7 @@ def test_an_image_that_fails_on_the_target_is_rolled_back(base, client, update_i
     assert wait_for_boot_info(base, p.BOOT_ROLLED_BACK) == p.BOOT_ROLLED_BACK
     after = client.wait_for_running(before.version, "idle", timeout=START_TIMEOUT)
     assert after.slot == before.slot, "the old image runs from its own slot"
-    status = base.wait_for_mode("Standby", timeout=15)
+    status = standby_from_now(base)
     assert not watchdog_reset(status), "a failed trial is reported by boot_info, not as a " \
                                        "watchdog reset"
 
@@ -192,6 +205,7 @@ def test_an_image_that_fails_on_the_target_is_rolled_back(base, client, update_i
 def health_check(base):
     """None when the base reaches Standby without a drive fault within 10 s, else the
     last status."""
+    base.flush()
     end = time.monotonic() + 10
     status = None
     while time.monotonic() < end:
@@ -207,7 +221,7 @@ def test_begin_while_driving_is_refused_and_the_base_drives_on(base, client):
     with ChangingSpeeds(base):
         base.wait_for_mode("Active", timeout=5)
         time.sleep(0.5)
-        rejected_before = base.status().rejected
+        rejected_before = current_status(base).rejected
         refused = client.begin(64 * 1024)
         window = client.command(p.update_window(client.session, 0, 0), step=None)
         client.flush()
