@@ -204,7 +204,9 @@ class UpdateClient:
         raise TimeoutError(f"no {what} within {timeout} s (other replies: {skipped})")
 
     def command(self, frame, step, timeout=2.0):
-        """Sends a command; returns its DONE `step` or the REFUSED naming its opcode."""
+        """Sends a command; returns its DONE `step` or the REFUSED naming its opcode
+        (`step` None: a command that only a REFUSED answers, as WINDOW without a
+        session)."""
         opcode = frame[1][0]
         self.flush()
         self.send(frame)
