@@ -155,12 +155,12 @@ class SimulatorImages:
                        check=True, capture_output=True)
         return Image(version, path.read_bytes())
 
-    def healthy(self, running):
-        return self._make(next_version(running))
+    def healthy(self, client):
+        return self._make(next_version(client.query().version))
 
-    def failing(self, running):
+    def failing(self, client):
         # Panics at start after arming its trial: the bootloader model rolls it back.
-        return self._make(next_version(running) + "-sim-panic")
+        return self._make(next_version(client.query().version) + "-sim-panic")
 
 
 class RobotImages:
@@ -169,26 +169,27 @@ class RobotImages:
     def __init__(self, config):
         self.config = config
 
-    def _load(self, option, what):
+    def _load(self, option, file, what):
         path = self.config.getoption(option)
         if path is None:
-            pytest.skip(f"needs {what}: pass {option} FILE")
+            pytest.skip(f"needs {what}: pass {option} {file}")
         data = pathlib.Path(path).read_bytes()
         return Image(image_version(data), data)
 
-    def healthy(self, running):
-        return self._load("--update-image", "a firmware image newer than the robot's")
+    def healthy(self, client):
+        return self._load("--update-image", "NEXT.bin", "a firmware image newer than the robot's")
 
-    def failing(self, running):
-        return self._load("--update-bad-image",
+    def failing(self, client):
+        return self._load("--update-bad-image", "BAD.bin",
                           "a newer image that fails on the robot (panics or fails the "
                           "health check)")
 
 
 @pytest.fixture(scope="session")
 def update_images(request, tmp_path_factory):
-    """`healthy(running_version)` and `failing(running_version)`: the update scenarios'
-    images."""
+    """`healthy(client)` and `failing(client)`: the update scenarios' images for the
+    base `client` reaches (a robot's come from the options: skipped, before any frame is
+    sent, when the option is missing)."""
     if request.config.getoption("--can-interface") is not None:
         return RobotImages(request.config)
     return SimulatorImages(tmp_path_factory.mktemp("images"))

@@ -129,10 +129,10 @@ def assert_motion_refused(base):
 
 def test_a_healthy_update_runs_on_trial_is_confirmed_and_survives_a_reset(
         base, operator, client, update_images):
+    image = update_images.healthy(client)
     base.wait_until_at_rest()
     before = client.query()
     assert before.phase == "idle", before
-    image = update_images.healthy(before.version)
     assert image.version != before.version, \
         f"the base runs {before.version} already: give an image of another (newer) version"
 
@@ -161,10 +161,10 @@ def test_a_healthy_update_runs_on_trial_is_confirmed_and_survives_a_reset(
 
 
 def test_an_image_that_fails_on_the_target_is_rolled_back(base, client, update_images):
+    image = update_images.failing(client)
     base.wait_until_at_rest()
     before = client.query()
     assert before.phase == "idle", before
-    image = update_images.failing(before.version)
     assert image.version != before.version, \
         f"the base runs {before.version} already: give an image of another (newer) version"
 
@@ -268,9 +268,9 @@ def test_motion_is_refused_during_a_session_and_abort_releases_it(base, client):
 
 def test_a_bad_window_crc_and_stray_data_frames_get_their_documented_answers(
         base, client, update_images):
+    image = update_images.healthy(client)
     base.wait_until_at_rest()
     before = client.query()
-    image = update_images.healthy(before.version)
     assert p.window_count(len(image.data)) >= 2
     # Never activated: any version will do (on a robot the image may be the one the
     # healthy update left running).
