@@ -249,10 +249,16 @@ def test_begin_while_driving_is_refused_and_the_base_drives_on(base, client):
 
 
 def test_motion_is_refused_during_a_session_and_abort_releases_it(base, client):
+    """Also another program's BEGIN: the session is its PC's alone."""
     base.wait_until_at_rest()
     begun = client.begin(64 * 1024)
     assert begun.kind == "done", str(begun)
     assert client.query().phase == "receiving"
+    # Another program's BEGIN meanwhile: Busy.
+    other = UpdateClient(base, session=client.session % 255 + 1)
+    busy = other.begin(64 * 1024)
+    assert (busy.kind, busy.opcode, busy.error) == (
+        "refused", p.OP_BEGIN, p.ERROR_CODES["Busy"]), str(busy)
     assert_motion_refused(base)
 
     client.abort()
