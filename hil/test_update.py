@@ -145,12 +145,17 @@ def test_a_healthy_update_runs_on_trial_is_confirmed_and_survives_a_reset(
     standby_from_now(base)
     assert boot_info(base) == p.BOOT_ACTIVATED, "the activation's reset starts the trial"
     assert not watchdog_reset(current_status(base)), "an activation is no watchdog reset"
-    # While the image is on trial, nothing drives the base.
+    # While the image is on trial, nothing drives the base and no update begins.
     assert_motion_refused(base)
+    again = client.begin(len(image.data))
+    assert (again.kind, again.error) == ("refused", p.ERROR_CODES["OnTrial"]), str(again)
 
     client.expect_done(p.update_confirm(), p.DONE_CONFIRMED, timeout=5)
     confirmed = client.query()
     assert (confirmed.version, confirmed.phase) == (image.version, "idle"), confirmed
+    twice = client.command(p.update_confirm(), p.DONE_CONFIRMED)
+    assert (twice.kind, twice.opcode, twice.error) == (
+        "refused", p.OP_CONFIRM, p.ERROR_CODES["NotOnTrial"]), str(twice)
 
     operator.reset_controller(while_driving=False)
     # boot_info drops its activation bit only with a new boot: the reset happened.
