@@ -9,9 +9,13 @@ person at the robot to press them (run pytest with `-s` so the prompts show).
 """
 import os
 import pathlib
+import re
+import struct
 import subprocess
 import tempfile
 import time
+
+from dataclasses import dataclass
 
 import can
 import pytest
@@ -31,6 +35,12 @@ def pytest_addoption(parser):
                           "without it the suite runs against the simulator")
     parser.addoption("--can-channel", default="can0", help="the interface's channel")
     parser.addoption("--can-bitrate", default=500000, type=int)
+    parser.addoption("--update-image", default=None, metavar="NEXT.bin",
+                     help="robot only: a firmware image newer than the one the robot runs, "
+                          "for the update scenarios (the simulator's are made by sim_image)")
+    parser.addoption("--update-bad-image", default=None, metavar="BAD.bin",
+                     help="robot only: a newer image that fails on the robot (panics at "
+                          "start, or fails the health check), for the rollback scenario")
 
 
 class Simulator:
@@ -88,7 +98,7 @@ class SimulatorOperator:
     def confirm(self):
         self.simulator.command("button press 200")
 
-    def reset_controller(self):
+    def reset_controller(self, while_driving=True):
         # The controller alone restarts; the SLCAN port and the drives stay as they are.
         self.simulator.command("reboot")
 
@@ -97,6 +107,92 @@ class SimulatorOperator:
         self.simulator.stop()
         self.simulator.start()
         self.base.attach(self.simulator.open_bus())
+
+
+# `cargo build -p virtual-robot --examples` makes it: it writes the simulator's images.
+SIM_IMAGE = ROOT / "target" / "debug" / "examples" / "sim_image"
+# Small images keep each update scenario within seconds on the simulator.
+SIM_IMAGE_KIB = 64
+
+
+@dataclass
+class Image:
+    version: str
+    data: bytes
+
+
+def image_version(data):
+    """The version in an ESP app image's descriptor: the descriptor (magic 0xABCD5432)
+    opens the first segment, after the 24-byte image and 8-byte segment headers, and
+    holds the version, NUL-terminated, at its byte 16."""
+    if len(data) < 80 or struct.unpack_from("<I", data, 32)[0] != 0xABCD5432:
+        raise ValueError("not an ESP app image with an app descriptor")
+    return data[48:80].split(b"\0")[0].decode()
+
+
+def next_version(running):
+    """A release above `running` (`0.1.0` → `0.1.1`): the controller refuses the same
+    version and a downgrade."""
+    match = re.fullmatch(r"(\d+)\.(\d+)\.(\d+)([-+].*)?", running)
+    if match is None:
+        raise ValueError(f"the running version {running!r} is not major.minor.patch")
+    major, minor, patch = (int(number) for number in match.groups()[:3])
+    return f"{major}.{minor}.{patch + 1}"
+
+
+class SimulatorImages:
+    """Images the simulator's virtual firmware runs: the version chooses what it does."""
+
+    def __init__(self, workdir):
+        self.workdir = workdir
+
+    def _make(self, version):
+        if not SIM_IMAGE.exists():
+            pytest.fail(f"{SIM_IMAGE} is missing: build it with "
+                        "`cargo build -p virtual-robot --examples`")
+        path = self.workdir / f"{version}.bin"
+        subprocess.run([str(SIM_IMAGE), version, str(path), str(SIM_IMAGE_KIB)],
+                       check=True, capture_output=True)
+        return Image(version, path.read_bytes())
+
+    def healthy(self, client):
+        return self._make(next_version(client.query().version))
+
+    def failing(self, client):
+        # Panics at start after arming its trial: the bootloader model rolls it back.
+        return self._make(next_version(client.query().version) + "-sim-panic")
+
+
+class RobotImages:
+    """Images given on the command line; a scenario without its image is skipped."""
+
+    def __init__(self, config):
+        self.config = config
+
+    def _load(self, option, file, what):
+        path = self.config.getoption(option)
+        if path is None:
+            pytest.skip(f"needs {what}: pass {option} {file}")
+        data = pathlib.Path(path).read_bytes()
+        return Image(image_version(data), data)
+
+    def healthy(self, client):
+        return self._load("--update-image", "NEXT.bin", "a firmware image newer than the robot's")
+
+    def failing(self, client):
+        return self._load("--update-bad-image", "BAD.bin",
+                          "a newer image that fails on the robot (panics or fails the "
+                          "health check)")
+
+
+@pytest.fixture(scope="session")
+def update_images(request, tmp_path_factory):
+    """`healthy(client)` and `failing(client)`: the update scenarios' images for the
+    base `client` reaches (a robot's come from the options: skipped, before any frame is
+    sent, when the option is missing)."""
+    if request.config.getoption("--can-interface") is not None:
+        return RobotImages(request.config)
+    return SimulatorImages(tmp_path_factory.mktemp("images"))
 
 
 @pytest.fixture(scope="session")

@@ -183,3 +183,146 @@ def parse_status(data):
         drive_alarm=data[6],
         modbus_errors=data[7],
     )
+
+
+# Firmware update (ext), "Firmware update (ext)" in docs/protocol.md: 11-bit IDs as all.
+UPDATE_COMMAND = 0x2E8
+UPDATE_DATA = 0x2EC
+UPDATE_REPLY = 0x2EA
+
+REG_BOOT_INFO = 50
+BOOT_ACTIVATED = 0x02
+BOOT_ROLLED_BACK = 0x04
+
+# A window covers 4096 image bytes, 7 to a data frame; a READY n lets the PC send up to
+# frame n + 23 (READY comes every 12 frames).
+WINDOW_LEN = 4096
+DATA_BYTES = 7
+FRAMES_PER_READY = 24
+DIGEST_PARTS = 8
+
+OP_QUERY, OP_BEGIN, OP_DIGEST, OP_WINDOW, OP_FINISH = 0x01, 0x02, 0x03, 0x04, 0x05
+OP_ACTIVATE, OP_ABORT, OP_CONFIRM, OP_ROLLBACK = 0x06, 0x07, 0x08, 0x09
+OP_DATA = 0x00  # the opcode a REFUSED names for a data frame
+
+BEGIN_FORCE = 0x01
+BEGIN_ALLOW_DOWNGRADE = 0x02
+
+PHASES = ["idle", "receiving", "writing", "finished", "activating", "on trial"]
+
+DONE_BEGUN, DONE_FINISHED, DONE_ACTIVATED, DONE_ABORTED = 1, 2, 3, 4
+DONE_CONFIRMED, DONE_ROLLED_BACK = 5, 6
+
+UPDATE_ERRORS = {
+    1: "Busy", 2: "NotAtRest", 3: "ControlActive", 4: "OnTrial", 5: "NoSession",
+    6: "OutOfOrder", 7: "Duplicate", 8: "BadCrc", 9: "WrongWindow", 10: "BadImage",
+    11: "Downgrade", 12: "SameVersion", 13: "TooLarge", 14: "DigestMismatch",
+    15: "Incomplete", 16: "FlashFailed", 17: "NotOnTrial", 18: "TimedOut",
+    19: "Malformed", 20: "NotFinished", 21: "Writing",
+}
+ERROR_CODES = {name: code for code, name in UPDATE_ERRORS.items()}
+
+# Status frame byte 4 while an update holds the motion lock.
+REJECT_UPDATE_IN_PROGRESS = 0x50
+
+
+def update_query():
+    return UPDATE_COMMAND, bytes([OP_QUERY])
+
+
+def update_begin(session, size, flags=0):
+    return UPDATE_COMMAND, bytes([OP_BEGIN, session]) + size.to_bytes(3, "little") + bytes([flags])
+
+
+def update_digest(session, part, digest):
+    return UPDATE_COMMAND, bytes([OP_DIGEST, session, part]) + digest[4 * part:4 * part + 4]
+
+
+def update_window(session, index, crc):
+    return UPDATE_COMMAND, struct.pack("<BBHI", OP_WINDOW, session, index, crc)
+
+
+def update_data(seq, chunk):
+    """One data frame: `seq` (index in the window, mod 256) and up to 7 bytes, padded."""
+    return UPDATE_DATA, bytes([seq % 256]) + chunk.ljust(DATA_BYTES, b"\x00")
+
+
+def update_finish(session):
+    return UPDATE_COMMAND, bytes([OP_FINISH, session])
+
+
+def update_activate(session):
+    return UPDATE_COMMAND, bytes([OP_ACTIVATE, session])
+
+
+def update_abort(session):
+    return UPDATE_COMMAND, bytes([OP_ABORT, session])
+
+
+def update_confirm():
+    return UPDATE_COMMAND, bytes([OP_CONFIRM])
+
+
+def update_rollback():
+    return UPDATE_COMMAND, bytes([OP_ROLLBACK])
+
+
+def window_count(size):
+    return (size + WINDOW_LEN - 1) // WINDOW_LEN
+
+
+def window_bytes(image, index):
+    return image[index * WINDOW_LEN:(index + 1) * WINDOW_LEN]
+
+
+def window_frames(window):
+    """The data frames of one window, in order."""
+    return [update_data(seq, window[at:at + DATA_BYTES])
+            for seq, at in enumerate(range(0, len(window), DATA_BYTES))]
+
+
+@dataclass
+class UpdateReply:
+    """One 0x2EA frame. `kind` is "state", "version", "ready", "written", "done" or
+    "refused"; the other fields are those the kind carries."""
+    kind: str
+    session: int = None
+    phase: int = None
+    slot: int = None
+    windows: int = None
+    part: int = None
+    text: bytes = None
+    window: int = None
+    next: int = None
+    step: int = None
+    opcode: int = None
+    error: int = None
+    detail: int = None
+
+    def __str__(self):
+        if self.kind == "refused":
+            name = UPDATE_ERRORS.get(self.error, "?")
+            return f"REFUSED(op {self.opcode:#04x}, {name}, detail {self.detail})"
+        fields = {k: v for k, v in vars(self).items() if v is not None and k != "kind"}
+        return f"{self.kind.upper()}{fields}"
+
+
+def parse_update_reply(data):
+    data = bytes(data)
+    kind = data[0]
+    if kind == 0x81 and len(data) >= 6:
+        return UpdateReply("state", phase=data[1], session=data[2], slot=data[3],
+                           windows=int.from_bytes(data[4:6], "little"))
+    if kind == 0x82 and len(data) >= 2:
+        return UpdateReply("version", part=data[1], text=data[2:8].ljust(6, b"\x00"))
+    if kind == 0x83 and len(data) >= 6:
+        return UpdateReply("ready", session=data[1], window=int.from_bytes(data[2:4], "little"),
+                           next=int.from_bytes(data[4:6], "little"))
+    if kind == 0x84 and len(data) >= 4:
+        return UpdateReply("written", session=data[1],
+                           window=int.from_bytes(data[2:4], "little"))
+    if kind == 0x85 and len(data) >= 3:
+        return UpdateReply("done", session=data[1], step=data[2])
+    if kind == 0xFF and len(data) >= 4:
+        return UpdateReply("refused", opcode=data[1], error=data[2], detail=data[3])
+    raise ValueError(f"not an update reply: {data.hex()}")
