@@ -244,13 +244,30 @@ pub fn block_on_realtime<F: Future>(future: F) -> F::Output {
     }
 }
 
+thread_local! {
+    /// How much longer than asked the real-time stalls so far slept: the host's sleep
+    /// overshoots by tens of µs, which many short stalls (one per flash page) would add
+    /// up, so the next stall is shorter by it.
+    static OVERSLEPT: RefCell<std::time::Duration> = const { RefCell::new(std::time::Duration::ZERO) };
+}
+
 /// The whole chip stalls for `duration`: the virtual clock jumps ahead while nothing
 /// runs (as when esp-storage masks interrupts during a flash erase). Timers that came
-/// due meanwhile fire late. In real-time mode the thread sleeps instead.
+/// due meanwhile fire late. In real-time mode the thread sleeps instead, and a run of
+/// stalls takes their sum however coarse the host's sleep is.
 pub fn stall(duration: Duration) {
     let realtime = CLOCK.with(|clock| clock.borrow().wall_origin.is_some());
     if realtime {
-        thread::sleep(std::time::Duration::from_micros(duration.as_micros()));
+        let asked = std::time::Duration::from_micros(duration.as_micros());
+        OVERSLEPT.with(|overslept| {
+            let mut overslept = overslept.borrow_mut();
+            let sleep = asked.saturating_sub(*overslept);
+            let started = std::time::Instant::now();
+            if !sleep.is_zero() {
+                thread::sleep(sleep);
+            }
+            *overslept = (*overslept + started.elapsed()).saturating_sub(asked);
+        });
     } else {
         CLOCK.with(|clock| clock.borrow_mut().now += duration.as_ticks());
     }

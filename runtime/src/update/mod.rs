@@ -13,6 +13,7 @@
 use core::cell::Cell;
 
 use embassy_futures::select::{Either, select};
+use embassy_futures::yield_now;
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::channel::Channel;
 use embassy_time::{Instant, Timer};
@@ -133,6 +134,11 @@ pub struct UpdateFlash<F> {
 
 /// Bytes compared per read during read-back.
 const CHUNK: usize = 256;
+/// Bytes programmed per write: one flash page. The chip runs nothing while its flash
+/// erases or programs, so the task yields after the erase and after each page: a
+/// control cycle that fell due during one runs before the next, and is late by one
+/// erase (45 ms typical) or one page (0.5 ms), not by the whole window's flash work.
+const PAGE: usize = 256;
 
 impl<F: NorFlash> UpdateFlash<F> {
     /// `flash` is the whole chip, laid out as [`partitions`] says.
@@ -196,12 +202,14 @@ impl<F: NorFlash> UpdateFlash<F> {
             .erase(at, at + sector)
             .await
             .map_err(|_| UpdateFlashError::Flash)?;
+        yield_now().await;
         let aligned = data.len() - data.len() % F::WRITE_SIZE;
-        if aligned > 0 {
+        for (index, page) in data[..aligned].chunks(PAGE).enumerate() {
             self.flash
-                .write(at, &data[..aligned])
+                .write(at + (index * PAGE) as u32, page)
                 .await
                 .map_err(|_| UpdateFlashError::Flash)?;
+            yield_now().await;
         }
         if aligned < data.len() {
             let mut tail = [0xFFu8; 64];
