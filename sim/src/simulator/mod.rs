@@ -521,8 +521,8 @@ async fn bridge(
     socketcan: Option<&socketcan::SocketCanLink>,
     view: &View<'_>,
 ) -> ! {
-    let to_wire = WireQueue::new();
-    let on_wire = WireQueue::new();
+    let to_wire = ToWire::new();
+    let on_wire = OnWire::new();
     match select(
         serve_nodes(port, network, socketcan, view, (&to_wire, &on_wire)),
         put_on_wire(view.peer, &to_wire, &on_wire),
@@ -541,13 +541,17 @@ enum PcNode {
     Network(u64),
 }
 
-/// Frames of the PC's nodes with the node that sent each: on their way to the wire
-/// with the time the node had them, or back from it with the time they were sent.
-type WireQueue = embassy_sync::channel::Channel<
+/// Frames of the PC's nodes on their way to the wire: each with the node that sent it
+/// and the time the node had it.
+type ToWire = embassy_sync::channel::Channel<
     NoopRawMutex,
     (crate::can::SimFrame, PcNode, Instant),
     PC_TRANSMIT_QUEUE,
 >;
+
+/// Frames of the PC's nodes that have left the wire, for the other nodes.
+type OnWire =
+    embassy_sync::channel::Channel<NoopRawMutex, (crate::can::SimFrame, PcNode), PC_TRANSMIT_QUEUE>;
 
 /// Frames waiting for the bus across all of the PC's nodes: about the queue of an
 /// SLCAN adapter or of a SocketCAN interface (10 frames by default, with the socket's
@@ -556,11 +560,11 @@ const PC_TRANSMIT_QUEUE: usize = 32;
 
 /// The PC's frames, one after the other, each for its bus time (in turn with the
 /// controller's), then handed back for the other nodes.
-async fn put_on_wire(peer: &CanPeer, to_wire: &WireQueue, on_wire: &WireQueue) -> ! {
+async fn put_on_wire(peer: &CanPeer, to_wire: &ToWire, on_wire: &OnWire) -> ! {
     loop {
         let (frame, sender, queued) = to_wire.receive().await;
-        let sent = peer.transmit(frame, queued).await;
-        on_wire.send((frame, sender, sent)).await;
+        peer.transmit(frame, queued).await;
+        on_wire.send((frame, sender)).await;
     }
 }
 
@@ -569,7 +573,7 @@ async fn serve_nodes(
     network: &QueueReceiver<Event>,
     socketcan: Option<&socketcan::SocketCanLink>,
     view: &View<'_>,
-    (to_wire, on_wire): (&WireQueue, &WireQueue),
+    (to_wire, on_wire): (&ToWire, &OnWire),
 ) -> ! {
     let mut slcan = SlcanNode {
         channel: slcan::Channel::new(BITRATE_BPS),
@@ -631,24 +635,25 @@ async fn serve_nodes(
             Either4::Third(Some(Event::Left { client, why })) => clients.leave(client, &why),
             // No server (--no-socketcand).
             Either4::Third(None) => network_open = false,
-            Either4::Fourth((frame, sender, _)) => offer_sent(frame, sender, &slcan, &mut clients),
+            Either4::Fourth((frame, sender)) => offer_sent(frame, sender, &slcan, &mut clients),
         }
     }
 }
 
-/// Queues a PC frame for the wire. While the queue is full the sender waits, as a CAN
-/// interface's full transmit queue blocks its writer (the serial port or the TCP
-/// connection is not read meanwhile; nothing is dropped), and the frames the wire
-/// sends in that time go on to the other nodes.
+/// Queues a PC frame for the wire. While the queue is full the simulator takes no
+/// more frames from the PC's programs (they wait in the serial port's lines and the
+/// socketcand connections' queues; nothing is dropped), as a CAN interface's full
+/// transmit queue blocks its writer, and the frames the wire sends in that time go on
+/// to the other nodes.
 async fn queue_for_wire(
     mut frame: (crate::can::SimFrame, PcNode, Instant),
-    (to_wire, on_wire): (&WireQueue, &WireQueue),
+    (to_wire, on_wire): (&ToWire, &OnWire),
     slcan: &SlcanNode<'_>,
     clients: &mut Clients<'_>,
 ) {
     while let Err(embassy_sync::channel::TrySendError::Full(back)) = to_wire.try_send(frame) {
         frame = back;
-        let (sent, sender, _) = on_wire.receive().await;
+        let (sent, sender) = on_wire.receive().await;
         offer_sent(sent, sender, slcan, clients);
     }
 }
