@@ -127,14 +127,21 @@ def assert_motion_refused(base):
     assert (last.rejected - rejected_before) % 256 >= 20, (rejected_before, last)
 
 
-def test_a_healthy_update_runs_on_trial_is_confirmed_and_survives_a_reset(
-        base, operator, client, update_images):
-    image = update_images.healthy(client)
+def idle_at_rest_running_another_version(base, client, image):
+    """Waits for the base to stand, checks that no session runs and that `image` is not
+    the running version; returns the QUERY answer from before the update."""
     base.wait_until_at_rest()
     before = client.query()
     assert before.phase == "idle", before
     assert image.version != before.version, \
         f"the base runs {before.version} already: give an image of another (newer) version"
+    return before
+
+
+def test_a_healthy_update_runs_on_trial_is_confirmed_and_survives_a_reset(
+        base, operator, client, update_images):
+    image = update_images.healthy(client)
+    before = idle_at_rest_running_another_version(base, client, image)
 
     seconds = client.transfer(image.data)
     client.expect_done(p.update_activate(client.session), p.DONE_ACTIVATED, timeout=5)
@@ -167,11 +174,7 @@ def test_a_healthy_update_runs_on_trial_is_confirmed_and_survives_a_reset(
 
 def test_an_image_that_fails_on_the_target_is_rolled_back(base, client, update_images):
     image = update_images.failing(client)
-    base.wait_until_at_rest()
-    before = client.query()
-    assert before.phase == "idle", before
-    assert image.version != before.version, \
-        f"the base runs {before.version} already: give an image of another (newer) version"
+    before = idle_at_rest_running_another_version(base, client, image)
 
     client.transfer(image.data)
     client.expect_done(p.update_activate(client.session), p.DONE_ACTIVATED, timeout=5)

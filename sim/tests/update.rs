@@ -364,45 +364,39 @@ impl<B: Bus> Bus for CorruptOnce<B> {
     }
 }
 
-#[test]
-fn a_window_corrupted_on_the_wire_is_refused_and_sent_again() {
+/// Updates a fresh simulator to 0.2.0 through a bus that damages one data frame inside
+/// the third window (`lose`: loses it; otherwise flips a bit in it); the update is
+/// confirmed and its JSON report returned.
+fn update_with_one_damaged_data_frame(lose: bool) -> serde_json::Value {
     let simulator = start();
     let mut bus = CorruptOnce {
         bus: connect(&simulator),
         sent_data_frames: 0,
-        // Inside the third window.
         corrupt_at: 2 * 586 + 100,
-        lose: false,
+        lose,
     };
     standby(&mut bus);
     let file = image_file(&simulator, "0.2.0");
     let mut out = Vec::new();
     firmware::update(&mut bus, &plan(file), TIMEOUT, &mut out).unwrap();
+    assert_eq!(firmware::query(&mut bus, TIMEOUT).unwrap().version, "0.2.0");
     let report: serde_json::Value = serde_json::from_slice(&out).unwrap();
     assert_eq!(report["outcome"], "confirmed");
+    report
+}
+
+#[test]
+fn a_window_corrupted_on_the_wire_is_refused_and_sent_again() {
+    let report = update_with_one_damaged_data_frame(false);
     assert!(report["retries"].as_u64().unwrap() >= 1, "{report}");
-    assert_eq!(firmware::query(&mut bus, TIMEOUT).unwrap().version, "0.2.0");
 }
 
 #[test]
 fn a_data_frame_lost_on_the_wire_is_sent_again_from_where_the_controller_asks() {
-    let simulator = start();
-    let mut bus = CorruptOnce {
-        bus: connect(&simulator),
-        sent_data_frames: 0,
-        corrupt_at: 2 * 586 + 100,
-        lose: true,
-    };
-    standby(&mut bus);
-    let file = image_file(&simulator, "0.2.0");
-    let mut out = Vec::new();
-    firmware::update(&mut bus, &plan(file), TIMEOUT, &mut out).unwrap();
-    let report: serde_json::Value = serde_json::from_slice(&out).unwrap();
-    assert_eq!(report["outcome"], "confirmed");
+    let report = update_with_one_damaged_data_frame(true);
     // The next frame is out of order; the READY after it sends basectl back to the
     // lost one, inside the same window: no window is sent again.
     assert_eq!(report["retries"], 0, "{report}");
-    assert_eq!(firmware::query(&mut bus, TIMEOUT).unwrap().version, "0.2.0");
 }
 
 #[test]
