@@ -18,9 +18,9 @@ use crate::plausibility::{self, FeedbackCheck};
 use crate::power::{self, PowerControl, SwitchLevel};
 use crate::registers::{
     BootInfo, MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, RESTORE_DEFAULTS_KEY, Reg,
-    RegisterError, Registers, RemoteInfo, RemoteKind, WriteOutcome,
+    RegisterError, Registers, RemoteInfo, WriteOutcome,
 };
-use crate::remote::{self, Control, PairingWindow, Remote};
+use crate::remote::{self, Control, Pad, PadArbiter, PairingWindow, Remote};
 use crate::scale::{self, RawAverage};
 use crate::supervisor::{self, Setpoint, Supervisor, Wheel};
 use crate::time::Timestamp;
@@ -47,24 +47,36 @@ pub enum Input {
     SafetyZone(bool),
     /// Debounced front button (true = held down).
     Button(bool),
-    /// The connected pad's state from the HID decoder, sent on every report (pads
-    /// report only when something changed). [`crate::remote`] says what it means.
-    Gamepad(GamepadState),
-    /// The Bluetooth link, sent at boot and on every change: whether a pad is bonded,
-    /// and whether the bonded pad is connected (link encrypted, reports flowing).
-    /// `connected: false` is a link loss: a held dead-man brakes with `Contr_acc_high`.
+    /// A connected pad's state from its task's decoder, sent on every report (pads
+    /// report only when something changed). Only the pad in control's count
+    /// ([`crate::remote::arbiter`]); [`crate::remote`] says what they mean.
+    Gamepad {
+        pad: Pad,
+        state: GamepadState,
+    },
+    /// A remote task's link, sent at boot and on every change: whether its pad is
+    /// bonded, and whether it is connected (link encrypted, reports flowing).
+    /// `connected: false` of the pad in control is a link loss: a held dead-man brakes
+    /// with `Contr_acc_high`.
     RemoteLink {
+        pad: Pad,
         bonded: bool,
         connected: bool,
     },
-    /// The BLE task bonded a new pad: the pairing window closes, one new pad per opening.
+    /// A remote task bonded a new pad: the pairing window closes, one new pad per opening.
     RemotePaired,
-    /// The connected remote's kind and battery, for the PC (`remote_kind`,
-    /// `remote_battery`). The Classic task sends it once it knows the pad's kind (best
-    /// before its `RemoteLink` connect) and again when the battery reading changes, not
-    /// on every report. A `RemoteLink` connect without it reads as the BLE pad; a
-    /// disconnect clears it.
-    RemoteInfo(RemoteInfo),
+    /// A connected pad's kind and battery, for the PC (`remote_kind`, `remote_battery`
+    /// show the pad in control's). The Classic task sends it once it knows the pad's
+    /// kind and again when the battery reading changes, not on every report; the BLE
+    /// task sends none (a BLE pad). A disconnect clears it.
+    RemoteInfo {
+        pad: Pad,
+        info: RemoteInfo,
+    },
+    /// The update task's word, sent on every change: a firmware update runs or a new
+    /// image is on trial (`true`), so velocity, a refreshing enable and the gamepad's
+    /// dead-man are refused; or neither.
+    UpdateLock(bool),
     /// One cycle of drive feedback: raw position counters and measured motor speeds.
     DriveFeedback {
         counts: EncoderCounts,
@@ -142,10 +154,10 @@ pub struct Output {
     /// Close or open the PC power switch.
     pub pc_switch: Option<SwitchLevel>,
     pub persist: Persist,
-    /// Disconnect the gamepad (L2 + Home, or no input for `PS_afk_time`), keeping its
-    /// bond, then report [`Input::RemoteLink`] with `connected: false`. Repeated while a
-    /// pad asked to go keeps reporting.
-    pub disconnect_remote: bool,
+    /// Disconnect this pad, the one in control (L2 + Home, or no input for
+    /// `PS_afk_time`), keeping its bond; its task then reports [`Input::RemoteLink`]
+    /// with `connected: false`. Repeated while a pad asked to go keeps reporting.
+    pub disconnect_remote: Option<Pad>,
     /// The pairing window opened (`true`; again for each opening command, which
     /// restarts it) or closed (`false`). It is closed at boot. While it is closed the
     /// BLE task connects only to the bonded pad and accepts no pairing request.
@@ -183,13 +195,6 @@ struct ShellFaults {
     watchdog_reset: bool,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-struct RemoteLink {
-    bonded: bool,
-    connected: bool,
-}
-
 pub struct Controller {
     registers: Registers,
     supervisor: Supervisor,
@@ -209,8 +214,8 @@ pub struct Controller {
     speed: SpeedEstimate,
     rejections: Rejections,
     faults: ShellFaults,
-    /// The link as the BLE task reports it, for the status frame.
-    remote_link: RemoteLink,
+    /// Which of the connected pads controls the remote; the links for the status frame.
+    pads: PadArbiter,
     remote: Remote,
     pairing: PairingWindow,
     modbus_errors: u8,
@@ -224,9 +229,6 @@ pub struct Controller {
     persist_pending: bool,
     /// Both drives confirmed de-excited (the drive link's word).
     drive_brakes_confirmed: bool,
-    /// A firmware update runs or a new image is on trial (the update task's word):
-    /// velocity, enable and the gamepad are refused.
-    update_lock: bool,
 }
 
 impl Controller {
@@ -251,7 +253,7 @@ impl Controller {
             speed: SpeedEstimate::standing(now),
             rejections: Rejections::default(),
             faults: ShellFaults::default(),
-            remote_link: RemoteLink::default(),
+            pads: PadArbiter::new(),
             remote: Remote::new(),
             pairing: PairingWindow::Closed,
             modbus_errors: 0,
@@ -259,7 +261,6 @@ impl Controller {
             feedback_check: FeedbackCheck::new(),
             persist_pending: false,
             drive_brakes_confirmed: false,
-            update_lock: false,
         }
     }
 
@@ -306,12 +307,6 @@ impl Controller {
     /// ([`crate::drives::link::DriveLink::brakes_confirmed`]).
     pub fn set_drive_brakes_confirmed(&mut self, confirmed: bool) {
         self.drive_brakes_confirmed = confirmed;
-    }
-
-    /// The update task's word on whether a firmware update runs or an image is on
-    /// trial: while it does, motion commands are refused with `UpdateInProgress`.
-    pub fn set_update_lock(&mut self, locked: bool) {
-        self.update_lock = locked;
     }
 
     /// What an update's BEGIN needs to know: the base stands braked and nobody
@@ -371,18 +366,25 @@ impl Controller {
                 };
                 self.power_event(now, event, &mut out);
             }
-            Input::Gamepad(pad) => {
-                self.remote_step(now, remote::Event::Report(pad), None, &mut out)
+            Input::Gamepad { pad, state } => {
+                // The other pad's buttons neither arm, hold nor release anything.
+                if self.pads.admit_report(pad) {
+                    self.remote_step(now, remote::Event::Report(state), None, &mut out);
+                }
             }
-            Input::RemoteLink { bonded, connected } => {
-                self.remote_link = RemoteLink { bonded, connected };
-                self.note_remote_link(connected);
-                let event = if connected {
-                    remote::Event::Connected
-                } else {
-                    remote::Event::Disconnected
-                };
-                self.remote_step(now, event, None, &mut out);
+            Input::RemoteLink {
+                pad,
+                bonded,
+                connected,
+            } => {
+                let handover = self.pads.link(pad, bonded, connected);
+                if handover.lost {
+                    self.remote_step(now, remote::Event::Disconnected, None, &mut out);
+                }
+                if handover.gained {
+                    self.remote_step(now, remote::Event::Connected, None, &mut out);
+                }
+                self.registers.set_remote_info(self.pads.info());
             }
             Input::RemotePaired => {
                 if self.pairing.close() {
@@ -393,7 +395,13 @@ impl Controller {
                     warn!("a gamepad was paired while the pairing window was closed");
                 }
             }
-            Input::RemoteInfo(remote) => self.registers.set_remote_info(remote),
+            Input::RemoteInfo { pad, info } => {
+                self.pads.set_info(pad, info);
+                self.registers.set_remote_info(self.pads.info());
+            }
+            Input::UpdateLock(locked) => {
+                self.supervise(now, supervisor::Event::MotionLock { locked }, &mut out)
+            }
             Input::DriveFeedback { counts, rpm } => self.drive_feedback(now, counts, rpm, &mut out),
             Input::DrivesReady => {
                 // The counters restarted with the drives' power: the next sample is a
@@ -490,8 +498,8 @@ impl Controller {
                 enable_fresh: supervisor.enable_fresh(now, &self.supervisor_params()),
                 pc_on: self.power.pc_on(now, &power_params(&self.registers)),
                 safety_zone: supervisor.safety_zone(),
-                remote_bonded: self.remote_link.bonded,
-                remote_connected: self.remote_link.connected,
+                remote_bonded: self.pads.bonded(),
+                remote_connected: self.pads.connected(),
                 remote_in_control: supervisor.remote_in_control(),
                 estop_pressed: supervisor.estop_pressed(),
                 brakes_applied: self.brakes_applied(),
@@ -527,7 +535,7 @@ impl Controller {
             command,
             Command::Enable { refresh: true } | Command::Velocity { .. }
         );
-        if moves && self.update_lock {
+        if moves && self.supervisor.motion_locked() {
             self.rejections.record(
                 Rejection::UpdateInProgress.code(),
                 frame_subject(frame.id()),
@@ -812,24 +820,6 @@ impl Controller {
         out.setup_drives |= effects.setup_drives;
     }
 
-    /// `remote_kind`/`remote_battery` follow the link: a disconnect clears them, and a
-    /// link that comes up with no kind reported is the BLE pad's (its task reports no
-    /// kind; the Classic task does).
-    fn note_remote_link(&mut self, connected: bool) {
-        let remote = match self.registers.remote_info() {
-            _ if !connected => RemoteInfo::NONE,
-            RemoteInfo {
-                kind: RemoteKind::None,
-                ..
-            } => RemoteInfo {
-                kind: RemoteKind::BlePad,
-                battery: None,
-            },
-            known => known,
-        };
-        self.registers.set_remote_info(remote);
-    }
-
     /// Runs the remote and gives the supervisor what it asks for. `otherwise` is the
     /// supervisor step the caller needs anyway (a tick); a remote event replaces it,
     /// since every step checks the timeouts, and a second step for the same input would
@@ -845,18 +835,17 @@ impl Controller {
         if effects.reset_odometry {
             self.odometry.reset();
         }
-        out.disconnect_remote |= effects.disconnect;
+        if effects.disconnect {
+            out.disconnect_remote = self.pads.in_control();
+        }
         let step = match effects.control {
-            Some(Control::Drive { dead_man: true, .. }) if self.update_lock => {
-                // The supervisor sees the dead-man released: the base stays braked.
-                self.rejections
-                    .record(Rejection::UpdateInProgress.code(), 0);
-                Some(supervisor::Event::Remote {
-                    dead_man: false,
-                    twist: Twist::ZERO,
-                })
-            }
             Some(Control::Drive { dead_man, twist }) => {
+                if dead_man && self.supervisor.motion_locked() {
+                    // Refused like CAN motion; the supervisor sees it held, which
+                    // neither drives nor arms while locked.
+                    self.rejections
+                        .record(Rejection::UpdateInProgress.code(), 0);
+                }
                 Some(supervisor::Event::Remote { dead_man, twist })
             }
             Some(Control::Lost) => Some(supervisor::Event::RemoteLinkLost),
@@ -1185,9 +1174,14 @@ mod tests {
     fn the_remote_registers_follow_the_link_and_what_the_bluetooth_tasks_report() {
         use crate::hid::playstation::{Battery, BatteryState, PadKind};
         use crate::registers::{Charge, RemoteBattery, RemoteInfo, RemoteKind};
-        let link = |connected| Input::RemoteLink {
+        let link = |pad, connected| Input::RemoteLink {
+            pad,
             bonded: true,
             connected,
+        };
+        let report = |info| Input::RemoteInfo {
+            pad: Pad::Classic,
+            info,
         };
         let dual_shock = RemoteInfo::playstation(
             PadKind::DualShock4,
@@ -1196,41 +1190,34 @@ mod tests {
                 state: BatteryState::Charging,
             }),
         );
+        let full = RemoteInfo {
+            battery: Some(RemoteBattery {
+                percent: 100,
+                charge: Charge::Full,
+            }),
+            ..dual_shock
+        };
         let ble_pad = RemoteInfo {
             kind: RemoteKind::BlePad,
             battery: None,
         };
         // (input) → what `remote_kind`/`remote_battery` hold afterwards
         let table = [
-            (link(false), RemoteInfo::NONE),
-            // A link that comes up without a kind reported is the BLE pad's.
-            (link(true), ble_pad),
-            (link(false), RemoteInfo::NONE),
-            // The Classic task reports the kind first, then the link: it stays.
-            (Input::RemoteInfo(dual_shock), dual_shock),
-            (link(true), dual_shock),
-            // The kind reported after the link replaces the BLE guess.
-            (link(false), RemoteInfo::NONE),
-            (link(true), ble_pad),
-            (Input::RemoteInfo(dual_shock), dual_shock),
-            (
-                Input::RemoteInfo(RemoteInfo {
-                    battery: Some(RemoteBattery {
-                        percent: 100,
-                        charge: Charge::Full,
-                    }),
-                    ..dual_shock
-                }),
-                RemoteInfo {
-                    battery: Some(RemoteBattery {
-                        percent: 100,
-                        charge: Charge::Full,
-                    }),
-                    ..dual_shock
-                },
-            ),
+            (link(Pad::Ble, false), RemoteInfo::NONE),
+            // The BLE task reports no kind: its pads are BLE pads.
+            (link(Pad::Ble, true), ble_pad),
+            (link(Pad::Ble, false), RemoteInfo::NONE),
+            // A PlayStation pad tells its kind with its first full report.
+            (link(Pad::Classic, true), RemoteInfo::NONE),
+            (report(dual_shock), dual_shock),
+            (report(full), full),
             // A lost link never leaves a stale pad or battery behind.
-            (link(false), RemoteInfo::NONE),
+            (link(Pad::Classic, false), RemoteInfo::NONE),
+            (link(Pad::Classic, true), RemoteInfo::NONE),
+            // Two pads: the one in control shows.
+            (link(Pad::Ble, true), RemoteInfo::NONE),
+            (report(dual_shock), dual_shock),
+            (link(Pad::Classic, false), ble_pad),
         ];
         let mut controller = Controller::new(at(0), Registers::defaults());
         for (ms, (input, expected)) in (0..).step_by(10).zip(table) {
@@ -1288,7 +1275,7 @@ mod tests {
     fn an_update_lock_refuses_enable_velocity_and_the_dead_man_but_not_a_withdrawal() {
         let mut controller = Controller::new(at(0), Registers::defaults());
         controller.handle(at(0), Input::DrivesReady);
-        controller.set_update_lock(true);
+        controller.handle(at(0), Input::UpdateLock(true));
         for command in [
             Command::Enable { refresh: true },
             Command::Velocity {
@@ -1309,27 +1296,46 @@ mod tests {
         controller.handle(
             at(10),
             Input::RemoteLink {
+                pad: Pad::Ble,
                 bonded: true,
                 connected: true,
             },
         );
-        let dead_man = Input::Gamepad(GamepadState {
-            left_y: 1.0,
-            buttons: crate::gamepad::Buttons::RIGHT_BUMPER,
-            ..GamepadState::default()
-        });
+        let dead_man = Input::Gamepad {
+            pad: Pad::Ble,
+            state: GamepadState {
+                left_y: 1.0,
+                buttons: crate::gamepad::Buttons::RIGHT_BUMPER,
+                ..GamepadState::default()
+            },
+        };
         let out = controller.handle(at(15), dead_man);
         assert_eq!((out.wheels, out.excite), (None, None));
         let status = controller.status(at(15));
         assert_eq!(status.last_rejection, Rejection::UpdateInProgress.code());
         assert_eq!(status.control, crate::can::ControlSource::None);
         assert_eq!(status.rejected_count, 3);
-        assert!(!controller.update_gate(at(15)).control_active);
         // A withdrawal is never refused.
         controller.handle(at(20), can(Command::Enable { refresh: false }));
         assert_eq!(controller.status(at(20)).rejected_count, 3);
-        // Unlocked, the same commands drive again.
-        controller.set_update_lock(false);
+        // Unlocked, the same commands drive again (the pad's dead-man is let go first:
+        // held through the lock, it would keep CAN from driving).
+        controller.handle(
+            at(25),
+            Input::Gamepad {
+                pad: Pad::Ble,
+                state: GamepadState::default(),
+            },
+        );
+        // A feedback at rest lets CAN drive after the dead-man let go.
+        controller.handle(
+            at(26),
+            Input::DriveFeedback {
+                counts: EncoderCounts { left: 0, right: 0 },
+                rpm: MotorRpm::ZERO,
+            },
+        );
+        controller.handle(at(30), Input::UpdateLock(false));
         controller.handle(at(30), can(Command::Enable { refresh: true }));
         let out = controller.handle(
             at(30),
@@ -1340,6 +1346,51 @@ mod tests {
         );
         assert!(out.wheels.is_some());
         assert!(controller.update_gate(at(30)).control_active);
+    }
+
+    /// A pad that connects during an update with its dead-man held was never seen
+    /// released: when the lock lifts, holding on must not drive; a release after the
+    /// lift arms it.
+    #[test]
+    fn a_dead_man_held_through_an_update_lock_needs_a_release_after_the_lift() {
+        let pad = |state| Input::Gamepad {
+            pad: Pad::Classic,
+            state,
+        };
+        let held = |forward: f32| {
+            pad(GamepadState {
+                left_y: forward,
+                buttons: crate::gamepad::Buttons::RIGHT_BUMPER,
+                ..GamepadState::default()
+            })
+        };
+        let mut controller = Controller::new(at(0), Registers::defaults());
+        controller.handle(at(0), Input::DrivesReady);
+        controller.handle(at(0), Input::UpdateLock(true));
+        controller.handle(
+            at(10),
+            Input::RemoteLink {
+                pad: Pad::Classic,
+                bonded: true,
+                connected: true,
+            },
+        );
+        let out = controller.handle(at(20), held(1.0));
+        assert_eq!((out.wheels, out.excite), (None, None), "locked");
+        controller.handle(at(25), Input::UpdateLock(false));
+        let out = controller.handle(at(30), held(0.9));
+        assert_eq!(
+            (out.wheels, out.excite),
+            (None, None),
+            "a dead-man held through the lock drove after the lift"
+        );
+        controller.handle(at(40), pad(GamepadState::default()));
+        let out = controller.handle(at(50), held(1.0));
+        assert_eq!(
+            out.excite,
+            Some(true),
+            "a release after the lift arms the pad"
+        );
     }
 
     /// A reading's moment moves by a few ms from cycle to cycle (a command write may hold
