@@ -3,8 +3,9 @@
 //! with the stuff bits the virtual bus counts):
 //!
 //! - latency: CAN velocity frame → both drives have the new speed (the base is
-//!   driving), and e-stop edge → zero speed on the wire, each at many phases of the
-//!   control cycle;
+//!   driving), e-stop edge → zero speed on the wire, pad report → both drives have the
+//!   new speed and dead-man release → zero on the wire, each at many phases of the
+//!   control cycle (`virtual_robot::latency`);
 //! - the periods of the feedback frames while driving, and their jitter;
 //! - the Modbus bytes of a control cycle and how busy they keep the RS-485 line, at
 //!   115200 and at 230400 baud;
@@ -21,14 +22,12 @@ use std::collections::{BTreeMap, BTreeSet};
 use base_core::can::{Command, id};
 use base_core::registers::Reg;
 use embassy_futures::join::join;
-use embassy_time::{Duration, Instant, Timer};
+use embassy_time::{Duration, Instant};
 use virtual_robot::can::{BITRATE_BPS, SentFrame};
 use virtual_robot::drives::{DrivesConfig, FeedbackFault, FrameRecord};
+use virtual_robot::latency::{PAD_REPORT_INTERVAL_MS, can_latencies, pad_latencies};
 use virtual_robot::robot::{Pc, VirtualRobot, wait_ms};
 
-/// Phases spread over one 50 ms control cycle, 0.1 ms apart: fine enough to catch an
-/// event just after a transaction's first byte.
-const TRIALS: u64 = 500;
 /// Until the drives are set up and the sensors have a first reading.
 const BOOT_MS: u64 = 1_500;
 /// Standby: the controller reports, the PC sends nothing.
@@ -52,13 +51,21 @@ fn main() {
         report_update();
         return;
     }
-    let (velocity, estop) = measure_latencies(&VirtualRobot::new());
+    let (velocity, estop) = can_latencies(&VirtualRobot::new());
     report_latency(
         "CAN velocity frame → both drives have the new speed",
         &velocity,
     );
     report_latency("e-stop edge → zero speed on the wire", &estop);
-    let (velocity, estop) = measure_latencies(&robot_at_baud(FAST_BAUD));
+    let (report, release) = pad_latencies(&VirtualRobot::new());
+    report_latency(
+        &format!(
+            "pad report → both drives have the new speed (the pad reports every {PAD_REPORT_INTERVAL_MS} ms)"
+        ),
+        &report,
+    );
+    report_latency("dead-man release → zero speed on the wire", &release);
+    let (velocity, estop) = can_latencies(&robot_at_baud(FAST_BAUD));
     report_latency(
         "at 230400 baud: CAN velocity frame → both drives have the new speed",
         &velocity,
@@ -278,43 +285,6 @@ fn robot_at_baud(baud: u32) -> VirtualRobot {
     });
     robot.settings.drives.line.baud = baud;
     robot
-}
-
-fn measure_latencies(robot: &VirtualRobot) -> (Vec<Duration>, Vec<Duration>) {
-    robot.run(async |pc| {
-        wait_ms(BOOT_MS).await;
-        pc.drive(300, 0, 500).await;
-        let mut velocity = Vec::new();
-        for trial in 0..TRIALS {
-            let speed = if trial % 2 == 0 { 400 } else { 300 };
-            pc.enable();
-            let sent = Instant::now();
-            pc.velocity(speed, 0);
-            // A cycle and 0.1 ms: the next command lands at a new phase of the drive
-            // link's own 50 ms cycle, sometimes while a transaction is on the wire.
-            Timer::after(Duration::from_micros(50_100)).await;
-            let applied =
-                [1, 2].map(|slave| robot.drives.drive(slave).last_new_speed_at.expect("speed"));
-            velocity.push(applied.into_iter().max().expect("two drives") - sent);
-        }
-
-        let mut estop = Vec::new();
-        for trial in 0..TRIALS {
-            pc.drive(300, 0, 300).await;
-            Timer::after(Duration::from_micros(trial * 100)).await;
-            let pressed = Instant::now();
-            robot.press_estop();
-            wait_ms(60).await;
-            let stopped =
-                [1, 2].map(|slave| robot.drives.drive(slave).last_new_speed_at.expect("speed"));
-            estop.push(stopped.into_iter().max().expect("two drives") - pressed);
-            robot.release_estop();
-            wait_ms(100).await;
-            robot.press_button(200).await;
-            wait_ms(800).await;
-        }
-        (velocity, estop)
-    })
 }
 
 /// The fail-safe figures of the drive link: how far the wheels run on after a
