@@ -112,6 +112,19 @@ pub enum Input {
     Tick,
 }
 
+impl Input {
+    /// A pad's link, report, kind or bond: what only the remote tasks send.
+    pub fn is_from_a_remote_task(&self) -> bool {
+        matches!(
+            self,
+            Input::Gamepad { .. }
+                | Input::RemoteLink { .. }
+                | Input::RemotePaired
+                | Input::RemoteInfo { .. }
+        )
+    }
+}
+
 /// What the shell found while booting, before the controller's first input.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -281,9 +294,14 @@ impl Controller {
         controller
     }
 
+    /// Bluetooth is off after a panic loop, until a confirm press or its key.
+    fn bluetooth_off(&self) -> bool {
+        self.registers.get(Reg::BluetoothOff) != 0
+    }
+
     /// Turns the Bluetooth remote on if a panic loop switched it off at boot.
     fn turn_bluetooth_on(&mut self, out: &mut Output) {
-        if self.registers.get(Reg::BluetoothOff) != 0 {
+        if self.bluetooth_off() {
             info!("Bluetooth on again");
             self.registers.set_counter(Reg::BluetoothOff, 0);
             out.bluetooth_on = true;
@@ -350,6 +368,13 @@ impl Controller {
     /// the input caused, so the shell may feed frames and ticks in any mix.
     pub fn handle(&mut self, now: Timestamp, input: Input) -> Output {
         let mut out = Output::default();
+        if self.bluetooth_off() && input.is_from_a_remote_task() {
+            // The remote tasks do not run while Bluetooth is off; should anything
+            // still come from them, no pad may connect or drive.
+            warn!("remote input while Bluetooth is off dropped");
+            self.periodic_frames(now, &mut out);
+            return out;
+        }
         match input {
             Input::CanFrame(frame) => self.can_frame(now, frame, &mut out),
             Input::Estop(pressed) => {

@@ -7,13 +7,13 @@
 
 use base_core::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
 use base_core::can::{Command, ControlSource, Mode, RawFrame, ReadEcho, Report, Status, id};
-use base_core::controller::{AT_REST_RPM, Controller, Input, Output};
+use base_core::controller::{AT_REST_RPM, BootReport, Controller, Input, Output};
 use base_core::gamepad::{Buttons, Dpad, GamepadState};
 use base_core::kinematics::{self, KinematicsParams, MotorRpm, SafetyLimits, Twist};
 use base_core::odometry::{EncoderCounts, Pose};
 use base_core::registers::{
-    MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, OPEN_PAIRING_WINDOW_KEY, RESTORE_DEFAULTS_KEY,
-    Reg, RegisterError, Registers,
+    BLUETOOTH_ON_KEY, MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, OPEN_PAIRING_WINDOW_KEY,
+    RESTORE_DEFAULTS_KEY, Reg, RegisterError, Registers,
 };
 use base_core::remote::{MODIFIER_THRESHOLD, PAIRING_WINDOW_MS, Pad};
 use base_core::supervisor::Wheel;
@@ -304,6 +304,11 @@ fn input() -> impl Strategy<Value = Input> {
         // Mostly lifts: a lock held for most of a sequence would leave little to check.
         1 => prop_oneof![1 => Just(Input::UpdateLock(true)), 3 => Just(Input::UpdateLock(false))],
         1 => Just(Input::RemotePaired),
+        // Bluetooth on after a panic loop (a confirm press does it too).
+        1 => Just(Input::CanFrame(Command::RegisterWrite {
+            address: Reg::Command.address(),
+            value: BLUETOOTH_ON_KEY,
+        }.encode())),
         4 => drive_feedback(),
         3 => Just(Input::DrivesReady),
         1 => wheel().prop_map(Input::DriveSilent),
@@ -342,6 +347,20 @@ fn episode() -> impl Strategy<Value = Vec<(u64, Input)>> {
         // CAN drives: a refresh, then a velocity while it is fresh.
         (0..=50u64, velocity_frame().prop_map(Input::CanFrame))
             .prop_map(move |(gap, velocity)| vec![(0, enable), (gap, velocity)]),
+        // CAN drives, then the e-stop is pressed or a drive faults.
+        (
+            0..=50u64,
+            velocity_frame().prop_map(Input::CanFrame),
+            0..=300u64,
+            prop_oneof![
+                Just(Input::Estop(true)),
+                wheel().prop_map(Input::DriveSilent),
+                (wheel(), 1..=255u8).prop_map(|(wheel, code)| Input::DriveAlarm { wheel, code }),
+            ],
+        )
+            .prop_map(move |(gap, velocity, after, stop)| {
+                vec![(0, enable), (gap, velocity), (after, stop)]
+            }),
         // CAN drives, then the speed limit or the geometry changes.
         (
             0..=50u64,
@@ -510,26 +529,41 @@ fn episode() -> impl Strategy<Value = Vec<(u64, Input)>> {
 fn sequence_of(
     input: impl Strategy<Value = Input>,
     episodes: u32,
-) -> impl Strategy<Value = Vec<(u64, Input)>> {
+) -> impl Strategy<Value = Sequence> {
     let single = (gap_ms(), input).prop_map(|event| vec![event]);
     let parts = prop_oneof![8 => single, episodes => episode()];
-    (any::<bool>(), prop::collection::vec(parts, 1..=MAX_EVENTS)).prop_map(
-        |(ready_at_boot, parts)| {
-            let boot = ready_at_boot.then_some((0, Input::DrivesReady));
-            boot.into_iter()
-                .chain(parts.into_iter().flatten())
-                .take(MAX_EVENTS)
-                .collect()
-        },
+    (
+        any::<bool>(),
+        prop::bool::weighted(0.3),
+        prop::collection::vec(parts, 1..=MAX_EVENTS),
     )
+        .prop_map(|(ready_at_boot, bluetooth_off, parts)| {
+            let boot = ready_at_boot.then_some((0, Input::DrivesReady));
+            Sequence {
+                bluetooth_off,
+                events: boot
+                    .into_iter()
+                    .chain(parts.into_iter().flatten())
+                    .take(MAX_EVENTS)
+                    .collect(),
+            }
+        })
 }
 
-fn sequence() -> impl Strategy<Value = Vec<(u64, Input)>> {
+/// A boot and what follows it.
+#[derive(Debug, Clone)]
+struct Sequence {
+    /// The boot found a panic loop: Bluetooth is off until a confirm press or its key.
+    bluetooth_off: bool,
+    events: Vec<(u64, Input)>,
+}
+
+fn sequence() -> impl Strategy<Value = Sequence> {
     sequence_of(input(), 2)
 }
 
 /// Sequences dominated by CAN frames, most of them garbage.
-fn frame_sequence() -> impl Strategy<Value = Vec<(u64, Input)>> {
+fn frame_sequence() -> impl Strategy<Value = Sequence> {
     let frames = prop_oneof![
         4 => known_id_garbage(),
         2 => any_frame(),
@@ -823,6 +857,10 @@ mod model {
         ) {
             self.disconnect_due = None;
             self.pairing_change = None;
+            if registers.get(Reg::BluetoothOff) != 0 && input.is_from_a_remote_task() {
+                // Bluetooth is off: no pad exists for the controller.
+                return;
+            }
             match *input {
                 Input::CanFrame(frame) => match Command::decode(frame.id(), frame.data()) {
                     // A refreshing enable and a velocity are refused while locked.
@@ -1005,14 +1043,19 @@ struct Step<'a> {
     model: &'a Model,
 }
 
-/// Feeds `events` to a controller booted at 0 with the register defaults and calls
-/// `check` after every event.
+/// Feeds `sequence` to a controller booted at 0 with the register defaults (and
+/// Bluetooth off if the sequence says so) and calls `check` after every event.
 fn run(
-    events: &[(u64, Input)],
+    sequence: &Sequence,
     mut check: impl FnMut(&Step) -> Result<(), TestCaseError>,
 ) -> Result<(), TestCaseError> {
     let mut now = Timestamp::BOOT;
-    let mut controller = Controller::new(now, Registers::defaults());
+    let boot = BootReport {
+        bluetooth_off_after_panics: sequence.bluetooth_off,
+        ..BootReport::default()
+    };
+    let mut controller = Controller::boot(now, Registers::defaults(), &boot);
+    let events = &sequence.events;
     let mut model = Model::default();
     let mut in_force = MotorRpm::ZERO;
     let mut excited = false;
@@ -1554,6 +1597,29 @@ proptest! {
         })?;
     }
 
+    /// While Bluetooth is off after a panic loop its tasks do not run; should a pad's
+    /// link or report still arrive, it changes nothing: no wheel command, no control,
+    /// no remote flag, no switch-off, no pairing change.
+    #[test]
+    fn pad_inputs_change_nothing_while_bluetooth_is_off(events in sequence()) {
+        run(&events, |step| {
+            if step.before.registers.get(Reg::BluetoothOff) == 0
+                || !step.input.is_from_a_remote_task()
+            {
+                return Ok(());
+            }
+            prop_assert_eq!(step.out.wheels, None);
+            prop_assert_eq!(step.out.excite, None);
+            prop_assert_eq!(step.out.disconnect_remote, None);
+            prop_assert_eq!(step.out.pairing_window, None);
+            let (before, after) = (&step.before.status, &step.after.status);
+            prop_assert_eq!(after.control, before.control);
+            prop_assert!(!after.flags.remote_connected && !after.flags.remote_in_control);
+            prop_assert!(!after.flags.remote_bonded);
+            Ok(())
+        })?;
+    }
+
     /// The pairing window opens only on its `command` key and closes only when its
     /// minute is up (seen on a tick) or on the first new bond; the output says so with
     /// exactly those inputs, and no other input touches it.
@@ -1699,7 +1765,7 @@ proptest! {
         let mut controller = Controller::new(now, Registers::defaults());
         let mut drives = DriveModel::default();
         let mut zone_since: Option<Timestamp> = None;
-        for (gap, input) in &events {
+        for (gap, input) in &events.events {
             drives.advance(*gap);
             now = now.plus_millis(*gap);
             let input = match *input {
@@ -1774,7 +1840,7 @@ type Situation = (&'static str, fn(&Step) -> bool);
 /// pass vacuously. Each must occur in at least a fifth of the sequences.
 #[test]
 fn event_sequences_reach_every_situation_checked() {
-    let situations: [Situation; 20] = [
+    let situations: [Situation; 21] = [
         ("CAN drives", |step| {
             moving_command(step).is_some() && step.after.status.control == ControlSource::Can
         }),
@@ -1844,17 +1910,20 @@ fn event_sequences_reach_every_situation_checked() {
         ("the lock lifted with a dead-man held", |step| {
             *step.input == Input::UpdateLock(false) && step.before.status.flags.remote_in_control
         }),
+        ("a pad input while Bluetooth is off", |step| {
+            step.before.registers.get(Reg::BluetoothOff) != 0 && step.input.is_from_a_remote_task()
+        }),
     ];
     let mut runner = TestRunner::deterministic();
     let strategy = sequence();
     let sequences = 200;
-    let mut counts = [0u32; 20];
+    let mut counts = [0u32; 21];
     for _ in 0..sequences {
         let events = strategy
             .new_tree(&mut runner)
             .expect("the strategy generates")
             .current();
-        let mut seen = [false; 20];
+        let mut seen = [false; 21];
         run(&events, |step| {
             for (seen, (_, occurs)) in seen.iter_mut().zip(&situations) {
                 *seen |= occurs(step);
