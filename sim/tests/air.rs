@@ -1,0 +1,513 @@
+//! The Bluetooth pads on the virtual clock: the firmware's real hosts (the BLE central
+//! on trouble-host behind the HCI guard, the PlayStation pads' Classic host, both
+//! behind the HCI splitter) on the air's dual-mode controller, against the air's
+//! virtual pads (`virtual_robot::air`). The substance of the Bumble scenarios
+//! (`tests/ble.rs`, `tests/classic.rs`), without Python and without the wall clock.
+
+use std::sync::{Mutex, MutexGuard, PoisonError};
+
+use base_core::can::Status;
+use base_core::can::{Command, Mode};
+use base_core::gamepad::Buttons;
+use base_core::registers::{OPEN_PAIRING_WINDOW_KEY, Reg};
+use embassy_time::{Duration, Instant, Timer};
+use virtual_robot::air::{AirRobot, BlePad, Pad, PadEvent, PadKind, PlayStationPad};
+use virtual_robot::ble::BOND_FLASH_SIZE;
+use virtual_robot::robot::Pc;
+
+const SEED: u64 = 0x00A1_2031;
+
+/// The robot's BLE host takes its packets from trouble-host's one global pool (16
+/// packets for the whole process): robots in parallel threads would take each other's,
+/// and a packet the host cannot get is dropped. One robot at a time.
+static ONE_ROBOT_AT_A_TIME: Mutex<()> = Mutex::new(());
+
+fn one_robot() -> MutexGuard<'static, ()> {
+    ONE_ROBOT_AT_A_TIME
+        .lock()
+        .unwrap_or_else(PoisonError::into_inner)
+}
+const BLE_ADDRESS: &str = "C1:11:22:33:44:55";
+const PS_ADDRESS: &str = "A4:AE:12:00:00:01";
+/// A value of `Contr_acc_high` no other rule uses, to recognise its braking.
+const RELEASE_BRAKING: u16 = 2777;
+
+fn write_register(pc: &Pc, reg: Reg, value: u16) {
+    pc.command(Command::RegisterWrite {
+        address: reg as u8,
+        value,
+    });
+}
+
+/// The first status frame within `timeout_ms` that passes `check`; fails with `what`.
+async fn status(pc: &Pc, timeout_ms: u64, what: &str, check: impl Fn(&Status) -> bool) -> Status {
+    match pc.wait_for_status(timeout_ms, check).await {
+        Some(status) => status,
+        None => panic!(
+            "within {timeout_ms} ms: {what}; last status {:?}",
+            pc.status()
+        ),
+    }
+}
+
+async fn drives_ready(pc: &Pc) {
+    status(pc, 5_000, "the drives are set up", |s| {
+        s.mode != Mode::Starting
+    })
+    .await;
+}
+
+async fn open_pairing_window(pc: &Pc) {
+    drives_ready(pc).await;
+    write_register(pc, Reg::Command, OPEN_PAIRING_WINDOW_KEY);
+}
+
+/// Waits until both wheels turn forward (or, `forward == false`, stand still).
+async fn wheels(robot: &AirRobot, timeout_ms: u64, forward: bool) {
+    let deadline = Instant::now() + Duration::from_millis(timeout_ms);
+    loop {
+        let left = robot.robot.drives.drive(1).forward_rpm();
+        let right = robot.robot.drives.drive(2).forward_rpm();
+        let done = if forward {
+            left > 10.0 && right > 10.0
+        } else {
+            left.abs() < 0.5 && right.abs() < 0.5
+        };
+        if done {
+            return;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "wheels not {} within {timeout_ms} ms: {left:.1} / {right:.1} rpm",
+            if forward {
+                "turning forward"
+            } else {
+                "stopped"
+            }
+        );
+        Timer::after_millis(5).await;
+    }
+}
+
+/// The deceleration of the drives' last command, (1/min)/s.
+fn last_decel(robot: &AirRobot) -> i32 {
+    robot
+        .robot
+        .drives
+        .drive(1)
+        .command
+        .expect("the left drive was commanded")
+        .decel_rpm_per_s
+}
+
+/// Whether the bond partition holds this address (least significant byte first, as
+/// both bond records store it).
+fn bond_stored_for(robot: &AirRobot, address: &str) -> bool {
+    let mut raw: Vec<u8> = address
+        .split(':')
+        .map(|pair| u8::from_str_radix(pair, 16).expect("hex address"))
+        .collect();
+    raw.reverse();
+    let flash = robot.bond_flash.contents(0..BOND_FLASH_SIZE as u32);
+    flash.windows(raw.len()).any(|window| window == raw)
+}
+
+/// Waits for `pad`'s event after `mark`, failing with `what`.
+async fn expect_event(
+    robot: &AirRobot,
+    mark: usize,
+    pad: &str,
+    what: &str,
+    check: impl Fn(&PadEvent) -> bool,
+    timeout_ms: u64,
+) {
+    if robot
+        .air
+        .wait_for(mark, pad, check, Duration::from_millis(timeout_ms))
+        .await
+        .is_none()
+    {
+        panic!(
+            "{pad}: no {what} within {timeout_ms} ms; events: {:?}",
+            robot.air.events_since(mark)
+        );
+    }
+}
+
+#[test]
+fn a_ble_pad_pairs_in_the_window_drives_with_rb_and_the_stick_and_release_stops_with_contr_acc_high()
+ {
+    let _one = one_robot();
+    let robot = AirRobot::new(SEED);
+    let pad = robot.air.ble_pad("xbox", BLE_ADDRESS).expect("a pad");
+    pad.advertise(true);
+    robot.run(async |pc| {
+        let before = status(pc, 5_000, "the controller is up", |_| true).await;
+        assert!(!before.flags.remote_bonded, "no bond on a blank flash");
+        write_register(pc, Reg::ContrAccHigh, RELEASE_BRAKING);
+        let mark = robot.air.mark();
+        open_pairing_window(pc).await;
+        expect_event(
+            &robot,
+            mark,
+            "xbox",
+            "pairing",
+            |e| *e == PadEvent::Paired,
+            20_000,
+        )
+        .await;
+        expect_event(
+            &robot,
+            mark,
+            "xbox",
+            "subscription",
+            |e| *e == PadEvent::Subscribed,
+            10_000,
+        )
+        .await;
+        status(pc, 5_000, "the paired pad is connected", |s| {
+            s.flags.remote_bonded && s.flags.remote_connected
+        })
+        .await;
+        pad.hold(Buttons::RIGHT_BUMPER);
+        status(pc, 2_000, "the dead-man gives the remote control", |s| {
+            s.flags.remote_in_control
+        })
+        .await;
+        pad.left_stick(0.0, 1.0);
+        wheels(&robot, 3_000, true).await;
+        pad.release(Buttons::RIGHT_BUMPER);
+        wheels(&robot, 3_000, false).await;
+        assert_eq!(last_decel(&robot), i32::from(RELEASE_BRAKING));
+        status(
+            pc,
+            2_000,
+            "releasing the dead-man ends remote control",
+            |s| !s.flags.remote_in_control,
+        )
+        .await;
+    });
+    assert!(
+        bond_stored_for(&robot, BLE_ADDRESS),
+        "the bond is in the bonds partition"
+    );
+}
+
+/// When the drives were last told to stand still (zero speed on the wire), waiting up
+/// to `timeout_ms` for it.
+async fn zero_on_the_wire(robot: &AirRobot, timeout_ms: u64) -> Instant {
+    let deadline = Instant::now() + Duration::from_millis(timeout_ms);
+    loop {
+        let commanded = robot.robot.drives.drive(1).command;
+        if commanded.is_some_and(|command| command.speed_rpm == 0) {
+            return Instant::now();
+        }
+        assert!(
+            Instant::now() < deadline,
+            "no zero speed on the wire within {timeout_ms} ms: {commanded:?}"
+        );
+        Timer::after_millis(1).await;
+    }
+}
+
+/// Puts PlayStation pad `name` in pairing mode, opens the window and waits until it
+/// is paired, in full-report mode and counted as connected.
+async fn pair_playstation(robot: &AirRobot, pc: &Pc, pad: &PlayStationPad) {
+    let name = pad.name();
+    let mark = robot.air.mark();
+    pad.pairing_mode();
+    open_pairing_window(pc).await;
+    expect_event(
+        robot,
+        mark,
+        &name,
+        "pairing",
+        |e| *e == PadEvent::Paired,
+        20_000,
+    )
+    .await;
+    expect_event(
+        robot,
+        mark,
+        &name,
+        "feature report 0x05",
+        |e| *e == PadEvent::FeatureRead(0x05),
+        10_000,
+    )
+    .await;
+    status(pc, 5_000, "the paired pad is connected", |s| {
+        s.flags.remote_bonded && s.flags.remote_connected
+    })
+    .await;
+    assert!(pad.full_mode(), "the pad sends full reports");
+}
+
+/// Holds the dead-man and pushes the left stick forward: the wheels turn.
+async fn drive_forward(robot: &AirRobot, pc: &Pc, pad: &Pad) {
+    drives_ready(pc).await;
+    pad.hold(Buttons::RIGHT_BUMPER);
+    status(pc, 2_000, "the dead-man gives the remote control", |s| {
+        s.flags.remote_in_control
+    })
+    .await;
+    pad.left_stick(0.0, 1.0);
+    wheels(robot, 3_000, true).await;
+}
+
+#[test]
+fn a_dualshock4_pairs_in_the_window_drives_with_r1_and_link_loss_with_r1_held_stops_within_the_report_watchdog()
+ {
+    let _one = one_robot();
+    let robot = AirRobot::new(SEED);
+    let pad = robot
+        .air
+        .playstation_pad("ds4", PadKind::DualShock4, PS_ADDRESS)
+        .expect("a pad");
+    robot.run(async |pc| {
+        status(pc, 5_000, "the controller is up", |_| true).await;
+        write_register(pc, Reg::ContrAccHigh, RELEASE_BRAKING);
+        pair_playstation(&robot, pc, &pad).await;
+        drive_forward(&robot, pc, &pad).await;
+        pad.release(Buttons::RIGHT_BUMPER);
+        wheels(&robot, 3_000, false).await;
+        assert_eq!(last_decel(&robot), i32::from(RELEASE_BRAKING));
+        // Again, then out of range with R1 held: nothing passes any more.
+        drive_forward(&robot, pc, &pad).await;
+        let mark = robot.air.mark();
+        let lost_at = Instant::now();
+        pad.out_of_range();
+        let stopped_after = zero_on_the_wire(&robot, 2_000).await - lost_at;
+        assert_eq!(last_decel(&robot), i32::from(RELEASE_BRAKING));
+        // The report watchdog (100 ms) sees the silence first and drops the link.
+        assert!(
+            stopped_after <= Duration::from_millis(110 + 10),
+            "zero on the wire {} ms after the link was lost",
+            stopped_after.as_millis()
+        );
+        status(pc, 2_000, "the lost link is reported", |s| {
+            !s.flags.remote_connected && !s.flags.remote_in_control
+        })
+        .await;
+        // The pad's side times out after the 500 ms the robot set as central.
+        expect_event(
+            &robot,
+            mark,
+            "ds4",
+            "link loss",
+            |e| *e == PadEvent::Disconnected(0x08),
+            1_000,
+        )
+        .await;
+        let lost = robot
+            .air
+            .events_since(mark)
+            .into_iter()
+            .find(|e| e.event == PadEvent::Disconnected(0x08))
+            .expect("lost");
+        assert_eq!(
+            (lost.at - lost_at).as_millis(),
+            500,
+            "the supervision timeout the robot set"
+        );
+        eprintln!(
+            "classic link loss to zero on the wire: {} ms",
+            stopped_after.as_millis()
+        );
+    });
+    assert!(
+        bond_stored_for(&robot, PS_ADDRESS),
+        "the link key is in the bonds partition"
+    );
+}
+
+/// Pairs BLE pad `pad` in the window and waits until the robot listens to it.
+async fn pair_ble(robot: &AirRobot, pc: &Pc, pad: &BlePad) {
+    let name = pad.name();
+    let mark = robot.air.mark();
+    pad.advertise(true);
+    open_pairing_window(pc).await;
+    expect_event(
+        robot,
+        mark,
+        &name,
+        "pairing",
+        |e| *e == PadEvent::Paired,
+        20_000,
+    )
+    .await;
+    expect_event(
+        robot,
+        mark,
+        &name,
+        "subscription",
+        |e| *e == PadEvent::Subscribed,
+        10_000,
+    )
+    .await;
+}
+
+/// Waits until the base is at rest and the pad's bond is in the bonds partition (it is
+/// written only at rest).
+async fn bond_in_flash(robot: &AirRobot, address: &str) {
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while !bond_stored_for(robot, address) {
+        assert!(
+            Instant::now() < deadline,
+            "the bond of {address} never reached the flash"
+        );
+        Timer::after_millis(10).await;
+    }
+}
+
+#[test]
+fn after_a_reboot_the_bonded_ble_pad_reconnects_with_the_bond_from_flash_without_pairing() {
+    let _one = one_robot();
+    let robot = AirRobot::new(SEED);
+    let xbox = robot.air.ble_pad("xbox", BLE_ADDRESS).expect("a pad");
+    robot.run(async |pc| {
+        pair_ble(&robot, pc, &xbox).await;
+        bond_in_flash(&robot, BLE_ADDRESS).await;
+    });
+    // The second boot: the bond comes from the flash; the pad, which advertises again
+    // once its link to the old boot timed out, is encrypted with it and drives.
+    let mark = robot.air.mark();
+    robot.run(async |pc| {
+        status(pc, 5_000, "the controller is up", |_| true).await;
+        expect_event(
+            &robot,
+            mark,
+            "xbox",
+            "encryption with the bond",
+            |e| *e == PadEvent::Encrypted,
+            10_000,
+        )
+        .await;
+        expect_event(
+            &robot,
+            mark,
+            "xbox",
+            "subscription",
+            |e| *e == PadEvent::Subscribed,
+            5_000,
+        )
+        .await;
+        drives_ready(pc).await;
+        drive_forward(&robot, pc, &xbox).await;
+    });
+    assert_eq!(
+        paired_since(&robot, mark),
+        0,
+        "the pad was paired again after the reboot"
+    );
+}
+
+#[test]
+fn after_a_reboot_the_bonded_dualshock4_pages_and_reconnects_with_its_key_from_flash() {
+    let _one = one_robot();
+    let robot = AirRobot::new(SEED);
+    let ds4 = robot
+        .air
+        .playstation_pad("ds4", PadKind::DualShock4, PS_ADDRESS)
+        .expect("a pad");
+    robot.run(async |pc| {
+        pair_playstation(&robot, pc, &ds4).await;
+        bond_in_flash(&robot, PS_ADDRESS).await;
+    });
+    let mark = robot.air.mark();
+    robot.run(async |pc| {
+        reconnect_playstation(&robot, pc, &ds4, mark).await;
+        drive_forward(&robot, pc, &ds4).await;
+    });
+    assert_eq!(
+        paired_since(&robot, mark),
+        0,
+        "the pad was paired again after the reboot"
+    );
+}
+
+/// Both kinds bonded, then a reboot: the PlayStation pad's key must come back too.
+///
+/// Fails today: the Classic task reads its bond with a sequential-storage buffer of
+/// 39 bytes (its record and 16), and the BLE task's item in the same partition is 54
+/// bytes, so `fetch_item` stops with `BufferTooSmall` and the PlayStation pad is
+/// rejected as a stranger (0x0F) after every reboot (`runtime/src/classic/task.rs`,
+/// `BOND_BUFFER`; with 69 bytes it passes).
+#[test]
+#[ignore = "defect in runtime/src/classic/task.rs: the Classic bond is not read back beside a BLE bond"]
+fn after_a_reboot_both_kinds_of_pad_reconnect_with_the_bonds_from_flash() {
+    let _one = one_robot();
+    let robot = AirRobot::new(SEED);
+    let xbox = robot.air.ble_pad("xbox", BLE_ADDRESS).expect("a pad");
+    let ds4 = robot
+        .air
+        .playstation_pad("ds4", PadKind::DualShock4, PS_ADDRESS)
+        .expect("a pad");
+    robot.run(async |pc| {
+        pair_ble(&robot, pc, &xbox).await;
+        bond_in_flash(&robot, BLE_ADDRESS).await;
+        pair_playstation(&robot, pc, &ds4).await;
+        bond_in_flash(&robot, PS_ADDRESS).await;
+    });
+    let mark = robot.air.mark();
+    robot.run(async |pc| {
+        expect_event(
+            &robot,
+            mark,
+            "xbox",
+            "encryption with the bond",
+            |e| *e == PadEvent::Encrypted,
+            10_000,
+        )
+        .await;
+        xbox.switch_off();
+        status(pc, 3_000, "the BLE pad's switch-off is reported", |s| {
+            !s.flags.remote_connected
+        })
+        .await;
+        reconnect_playstation(&robot, pc, &ds4, mark).await;
+    });
+    assert_eq!(
+        paired_since(&robot, mark),
+        0,
+        "a pad was paired again after the reboot"
+    );
+}
+
+/// Switches the bonded PlayStation pad on and waits until it paged the robot, was
+/// encrypted with its key and is counted as connected.
+async fn reconnect_playstation(robot: &AirRobot, pc: &Pc, pad: &PlayStationPad, mark: usize) {
+    let name = pad.name();
+    status(pc, 5_000, "the controller is up", |_| true).await;
+    pad.switch_on();
+    expect_event(
+        robot,
+        mark,
+        &name,
+        "encryption with its key",
+        |e| *e == PadEvent::Encrypted,
+        15_000,
+    )
+    .await;
+    expect_event(
+        robot,
+        mark,
+        &name,
+        "HID channels",
+        |e| *e == PadEvent::HidOpen,
+        5_000,
+    )
+    .await;
+    status(pc, 5_000, "the PlayStation pad is connected", |s| {
+        s.flags.remote_connected
+    })
+    .await;
+}
+
+fn paired_since(robot: &AirRobot, mark: usize) -> usize {
+    robot
+        .air
+        .events_since(mark)
+        .into_iter()
+        .filter(|e| e.event == PadEvent::Paired)
+        .count()
+}
