@@ -9,7 +9,7 @@ use std::sync::{Mutex, MutexGuard, PoisonError};
 use base_core::can::Status;
 use base_core::can::{Command, Mode};
 use base_core::gamepad::Buttons;
-use base_core::registers::{OPEN_PAIRING_WINDOW_KEY, Reg};
+use base_core::registers::{OPEN_PAIRING_WINDOW_KEY, Reg, RemoteKind};
 use embassy_time::{Duration, Instant, Timer};
 use virtual_robot::air::{AirRobot, BlePad, Pad, PadEvent, PadKind, PlayStationPad};
 use virtual_robot::ble::BOND_FLASH_SIZE;
@@ -510,4 +510,173 @@ fn paired_since(robot: &AirRobot, mark: usize) -> usize {
         .into_iter()
         .filter(|e| e.event == PadEvent::Paired)
         .count()
+}
+
+#[test]
+fn an_impostor_at_the_bonded_address_is_refused_without_pairing_and_the_owner_is_back_within_2_s() {
+    let _one = one_robot();
+    let robot = AirRobot::new(SEED);
+    let owner = robot.air.ble_pad("owner", BLE_ADDRESS).expect("a pad");
+    robot.run(async |pc| {
+        pair_ble(&robot, pc, &owner).await;
+        bond_in_flash(&robot, BLE_ADDRESS).await;
+        let bond = robot.bond_flash.contents(0..BOND_FLASH_SIZE as u32);
+        owner.switch_off();
+        status(pc, 3_000, "the switch-off is reported", |s| {
+            !s.flags.remote_connected
+        })
+        .await;
+        // A pad at the owner's address, without its key, advertises for 3 s.
+        let impostor = robot.air.ble_pad("impostor", BLE_ADDRESS).expect("a pad");
+        let mark = robot.air.mark();
+        impostor.advertise(true);
+        Timer::after_secs(3).await;
+        let seen: Vec<PadEvent> = impostor.events();
+        let attempts = seen.iter().filter(|e| **e == PadEvent::Connected).count();
+        assert!(
+            (1..=3).contains(&attempts),
+            "{attempts} connections in 3 s: {seen:?}"
+        );
+        assert!(
+            !seen
+                .iter()
+                .any(|e| matches!(e, PadEvent::Paired | PadEvent::Encrypted)),
+            "the impostor was paired or encrypted: {seen:?}"
+        );
+        let now = status(pc, 1_000, "the controller answers", |_| true).await;
+        assert!(
+            !now.flags.remote_connected,
+            "the impostor counts as the remote"
+        );
+        assert_eq!(
+            robot.bond_flash.contents(0..BOND_FLASH_SIZE as u32),
+            bond,
+            "the bond changed"
+        );
+        // The impostor leaves, the owner comes back.
+        impostor.switch_off();
+        let left = Instant::now();
+        owner.switch_on();
+        expect_event(
+            &robot,
+            mark,
+            "owner",
+            "encryption with the bond",
+            |e| *e == PadEvent::Encrypted,
+            2_000,
+        )
+        .await;
+        eprintln!(
+            "owner back {} ms after the impostor left",
+            (Instant::now() - left).as_millis()
+        );
+        expect_event(
+            &robot,
+            mark,
+            "owner",
+            "subscription",
+            |e| *e == PadEvent::Subscribed,
+            1_000,
+        )
+        .await;
+        drive_forward(&robot, pc, &owner).await;
+    });
+}
+
+#[test]
+fn strangers_outside_the_pairing_window_are_never_connected() {
+    let _one = one_robot();
+    let robot = AirRobot::new(SEED);
+    let owner = robot.air.ble_pad("owner", BLE_ADDRESS).expect("a pad");
+    robot.run(async |pc| {
+        pair_ble(&robot, pc, &owner).await;
+        owner.switch_off();
+        // The window closes with the pairing; now a BLE pad in pairing mode
+        // advertises and a PlayStation pad nobody paired pages the robot, for 10 s.
+        let ble = robot.air.ble_pad("ble-stranger", "C2:22:33:44:55:66").expect("a pad");
+        let ps = robot
+            .air
+            .playstation_pad("ps-stranger", PadKind::DualSense, "A4:AE:12:00:00:02")
+            .expect("a pad");
+        ble.advertise(true);
+        ps.page_robot();
+        Timer::after_secs(10).await;
+        assert!(ble.events().is_empty(), "the BLE stranger: {:?}", ble.events());
+        let ps_seen = ps.events();
+        assert!(
+            ps_seen.iter().all(|e| *e == PadEvent::PageFailed(0x0F)) && !ps_seen.is_empty(),
+            "the PlayStation stranger is refused by its address (0x0F) and never connected: {ps_seen:?}"
+        );
+        let now = status(pc, 1_000, "the controller answers", |_| true).await;
+        assert!(!now.flags.remote_connected && now.flags.remote_bonded);
+    });
+}
+
+/// Reads `remote_kind` until it shows `kind` (2 s at most).
+async fn remote_kind_becomes(pc: &Pc, kind: RemoteKind, what: &str) {
+    let deadline = Instant::now() + Duration::from_secs(2);
+    loop {
+        let read = pc.read_register(Reg::RemoteKind.address()).await;
+        if read == Some(kind.code()) {
+            return;
+        }
+        assert!(Instant::now() < deadline, "{what}: read {read:?}");
+        Timer::after_millis(20).await;
+    }
+}
+
+/// No wheel turns for `ms`: the drives' commanded speed stays zero throughout.
+async fn still_for(robot: &AirRobot, ms: u64, why: &str) {
+    let end = Instant::now() + Duration::from_millis(ms);
+    while Instant::now() < end {
+        for slave in [1, 2] {
+            let commanded = robot.robot.drives.drive(slave).command;
+            assert!(
+                commanded.is_none_or(|c| c.speed_rpm == 0),
+                "{why}: drive {slave} commanded {commanded:?}"
+            );
+        }
+        Timer::after_millis(5).await;
+    }
+}
+
+#[test]
+fn a_ble_pad_and_a_dualshock4_connected_at_once_only_the_first_connected_drives() {
+    let _one = one_robot();
+    let robot = AirRobot::new(SEED);
+    let ds4 = robot
+        .air
+        .playstation_pad("ds4", PadKind::DualShock4, PS_ADDRESS)
+        .expect("a pad");
+    let xbox = robot.air.ble_pad("xbox", BLE_ADDRESS).expect("a pad");
+    robot.run(async |pc| {
+        // The PlayStation pad connects first: it is the pad in control.
+        pair_playstation(&robot, pc, &ds4).await;
+        remote_kind_becomes(pc, RemoteKind::DualShock4, "the PlayStation pad").await;
+        // The BLE pad is paired in the next window and stays connected beside it.
+        pair_ble(&robot, pc, &xbox).await;
+        remote_kind_becomes(pc, RemoteKind::DualShock4, "the pad in control shows").await;
+        // The BLE pad's dead-man and stick do nothing.
+        xbox.hold(Buttons::RIGHT_BUMPER);
+        xbox.left_stick(0.0, 1.0);
+        still_for(&robot, 500, "the second pad drove").await;
+        let now = status(pc, 2_000, "a fresh status", |_| true).await;
+        assert!(!now.flags.remote_in_control, "the second pad took control");
+        // The PlayStation pad drives; its release stops the base, whatever the BLE pad
+        // still holds.
+        drive_forward(&robot, pc, &ds4).await;
+        ds4.release(Buttons::RIGHT_BUMPER);
+        wheels(&robot, 3_000, false).await;
+        still_for(&robot, 1_000, "the second pad drove after the first let go").await;
+        // The PlayStation pad is switched off: the BLE pad takes control, but its
+        // dead-man, held since before, must be released first.
+        ds4.switch_off();
+        remote_kind_becomes(pc, RemoteKind::BlePad, "the BLE pad in control").await;
+        xbox.left_stick(0.0, 0.9);
+        still_for(&robot, 500, "a dead-man held through the hand-over drove").await;
+        xbox.release(Buttons::RIGHT_BUMPER);
+        Timer::after_millis(50).await;
+        xbox.hold(Buttons::RIGHT_BUMPER);
+        wheels(&robot, 3_000, true).await;
+    });
 }
