@@ -14,7 +14,7 @@ use crate::feedback::{FeedbackPeriods, FeedbackSchedule};
 use crate::gamepad::GamepadState;
 use crate::kinematics::{self, KinematicsParams, MotorRpm, SafetyLimits, Twist, WheelCommand};
 use crate::odometry::{EncoderCounts, Odometry, OdometryParams};
-use crate::plausibility::{self, FeedbackCheck};
+use crate::plausibility::{self, Commanded, FeedbackCheck};
 use crate::power::{self, PowerControl, SwitchLevel};
 use crate::registers::{
     BootInfo, MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, RESTORE_DEFAULTS_KEY, Reg,
@@ -207,6 +207,11 @@ pub struct Controller {
     in_force: WheelCommand,
     /// What the drives run at, from the latest measurement; the next ramp starts here.
     speed: SpeedEstimate,
+    /// What the drives would run at had each followed every command since the last
+    /// setup, from the moment it was sent: the commanded ramps alone, never moved to a
+    /// measurement, so that a wheel turning against its command cannot drag it along.
+    /// The feedback check compares each wheel's direction with it.
+    commanded_speed: SpeedEstimate,
     rejections: Rejections,
     faults: ShellFaults,
     /// The link as the BLE task reports it, for the status frame.
@@ -249,6 +254,7 @@ impl Controller {
             },
             in_force: STANDING,
             speed: SpeedEstimate::standing(now),
+            commanded_speed: SpeedEstimate::standing(now),
             rejections: Rejections::default(),
             faults: ShellFaults::default(),
             remote_link: RemoteLink::default(),
@@ -405,6 +411,7 @@ impl Controller {
                 if matches!(self.supervisor.mode(), Mode::Starting | Mode::Recovering) {
                     self.in_force = STANDING;
                     self.speed = SpeedEstimate::standing(now);
+                    self.commanded_speed = SpeedEstimate::standing(now);
                 }
                 self.supervise(now, supervisor::Event::DrivesReady, &mut out);
             }
@@ -725,9 +732,13 @@ impl Controller {
                 .observe(motion.distance_mm, motion.rotation_mrad);
         }
         self.speed = SpeedEstimate::measured(now, rpm);
-        let verdict = self
-            .feedback_check
-            .sample(now, counts, rpm, params.counts_per_motor_rev);
+        let commanded = Commanded {
+            expected: self.commanded_speed.advanced(now, &self.in_force).rpm(),
+            target: self.in_force.rpm,
+        };
+        let verdict =
+            self.feedback_check
+                .sample(now, counts, rpm, commanded, params.counts_per_motor_rev);
         self.feedback_plausibility(now, &verdict, out);
         // Standing by the reported speed and by the counters: a stale speed register
         // must not let the brakes, the flash or a motion register through while the
@@ -738,9 +749,10 @@ impl Controller {
         self.supervise(now, supervisor::Event::AtRest(at_rest), out);
     }
 
-    /// A drive whose counter and speed disagree latches a drive fault (zero with
-    /// `estop_decel`, see the supervisor); the status frame shows why as a rejection
-    /// (0x41 position stuck, 0x42 speed stale; subject 1 left, 2 right).
+    /// A drive whose counter and speed disagree, or whose counter runs against its
+    /// command, latches a drive fault (zero with `estop_decel`, see the supervisor); the
+    /// status frame shows why as a rejection (0x41 position stuck, 0x42 speed stale,
+    /// 0x43 wrong direction; subject 1 left, 2 right).
     fn feedback_plausibility(
         &mut self,
         now: Timestamp,
@@ -803,6 +815,7 @@ impl Controller {
                 }
             }
             self.speed = self.speed.advanced(now, &self.in_force);
+            self.commanded_speed = self.commanded_speed.advanced(now, &self.in_force);
             self.in_force = command;
             out.wheels = Some(command);
         }
