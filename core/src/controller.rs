@@ -212,6 +212,10 @@ pub struct Controller {
     /// measurement, so that a wheel turning against its command cannot drag it along.
     /// The feedback check compares each wheel's direction with it.
     commanded_speed: SpeedEstimate,
+    /// How much that model's acceleration changed since the last drive feedback,
+    /// summed, (r/min)/s (left, right): where its speed bent between two samples,
+    /// which the feedback check allows for.
+    commanded_bends: [f64; 2],
     rejections: Rejections,
     faults: ShellFaults,
     /// The link as the BLE task reports it, for the status frame.
@@ -255,6 +259,7 @@ impl Controller {
             in_force: STANDING,
             speed: SpeedEstimate::standing(now),
             commanded_speed: SpeedEstimate::standing(now),
+            commanded_bends: [0.0; 2],
             rejections: Rejections::default(),
             faults: ShellFaults::default(),
             remote_link: RemoteLink::default(),
@@ -412,6 +417,7 @@ impl Controller {
                     self.in_force = STANDING;
                     self.speed = SpeedEstimate::standing(now);
                     self.commanded_speed = SpeedEstimate::standing(now);
+                    self.commanded_bends = [0.0; 2];
                 }
                 self.supervise(now, supervisor::Event::DrivesReady, &mut out);
             }
@@ -732,9 +738,11 @@ impl Controller {
                 .observe(motion.distance_mm, motion.rotation_mrad);
         }
         self.speed = SpeedEstimate::measured(now, rpm);
+        self.advance_commanded_speed(now);
         let commanded = Commanded {
-            expected: self.commanded_speed.advanced(now, &self.in_force).rpm(),
+            expected: self.commanded_speed.rpm(),
             target: self.in_force.rpm,
+            bends_rpm_per_s: core::mem::take(&mut self.commanded_bends),
         };
         let verdict =
             self.feedback_check
@@ -772,6 +780,18 @@ impl Controller {
                 .record(Rejection::Feedback(finding).code(), subject);
             self.supervise(now, supervisor::Event::FeedbackImplausible(wheel), out);
         }
+    }
+
+    /// Moves the commanded model along the command in force until `now`.
+    fn advance_commanded_speed(&mut self, now: Timestamp) {
+        let (speed, bends) = self.commanded_speed.advanced_bending(now, &self.in_force);
+        self.commanded_speed = speed;
+        self.note_commanded_bends(bends);
+    }
+
+    fn note_commanded_bends(&mut self, bends: [f64; 2]) {
+        self.commanded_bends[0] += bends[0];
+        self.commanded_bends[1] += bends[1];
     }
 
     fn supervise(&mut self, now: Timestamp, event: supervisor::Event, out: &mut Output) {
@@ -815,7 +835,10 @@ impl Controller {
                 }
             }
             self.speed = self.speed.advanced(now, &self.in_force);
-            self.commanded_speed = self.commanded_speed.advanced(now, &self.in_force);
+            self.advance_commanded_speed(now);
+            let before = self.commanded_speed.slope(&self.in_force);
+            let after = self.commanded_speed.slope(&command);
+            self.note_commanded_bends([(after[0] - before[0]).abs(), (after[1] - before[1]).abs()]);
             self.in_force = command;
             out.wheels = Some(command);
         }
@@ -1106,6 +1129,33 @@ impl SpeedEstimate {
             right: toward(self.right, command.rpm.right, command.right_accel),
             at: now,
         }
+    }
+
+    /// Each motor's acceleration now, following `command`, (r/min)/s: towards the
+    /// target at its rate, or none once there.
+    fn slope(self, command: &WheelCommand) -> [f64; 2] {
+        let slope = |speed: f32, target: i32, accel: u32| {
+            let towards = target as f32 - speed;
+            if towards == 0.0 {
+                0.0
+            } else {
+                f64::from(towards.signum()) * f64::from(accel)
+            }
+        };
+        [
+            slope(self.left, command.rpm.left, command.left_accel),
+            slope(self.right, command.rpm.right, command.right_accel),
+        ]
+    }
+
+    /// Moved along `command` until `now`, with how much each motor's acceleration
+    /// changed meanwhile ((r/min)/s; left, right): a ramp that reached its target.
+    fn advanced_bending(self, now: Timestamp, command: &WheelCommand) -> (Self, [f64; 2]) {
+        let advanced = self.advanced(now, command);
+        let before = self.slope(command);
+        let after = advanced.slope(command);
+        let bends = [(after[0] - before[0]).abs(), (after[1] - before[1]).abs()];
+        (advanced, bends)
     }
 
     /// Rounded to whole r/min (`as` saturates a garbage measurement at the i32 range).

@@ -28,6 +28,15 @@
 //! write is tried again, the drive's speed filter); a wheel that lags a reversal is
 //! opposite only to the model's newest speeds, never to those of the window before.
 //!
+//! The samples come every 50 ms or so; a speed that bends between two of them (a ramp
+//! that starts or ends, a PC turning the wheels round every few tens of ms at a high
+//! `CAN_accel`) is missed by the speeds at the sampling moments, and their prediction
+//! then misses an honest drive's counter. The controller knows where its commanded
+//! ramps bend, so the tolerance grows by the most each bend can make the prediction
+//! miss ([`bend_miss_rpm_ms`]), in the window of the bend and the one after (the
+//! drive follows a little late). A steady speed, the stuck encoder's case, has no
+//! bend and keeps the plain tolerance.
+//!
 //! Each sample also says whether the counter moved since the previous one, so that
 //! standstill is judged from the position as well as from the reported speed
 //! ([`Verdict::position_standing`]).
@@ -76,7 +85,7 @@ pub enum Finding {
 }
 
 /// What the controller commanded each drive, as its own model has it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Commanded {
     /// The speed each drive would run at now had it followed every command since the
@@ -85,6 +94,11 @@ pub struct Commanded {
     pub expected: MotorRpm,
     /// The speed each drive was last told to reach.
     pub target: MotorRpm,
+    /// How much that model's acceleration changed since the previous sample, summed
+    /// over every change (a ramp that starts, ends or turns round), in (r/min)/s: left,
+    /// right. Each change bends the speed between two samples, which the speeds at the
+    /// sampling moments cannot see.
+    pub bends_rpm_per_s: [f64; 2],
 }
 
 /// What one sample showed.
@@ -123,6 +137,11 @@ struct WheelWindow {
     /// The position the reported speeds predict since the window's start, in
     /// revolution-milliseconds per minute (r/min × ms): divide by 60 000 for turns.
     predicted_rpm_ms: f64,
+    /// How far the reported speeds' prediction may miss the counter in this window and
+    /// in the previous one because the commanded speed bent between two samples, in
+    /// r/min × ms (see [`bend_miss_rpm_ms`]).
+    bend_miss_rpm_ms: f64,
+    previous_bend_miss_rpm_ms: f64,
     /// The commanded speeds (the model's) this window and the previous one saw.
     expected: SpeedRange,
     previous_expected: SpeedRange,
@@ -164,6 +183,15 @@ impl SpeedRange {
     }
 }
 
+/// The most a speed's trapezoid over one sampling interval of `elapsed_ms` can miss
+/// its position when its acceleration changes by `bends_rpm_per_s` in between, r/min ×
+/// ms: a bend of Δa at c ms into an interval of h ms misses Δa·c·(h − c)/2, at most
+/// Δa·h²/8 (with Δa in (r/min)/s, divided by 1000 for r/min × ms).
+fn bend_miss_rpm_ms(bends_rpm_per_s: f64, elapsed_ms: u64) -> f64 {
+    let h = elapsed_ms as f64;
+    bends_rpm_per_s * h * h / 8.0 / 1000.0
+}
+
 impl WheelWindow {
     fn start(counts: i32, rpm: i32, expected_rpm: i32) -> Self {
         Self {
@@ -176,10 +204,19 @@ impl WheelWindow {
         }
     }
 
-    /// Adds one sample `elapsed_ms` after the previous; whether the counter stood.
-    fn add(&mut self, elapsed_ms: u64, counts: i32, rpm: i32, expected_rpm: i32) -> bool {
+    /// Adds one sample `elapsed_ms` after the previous, with how much the commanded
+    /// acceleration changed since then; whether the counter stood.
+    fn add(
+        &mut self,
+        elapsed_ms: u64,
+        counts: i32,
+        rpm: i32,
+        expected_rpm: i32,
+        bends_rpm_per_s: f64,
+    ) -> bool {
         let mean_rpm = (f64::from(self.last_rpm) + f64::from(rpm)) / 2.0;
         self.predicted_rpm_ms += mean_rpm * elapsed_ms as f64;
+        self.bend_miss_rpm_ms += bend_miss_rpm_ms(bends_rpm_per_s, elapsed_ms);
         self.expected = self.expected.with(SpeedRange::of(expected_rpm));
         let standing = counts.wrapping_sub(self.last_counts).unsigned_abs() <= STANDING_COUNTS;
         self.last_counts = counts;
@@ -200,16 +237,22 @@ impl WheelWindow {
         let counted = f64::from(self.last_counts.wrapping_sub(self.start_counts));
         let counted_rpm = counted / counts_per_rev * 60_000.0 / span_ms as f64;
         let predicted_rpm = self.predicted_rpm_ms / span_ms as f64;
+        // A drive follows the model a little late, so its bends may fall into the
+        // window after the model's.
+        let bend_miss_rpm =
+            (self.bend_miss_rpm_ms + self.previous_bend_miss_rpm_ms) / span_ms as f64;
         // Against everything the model asked for over two windows: a wheel that
         // follows a reversal late runs opposite to the model's latest speeds only.
         let commanded = self.expected.with(self.previous_expected);
         self.start_counts = self.last_counts;
         self.predicted_rpm_ms = 0.0;
+        self.previous_bend_miss_rpm_ms = self.bend_miss_rpm_ms;
+        self.bend_miss_rpm_ms = 0.0;
         self.previous_expected = self.expected;
         self.expected = SpeedRange::of(expected_rpm);
         let larger = counted_rpm.abs().max(predicted_rpm.abs());
-        let disagree =
-            larger >= MIN_COMPARED_RPM && (counted_rpm - predicted_rpm).abs() > TOLERANCE * larger;
+        let disagree = larger >= MIN_COMPARED_RPM
+            && (counted_rpm - predicted_rpm).abs() > TOLERANCE * larger + bend_miss_rpm;
         let wrong_way = commanded.all_opposite(counted_rpm)
             && SpeedRange::of(target_rpm).all_opposite(counted_rpm);
         let in_a_row = |windows: u8, bad: bool| if bad { windows.saturating_add(1) } else { 0 };
@@ -288,12 +331,18 @@ impl FeedbackCheck {
         };
         let elapsed_ms = now.millis_since(window.last_sample);
         window.last_sample = now;
-        let left_standing = window
-            .left
-            .add(elapsed_ms, counts.left, rpm.left, expected.left);
-        let right_standing = window
-            .right
-            .add(elapsed_ms, counts.right, rpm.right, expected.right);
+        let [left_bends, right_bends] = commanded.bends_rpm_per_s;
+        let left_standing =
+            window
+                .left
+                .add(elapsed_ms, counts.left, rpm.left, expected.left, left_bends);
+        let right_standing = window.right.add(
+            elapsed_ms,
+            counts.right,
+            rpm.right,
+            expected.right,
+            right_bends,
+        );
         let mut verdict = Verdict {
             left: None,
             right: None,
@@ -391,6 +440,12 @@ mod tests {
                 Report::FrozenSpeed(reads) => (true_counts[0], reads),
             };
             let (expected, target) = commanded(t);
+            // The model's bends since the previous sample: its acceleration's changes,
+            // from its speed each ms.
+            let slope = |ms: u64| (commanded(ms + 1).0 - commanded(ms).0) * 1000.0;
+            let bends: f64 = (t.saturating_sub(period_ms)..t)
+                .map(|ms| (slope(ms) - slope(ms.saturating_sub(1))).abs())
+                .sum();
             let both = |rpm: f64| MotorRpm {
                 left: rpm.round() as i32,
                 right: rpm.round() as i32,
@@ -408,6 +463,7 @@ mod tests {
                 Commanded {
                     expected: both(expected),
                     target: both(target),
+                    bends_rpm_per_s: [bends; 2],
                 },
                 COUNTS_PER_REV,
             );
@@ -513,14 +569,14 @@ mod tests {
     }
 
     /// What a PC may ask, followed by honest drives: the target turning round between
-    /// ±336 and ±900 r/min every 250 ms or 1 s, at 700, 4500 and 30 000 (r/min)/s, each
+    /// ±336 and ±900 r/min every 20 ms to 1 s, at 700, 4500 and 30 000 (r/min)/s, each
     /// drive following the commanded ramp up to 150 ms late (a command behind two
     /// failed writes, each tried again after the next read). No finding.
     #[test]
     fn honest_drives_following_reversals_late_raise_no_finding() {
         const MS: u64 = 3_000;
         for rate in [700.0, 4_500.0, 30_000.0] {
-            for every_ms in [250, 1_000] {
+            for every_ms in [20, 37, 50, 100, 250, 1_000] {
                 for speed in [336.0, 900.0] {
                     let target = |t: u64| {
                         if (t / every_ms).is_multiple_of(2) {
@@ -550,6 +606,34 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    /// The allowance for bends does not hide a stuck encoder from a PC that changes
+    /// its speed every 50 ms (between 300 and 400 r/min at 700 (r/min)/s, as a planner
+    /// does).
+    #[test]
+    fn a_stuck_encoder_is_found_while_the_speed_changes_every_50_ms() {
+        let mut model = vec![300.0f64; 2_001];
+        for t in 1..=2_000usize {
+            let target = if (t / 50).is_multiple_of(2) {
+                400.0
+            } else {
+                300.0
+            };
+            model[t] = ramp(1, 0, model[t - 1], target, 700.0);
+        }
+        for period_ms in [20, 50] {
+            let [left, right] = run(
+                2_000,
+                period_ms,
+                |t| model[t as usize],
+                Report::StuckCounter,
+            );
+            let (at, finding) = left.expect("found");
+            assert_eq!(finding, Finding::PositionStuck);
+            assert!(at <= 3 * WINDOW_MS + period_ms, "found at {at} ms");
+            assert_eq!(right, None);
         }
     }
 

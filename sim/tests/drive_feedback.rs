@@ -244,6 +244,90 @@ fn a_wheel_turning_against_its_command_stops_both_wheels_within_300_mm() {
     }
 }
 
+/// Honest drives never trip the feedback checks in hard but normal driving: the PC
+/// turning round between ±500 mm/s (and changing its turn rate) every 20 to 50 ms at
+/// `CAN_accel` 30 000 (r/min)/s and at the default 700, an e-stop pressed and
+/// released while driving, the safety zone braking the base and freeing it again.
+#[test]
+fn honest_drives_never_trip_the_feedback_checks_in_hard_driving() {
+    for can_accel in [30_000, 700] {
+        let robot = VirtualRobot::new();
+        let (statuses, faulted, fastest) = robot.run(async |pc| {
+            let mut fastest = 0.0f64;
+            wait_ms(BOOT_MS).await;
+            pc.command(Command::RegisterWrite {
+                address: Reg::CanAccel.address(),
+                value: can_accel,
+            });
+            // A fixed pseudo-random walk through periods and speeds.
+            let mut state = 0x2545_f491_u32;
+            let mut next = |below: u32| {
+                state ^= state << 13;
+                state ^= state >> 17;
+                state ^= state << 5;
+                state % below
+            };
+            for phase in 0..4 {
+                let until = Instant::now() + embassy_time::Duration::from_millis(3_000);
+                let mut forward = true;
+                while Instant::now() < until {
+                    forward = !forward;
+                    let linear = if forward { 500 } else { -500 };
+                    let rotation = next(1_001) as i16 - 500;
+                    pc.enable();
+                    pc.velocity(linear, rotation);
+                    wait_ms(20 + u64::from(next(31))).await;
+                    fastest = fastest.max(robot.drives.drive(1).forward_rpm().abs());
+                }
+                match phase {
+                    0 => {
+                        robot.press_estop();
+                        pc.drive(300, 0, 500).await;
+                        robot.release_estop();
+                        wait_ms(300).await;
+                        robot.press_button(200).await;
+                        pc.wait_for_status(3_000, |status| status.mode == Mode::Standby)
+                            .await
+                            .expect("standby after the e-stop and the confirm press");
+                    }
+                    1 => {
+                        pc.drive(500, 0, 1_000).await;
+                        robot.set_safety_zone(true);
+                        pc.drive(500, 0, 1_000).await;
+                        robot.set_safety_zone(false);
+                    }
+                    _ => {}
+                }
+            }
+            pc.drive(0, 0, 1_000).await;
+            let statuses: Vec<_> = pc
+                .reports(base_core::can::id::STATUS)
+                .into_iter()
+                .filter_map(|(_, report)| match report {
+                    base_core::can::Report::Status(status) => Some(status),
+                    _ => None,
+                })
+                .collect();
+            let faulted = statuses.iter().any(|status| status.mode == Mode::Fault);
+            (statuses, faulted, fastest)
+        });
+        let findings: Vec<_> = statuses
+            .iter()
+            .map(|status| (status.last_rejection, status.last_rejection_subject))
+            .filter(|(code, _)| (0x41..=0x43).contains(code))
+            .collect();
+        assert_eq!(findings.first(), None, "CAN_accel {can_accel}");
+        assert!(!faulted, "CAN_accel {can_accel}: the base faulted");
+        assert!(statuses.len() > 10, "status frames came");
+        if can_accel == 30_000 {
+            assert!(
+                fastest > 300.0,
+                "the wheels turned round at {fastest:.0} r/min"
+            );
+        }
+    }
+}
+
 /// A drive whose feedback is honest again after the fault: the confirm press recovers,
 /// and the base drives again.
 #[test]
