@@ -852,9 +852,7 @@ fn report_line(recording: &BusRecording, cycle_ms: f64) {
     println!(
         "  longest silence on the line: {:.1} ms (the drives' communication timeout: {} ms)",
         ms(longest_silence),
-        base_core::drives::DriveSettings::DEFAULT
-            .drive_comm_timeout_ms
-            .unwrap_or(0)
+        base_core::drives::DriveSettings::DEFAULT.drive_comm_timeout_ms
     );
 }
 
