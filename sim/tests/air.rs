@@ -821,3 +821,60 @@ fn an_oversized_acl_packet_from_the_controller_does_not_stop_the_remotes() {
         }
     });
 }
+
+/// What the pads saw in one run, each event with its time since the run began.
+fn pairing_run(seed: u64) -> Vec<(u64, String, PadEvent)> {
+    let robot = AirRobot::new(seed);
+    let xbox = robot.air.ble_pad("xbox", BLE_ADDRESS).expect("a pad");
+    let ds4 = robot
+        .air
+        .playstation_pad("ds4", PadKind::DualSense, PS_ADDRESS)
+        .expect("a pad");
+    let start = Instant::now();
+    robot.run(async |pc| {
+        pair_playstation(&robot, pc, &ds4).await;
+        pair_ble(&robot, pc, &xbox).await;
+        drive_forward(&robot, pc, &ds4).await;
+        let mark = robot.air.mark();
+        ds4.out_of_range();
+        expect_event(
+            &robot,
+            mark,
+            "ds4",
+            "link loss",
+            |e| *e == PadEvent::Disconnected(0x08),
+            1_000,
+        )
+        .await;
+    });
+    robot
+        .air
+        .events()
+        .into_iter()
+        .map(|event| ((event.at - start).as_micros(), event.pad, event.event))
+        .collect()
+}
+
+#[test]
+fn the_same_seed_gives_the_same_events_at_the_same_times_and_another_seed_other_times() {
+    let _one = one_robot();
+    let first = pairing_run(SEED);
+    let again = pairing_run(SEED);
+    assert!(first.len() > 10, "the run did something: {first:?}");
+    assert_eq!(first, again, "one seed, two histories");
+    let other = pairing_run(SEED + 1);
+    let what = |run: &[(u64, String, PadEvent)]| -> Vec<(String, PadEvent)> {
+        run.iter()
+            .map(|(_, pad, event)| (pad.clone(), event.clone()))
+            .collect()
+    };
+    assert_eq!(
+        what(&first),
+        what(&other),
+        "another seed must change the times, not what happens"
+    );
+    assert_ne!(
+        first, other,
+        "another seed, the same times to the microsecond"
+    );
+}
