@@ -114,10 +114,10 @@ async fn pair(robot: &AirRobot, pc: &Pc, name: &str, event: PadEvent) {
 async fn drive(pad: &Pad, how_long: Duration) {
     pad.hold(Buttons::RIGHT_BUMPER);
     let end = Instant::now() + how_long;
-    let mut step = 0u32;
+    let mut full = false;
     while Instant::now() < end {
-        step += 1;
-        pad.left_stick(0.0, if step % 2 == 0 { 1.0 } else { 0.5 });
+        full = !full;
+        pad.left_stick(0.0, if full { 1.0 } else { 0.5 });
         Timer::after_millis(50).await;
     }
     pad.release(Buttons::RIGHT_BUMPER);

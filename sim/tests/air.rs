@@ -11,7 +11,9 @@ use base_core::can::{Command, Mode};
 use base_core::gamepad::Buttons;
 use base_core::registers::{OPEN_PAIRING_WINDOW_KEY, Reg, RemoteKind};
 use embassy_time::{Duration, Instant, Timer};
-use virtual_robot::air::{AirRobot, BlePad, Pad, PadEvent, PadKind, PlayStationPad};
+use virtual_robot::air::{
+    ActionRefused, AirRobot, BlePad, Pad, PadAction, PadEvent, PadKind, PlayStationPad,
+};
 use virtual_robot::ble::BOND_FLASH_SIZE;
 use virtual_robot::robot::Pc;
 
@@ -877,4 +879,92 @@ fn the_same_seed_gives_the_same_events_at_the_same_times_and_another_seed_other_
         first, other,
         "another seed, the same times to the microsecond"
     );
+}
+
+/// The tester's way in: pads found by name, driven by actions as data.
+#[test]
+fn pad_actions_by_name_pair_drive_and_silence_a_pad_and_what_a_kind_cannot_do_is_refused() {
+    let _one = one_robot();
+    let robot = AirRobot::new(SEED);
+    robot
+        .air
+        .playstation_pad("ds4", PadKind::DualShock4, PS_ADDRESS)
+        .expect("a pad");
+    robot.air.ble_pad("xbox", BLE_ADDRESS).expect("a pad");
+    let air = &robot.air;
+    assert_eq!(air.pad_names(), ["ds4", "xbox"]);
+    assert!(
+        air.apply("robot", &PadAction::SwitchOn).is_none(),
+        "the robot is no pad"
+    );
+    assert!(air.apply("nobody", &PadAction::SwitchOn).is_none());
+    assert_eq!(
+        air.apply("xbox", &PadAction::Garble(true)),
+        Some(Err(ActionRefused::NotForBlePads))
+    );
+    assert_eq!(
+        air.apply("ds4", &PadAction::StopAdvertising),
+        Some(Err(ActionRefused::NotForPlayStationPads))
+    );
+    let hello = PadAction::SendL2cap {
+        cid: 1,
+        payload: vec![0x7F, 0x01, 0x00, 0x00],
+    };
+    assert_eq!(
+        air.apply("ds4", &hello),
+        Some(Err(ActionRefused::NotConnected))
+    );
+    let act = |action: PadAction| {
+        air.apply("ds4", &action)
+            .expect("the pad is there")
+            .unwrap_or_else(|refused| panic!("{action:?}: {refused}"));
+    };
+    robot.run(async |pc| {
+        let mark = air.mark();
+        act(PadAction::PairingMode);
+        open_pairing_window(pc).await;
+        expect_event(
+            &robot,
+            mark,
+            "ds4",
+            "feature report 0x05",
+            |e| *e == PadEvent::FeatureRead(0x05),
+            20_000,
+        )
+        .await;
+        status(pc, 5_000, "the paired pad is connected", |s| {
+            s.flags.remote_connected
+        })
+        .await;
+        act(PadAction::Hold(Buttons::RIGHT_BUMPER));
+        status(pc, 2_000, "the dead-man gives the remote control", |s| {
+            s.flags.remote_in_control
+        })
+        .await;
+        act(PadAction::LeftStick { x: 0.0, y: 1.0 });
+        wheels(&robot, 3_000, true).await;
+        // Silent with R1 held: the link stays, the report watchdog stops the base.
+        let silent_at = Instant::now();
+        act(PadAction::Silent(true));
+        let stopped_after = zero_on_the_wire(&robot, 2_000).await - silent_at;
+        assert!(
+            stopped_after <= Duration::from_millis(110 + 10),
+            "zero on the wire {} ms after the pad fell silent",
+            stopped_after.as_millis()
+        );
+        eprintln!(
+            "silent pad to zero on the wire: {} ms",
+            stopped_after.as_millis()
+        );
+        act(PadAction::SwitchOff);
+        expect_event(
+            &robot,
+            mark,
+            "ds4",
+            "power off",
+            |e| matches!(e, PadEvent::Disconnected(_)),
+            2_000,
+        )
+        .await;
+    });
 }

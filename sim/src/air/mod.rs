@@ -27,6 +27,7 @@
 //!
 //! `docs/tests.md` ("The air") describes what it models and what it simplifies.
 
+mod action;
 mod ble_pad;
 mod bredr;
 mod le;
@@ -48,6 +49,7 @@ use embassy_futures::join::join;
 use embassy_futures::select::select;
 use embassy_time::{Duration, Instant, Timer};
 
+pub use action::{ActionRefused, AnyPad, PadAction};
 pub use base_core::hid::playstation::{PadKind, Rgb};
 pub use bredr::PAD_PAGE_ATTEMPTS;
 pub use port::{AirController, AirReader, AirTransport, AirWriter};

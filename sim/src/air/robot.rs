@@ -26,8 +26,14 @@ pub struct AirRobot {
 impl AirRobot {
     /// A robot on a blank flash, in an empty air seeded with `seed`.
     pub fn new(seed: u64) -> Self {
+        Self::around(VirtualRobot::new(), seed)
+    }
+
+    /// This robot (its drives, settings and faults as the caller made them) on a blank
+    /// bond flash, in an empty air seeded with `seed`.
+    pub fn around(robot: VirtualRobot, seed: u64) -> Self {
         Self {
-            robot: VirtualRobot::new(),
+            robot,
             bond_flash: RamFlash::new(BOND_FLASH_SIZE),
             air: Air::new(seed),
         }
