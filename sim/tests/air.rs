@@ -12,7 +12,7 @@ use base_core::gamepad::Buttons;
 use base_core::registers::{OPEN_PAIRING_WINDOW_KEY, Reg, RemoteKind};
 use embassy_time::{Duration, Instant, Timer};
 use virtual_robot::air::{
-    ActionRefused, AirRobot, BlePad, Pad, PadAction, PadEvent, PadKind, PlayStationPad,
+    ActionRefused, AirRobot, BlePad, Pad, PadAction, PadEvent, PadKind, PlayStationPad, Rgb,
 };
 use virtual_robot::ble::BOND_FLASH_SIZE;
 use virtual_robot::robot::Pc;
@@ -966,5 +966,101 @@ fn pad_actions_by_name_pair_drive_and_silence_a_pad_and_what_a_kind_cannot_do_is
             2_000,
         )
         .await;
+    });
+}
+
+#[test]
+fn reports_with_a_bad_crc_are_refused_and_stop_the_base_as_silence_does() {
+    let _one = one_robot();
+    let robot = AirRobot::new(SEED);
+    let ds4 = robot
+        .air
+        .playstation_pad("ds4", PadKind::DualShock4, PS_ADDRESS)
+        .expect("a pad");
+    robot.run(async |pc| {
+        status(pc, 5_000, "the controller is up", |_| true).await;
+        write_register(pc, Reg::ContrAccHigh, RELEASE_BRAKING);
+        pair_playstation(&robot, pc, &ds4).await;
+        drive_forward(&robot, pc, &ds4).await;
+        // The link stays and the stream goes on, but no report passes its CRC check.
+        let before = robot.air.counters().reports_sent;
+        let garbled_at = Instant::now();
+        ds4.garble(true);
+        let stopped_after = zero_on_the_wire(&robot, 2_000).await - garbled_at;
+        assert!(
+            robot.air.counters().reports_sent > before + 10,
+            "the pad went on reporting"
+        );
+        assert_eq!(last_decel(&robot), i32::from(RELEASE_BRAKING));
+        assert!(
+            stopped_after <= Duration::from_millis(110 + 10),
+            "zero on the wire {} ms after the CRCs went wrong",
+            stopped_after.as_millis()
+        );
+        eprintln!(
+            "bad-CRC stream to zero on the wire: {} ms",
+            stopped_after.as_millis()
+        );
+        status(pc, 2_000, "the link is reported down", |s| {
+            !s.flags.remote_connected
+        })
+        .await;
+    });
+}
+
+/// Waits for the pad's light bar to be set to `colour` after `mark`.
+async fn light_bar(robot: &AirRobot, mark: usize, colour: Rgb, timeout_ms: u64) {
+    expect_event(
+        robot,
+        mark,
+        "ds4",
+        "the light bar's colour",
+        |e| *e == PadEvent::LightBar(colour),
+        timeout_ms,
+    )
+    .await;
+}
+
+#[test]
+fn the_light_bar_is_green_when_ready_blue_with_r1_held_and_red_in_emergency() {
+    let _one = one_robot();
+    let robot = AirRobot::new(SEED);
+    let ds4 = robot
+        .air
+        .playstation_pad("ds4", PadKind::DualShock4, PS_ADDRESS)
+        .expect("a pad");
+    robot.run(async |pc| {
+        let mark = robot.air.mark();
+        pair_playstation(&robot, pc, &ds4).await;
+        light_bar(&robot, mark, Rgb::new(0, 255, 0), 2_000).await;
+        let mark = robot.air.mark();
+        ds4.hold(Buttons::RIGHT_BUMPER);
+        light_bar(&robot, mark, Rgb::new(0, 0, 255), 1_000).await;
+        // What stops the base wins over the dead-man still held. (200 ms on: the light
+        // bar is set at most every 100 ms, so right after blue red would wait for that.)
+        Timer::after_millis(200).await;
+        let mark = robot.air.mark();
+        let pressed = Instant::now();
+        robot.robot.press_estop();
+        light_bar(&robot, mark, Rgb::new(255, 0, 0), 1_000).await;
+        eprintln!(
+            "e-stop pressed to a red light bar on the pad: {} ms",
+            (Instant::now() - pressed).as_millis()
+        );
+        assert_eq!(ds4.light_bar(), Some(Rgb::new(255, 0, 0)));
+        // Sent on change and refreshed every 5 s: a steady second carries at most one.
+        Timer::after_millis(200).await;
+        let mark = robot.air.mark();
+        Timer::after_millis(1_000).await;
+        let reports = robot
+            .air
+            .events_since(mark)
+            .into_iter()
+            .filter(|e| matches!(e.event, PadEvent::LightBar(_)))
+            .count();
+        assert!(
+            reports <= 1,
+            "{reports} light bar reports in 1 s of a steady mode"
+        );
     });
 }
