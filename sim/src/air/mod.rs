@@ -46,7 +46,7 @@ use std::task::{Poll, Waker};
 use base_core::gamepad::{Buttons, Dpad, GamepadState};
 use bt_hci_serial::SerialTransport;
 use embassy_futures::join::join;
-use embassy_futures::select::select;
+use embassy_futures::select::{Either, select};
 use embassy_time::{Duration, Instant, Timer};
 
 pub use action::{ActionRefused, AnyPad, PadAction};
@@ -348,16 +348,31 @@ impl Air {
         what: impl Fn(&PadEvent) -> bool,
         timeout: Duration,
     ) -> Option<AirEvent> {
-        let end = Instant::now() + timeout;
-        loop {
-            let found = self
-                .events_since(mark)
-                .into_iter()
-                .find(|event| event.pad == pad && what(&event.event));
-            if found.is_some() || Instant::now() >= end {
-                return found;
+        let found = poll_fn(|cx| {
+            let mut state = self.state.borrow_mut();
+            let start = mark.min(state.log.len());
+            match state.log[start..]
+                .iter()
+                .find(|event| event.pad == pad && what(&event.event))
+            {
+                Some(event) => Poll::Ready(event.clone()),
+                None => {
+                    // The executor polls with one waker again and again: keep it once.
+                    let waker = cx.waker();
+                    if !state
+                        .log_watchers
+                        .iter()
+                        .any(|known| known.will_wake(waker))
+                    {
+                        state.log_watchers.push(waker.clone());
+                    }
+                    Poll::Pending
+                }
             }
-            Timer::after_millis(1).await;
+        });
+        match select(found, Timer::after(timeout)).await {
+            Either::First(event) => Some(event),
+            Either::Second(()) => None,
         }
     }
 
@@ -764,6 +779,45 @@ mod tests {
                 Err(AirError::BadAddress(bad.to_owned()))
             );
         }
+    }
+
+    #[test]
+    fn a_wait_for_an_event_ends_when_it_happens_or_at_its_timeout() {
+        let air = Air::new(1);
+        let pad = air
+            .playstation_pad("pad", PadKind::DualShock4, "A4:AE:12:00:00:01")
+            .expect("a pad");
+        crate::runtime::block_on(async {
+            let start = Instant::now();
+            let (_, seen) = join(
+                async {
+                    Timer::after_micros(1_500).await;
+                    air.record(pad.device, PadEvent::Paired);
+                    Timer::after_micros(700).await;
+                    air.record(pad.device, PadEvent::Connected);
+                },
+                air.wait_for(
+                    0,
+                    "pad",
+                    |event| *event == PadEvent::Connected,
+                    Duration::from_millis(10),
+                ),
+            )
+            .await;
+            let seen = seen.expect("the event came");
+            assert_eq!((seen.at - start).as_micros(), 2_200);
+            assert_eq!(Instant::now(), seen.at, "the wait ended when it happened");
+            let missing = air
+                .wait_for(
+                    0,
+                    "pad",
+                    |event| *event == PadEvent::Encrypted,
+                    Duration::from_millis(10),
+                )
+                .await;
+            assert_eq!(missing, None);
+            assert_eq!((Instant::now() - seen.at).as_millis(), 10);
+        });
     }
 
     #[test]

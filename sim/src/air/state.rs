@@ -489,6 +489,8 @@ pub struct AirState {
     schedule: BTreeMap<(u64, u64), Action>,
     sequence: u64,
     pub log: Vec<AirEvent>,
+    /// Whoever waits for the next event ([`super::Air::wait_for`]).
+    pub log_watchers: Vec<Waker>,
     /// The schedule's runner, woken when something new is due.
     runner: Option<Waker>,
     kicked: bool,
@@ -509,6 +511,7 @@ impl AirState {
             schedule: BTreeMap::new(),
             sequence: 0,
             log: Vec::new(),
+            log_watchers: Vec::new(),
             runner: None,
             kicked: false,
             counters: AirCounters::default(),
@@ -699,6 +702,9 @@ impl AirState {
             pad,
             event,
         });
+        for watcher in self.log_watchers.drain(..) {
+            watcher.wake();
+        }
     }
 
     // ---------------------------------------------------------------- hosts
