@@ -10,6 +10,7 @@ pub mod air;
 pub mod app_flash;
 pub mod ble;
 pub mod can;
+pub mod chaos;
 pub mod drives;
 pub mod fake_hci;
 pub mod file_flash;
