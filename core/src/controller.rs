@@ -14,13 +14,13 @@ use crate::feedback::{FeedbackPeriods, FeedbackSchedule};
 use crate::gamepad::GamepadState;
 use crate::kinematics::{self, KinematicsParams, MotorRpm, SafetyLimits, Twist, WheelCommand};
 use crate::odometry::{EncoderCounts, Odometry, OdometryParams};
-use crate::plausibility::{self, FeedbackCheck};
+use crate::plausibility::{self, Commanded, FeedbackCheck};
 use crate::power::{self, PowerControl, SwitchLevel};
 use crate::registers::{
     BootInfo, MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, RESTORE_DEFAULTS_KEY, Reg,
-    RegisterError, Registers, RemoteInfo, RemoteKind, WriteOutcome,
+    RegisterError, Registers, RemoteInfo, WriteOutcome,
 };
-use crate::remote::{self, Control, PairingWindow, Remote};
+use crate::remote::{self, Control, Pad, PadArbiter, PairingWindow, Remote};
 use crate::scale::{self, RawAverage};
 use crate::supervisor::{self, Setpoint, Supervisor, Wheel};
 use crate::time::Timestamp;
@@ -47,24 +47,36 @@ pub enum Input {
     SafetyZone(bool),
     /// Debounced front button (true = held down).
     Button(bool),
-    /// The connected pad's state from the HID decoder, sent on every report (pads
-    /// report only when something changed). [`crate::remote`] says what it means.
-    Gamepad(GamepadState),
-    /// The Bluetooth link, sent at boot and on every change: whether a pad is bonded,
-    /// and whether the bonded pad is connected (link encrypted, reports flowing).
-    /// `connected: false` is a link loss: a held dead-man brakes with `Contr_acc_high`.
+    /// A connected pad's state from its task's decoder, sent on every report (pads
+    /// report only when something changed). Only the pad in control's count
+    /// ([`crate::remote::arbiter`]); [`crate::remote`] says what they mean.
+    Gamepad {
+        pad: Pad,
+        state: GamepadState,
+    },
+    /// A remote task's link, sent at boot and on every change: whether its pad is
+    /// bonded, and whether it is connected (link encrypted, reports flowing).
+    /// `connected: false` of the pad in control is a link loss: a held dead-man brakes
+    /// with `Contr_acc_high`.
     RemoteLink {
+        pad: Pad,
         bonded: bool,
         connected: bool,
     },
-    /// The BLE task bonded a new pad: the pairing window closes, one new pad per opening.
+    /// A remote task bonded a new pad: the pairing window closes, one new pad per opening.
     RemotePaired,
-    /// The connected remote's kind and battery, for the PC (`remote_kind`,
-    /// `remote_battery`). The Classic task sends it once it knows the pad's kind (best
-    /// before its `RemoteLink` connect) and again when the battery reading changes, not
-    /// on every report. A `RemoteLink` connect without it reads as the BLE pad; a
-    /// disconnect clears it.
-    RemoteInfo(RemoteInfo),
+    /// A connected pad's kind and battery, for the PC (`remote_kind`, `remote_battery`
+    /// show the pad in control's). The Classic task sends it once it knows the pad's
+    /// kind and again when the battery reading changes, not on every report; the BLE
+    /// task sends none (a BLE pad). A disconnect clears it.
+    RemoteInfo {
+        pad: Pad,
+        info: RemoteInfo,
+    },
+    /// The update task's word, sent on every change: a firmware update runs or a new
+    /// image is on trial (`true`), so velocity, a refreshing enable and the gamepad's
+    /// dead-man are refused; or neither.
+    UpdateLock(bool),
     /// One cycle of drive feedback: raw position counters and measured motor speeds.
     DriveFeedback {
         counts: EncoderCounts,
@@ -98,6 +110,19 @@ pub enum Input {
     FlashErases(u32),
     /// Time passed: timeouts and periodic frames are checked.
     Tick,
+}
+
+impl Input {
+    /// A pad's link, report, kind or bond: what only the remote tasks send.
+    pub fn is_from_a_remote_task(&self) -> bool {
+        matches!(
+            self,
+            Input::Gamepad { .. }
+                | Input::RemoteLink { .. }
+                | Input::RemotePaired
+                | Input::RemoteInfo { .. }
+        )
+    }
 }
 
 /// What the shell found while booting, before the controller's first input.
@@ -142,10 +167,10 @@ pub struct Output {
     /// Close or open the PC power switch.
     pub pc_switch: Option<SwitchLevel>,
     pub persist: Persist,
-    /// Disconnect the gamepad (L2 + Home, or no input for `PS_afk_time`), keeping its
-    /// bond, then report [`Input::RemoteLink`] with `connected: false`. Repeated while a
-    /// pad asked to go keeps reporting.
-    pub disconnect_remote: bool,
+    /// Disconnect this pad, the one in control (L2 + Home, or no input for
+    /// `PS_afk_time`), keeping its bond; its task then reports [`Input::RemoteLink`]
+    /// with `connected: false`. Repeated while a pad asked to go keeps reporting.
+    pub disconnect_remote: Option<Pad>,
     /// The pairing window opened (`true`; again for each opening command, which
     /// restarts it) or closed (`false`). It is closed at boot. While it is closed the
     /// BLE task connects only to the bonded pad and accepts no pairing request.
@@ -183,13 +208,6 @@ struct ShellFaults {
     watchdog_reset: bool,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-struct RemoteLink {
-    bonded: bool,
-    connected: bool,
-}
-
 pub struct Controller {
     registers: Registers,
     supervisor: Supervisor,
@@ -207,10 +225,19 @@ pub struct Controller {
     in_force: WheelCommand,
     /// What the drives run at, from the latest measurement; the next ramp starts here.
     speed: SpeedEstimate,
+    /// What the drives would run at had each followed every command since the last
+    /// setup, from the moment it was sent: the commanded ramps alone, never moved to a
+    /// measurement, so that a wheel turning against its command cannot drag it along.
+    /// The feedback check compares each wheel's direction with it.
+    commanded_speed: SpeedEstimate,
+    /// How much that model's acceleration changed since the last drive feedback,
+    /// summed, (r/min)/s (left, right): where its speed bent between two samples,
+    /// which the feedback check allows for.
+    commanded_bends: [f64; 2],
     rejections: Rejections,
     faults: ShellFaults,
-    /// The link as the BLE task reports it, for the status frame.
-    remote_link: RemoteLink,
+    /// Which of the connected pads controls the remote; the links for the status frame.
+    pads: PadArbiter,
     remote: Remote,
     pairing: PairingWindow,
     modbus_errors: u8,
@@ -224,9 +251,6 @@ pub struct Controller {
     persist_pending: bool,
     /// Both drives confirmed de-excited (the drive link's word).
     drive_brakes_confirmed: bool,
-    /// A firmware update runs or a new image is on trial (the update task's word):
-    /// velocity, enable and the gamepad are refused.
-    update_lock: bool,
 }
 
 impl Controller {
@@ -249,9 +273,11 @@ impl Controller {
             },
             in_force: STANDING,
             speed: SpeedEstimate::standing(now),
+            commanded_speed: SpeedEstimate::standing(now),
+            commanded_bends: [0.0; 2],
             rejections: Rejections::default(),
             faults: ShellFaults::default(),
-            remote_link: RemoteLink::default(),
+            pads: PadArbiter::new(),
             remote: Remote::new(),
             pairing: PairingWindow::Closed,
             modbus_errors: 0,
@@ -259,7 +285,6 @@ impl Controller {
             feedback_check: FeedbackCheck::new(),
             persist_pending: false,
             drive_brakes_confirmed: false,
-            update_lock: false,
         }
     }
 
@@ -280,9 +305,14 @@ impl Controller {
         controller
     }
 
+    /// Bluetooth is off after a panic loop, until a confirm press or its key.
+    fn bluetooth_off(&self) -> bool {
+        self.registers.get(Reg::BluetoothOff) != 0
+    }
+
     /// Turns the Bluetooth remote on if a panic loop switched it off at boot.
     fn turn_bluetooth_on(&mut self, out: &mut Output) {
-        if self.registers.get(Reg::BluetoothOff) != 0 {
+        if self.bluetooth_off() {
             info!("Bluetooth on again");
             self.registers.set_counter(Reg::BluetoothOff, 0);
             out.bluetooth_on = true;
@@ -306,12 +336,6 @@ impl Controller {
     /// ([`crate::drives::link::DriveLink::brakes_confirmed`]).
     pub fn set_drive_brakes_confirmed(&mut self, confirmed: bool) {
         self.drive_brakes_confirmed = confirmed;
-    }
-
-    /// The update task's word on whether a firmware update runs or an image is on
-    /// trial: while it does, motion commands are refused with `UpdateInProgress`.
-    pub fn set_update_lock(&mut self, locked: bool) {
-        self.update_lock = locked;
     }
 
     /// What an update's BEGIN needs to know: the base stands braked and nobody
@@ -355,6 +379,13 @@ impl Controller {
     /// the input caused, so the shell may feed frames and ticks in any mix.
     pub fn handle(&mut self, now: Timestamp, input: Input) -> Output {
         let mut out = Output::default();
+        if self.bluetooth_off() && input.is_from_a_remote_task() {
+            // The remote tasks do not run while Bluetooth is off; should anything
+            // still come from them, no pad may connect or drive.
+            warn!("remote input while Bluetooth is off dropped");
+            self.periodic_frames(now, &mut out);
+            return out;
+        }
         match input {
             Input::CanFrame(frame) => self.can_frame(now, frame, &mut out),
             Input::Estop(pressed) => {
@@ -371,18 +402,25 @@ impl Controller {
                 };
                 self.power_event(now, event, &mut out);
             }
-            Input::Gamepad(pad) => {
-                self.remote_step(now, remote::Event::Report(pad), None, &mut out)
+            Input::Gamepad { pad, state } => {
+                // The other pad's buttons neither arm, hold nor release anything.
+                if self.pads.admit_report(pad) {
+                    self.remote_step(now, remote::Event::Report(state), None, &mut out);
+                }
             }
-            Input::RemoteLink { bonded, connected } => {
-                self.remote_link = RemoteLink { bonded, connected };
-                self.note_remote_link(connected);
-                let event = if connected {
-                    remote::Event::Connected
-                } else {
-                    remote::Event::Disconnected
-                };
-                self.remote_step(now, event, None, &mut out);
+            Input::RemoteLink {
+                pad,
+                bonded,
+                connected,
+            } => {
+                let handover = self.pads.link(pad, bonded, connected);
+                if handover.lost {
+                    self.remote_step(now, remote::Event::Disconnected, None, &mut out);
+                }
+                if handover.gained {
+                    self.remote_step(now, remote::Event::Connected, None, &mut out);
+                }
+                self.registers.set_remote_info(self.pads.info());
             }
             Input::RemotePaired => {
                 if self.pairing.close() {
@@ -393,7 +431,13 @@ impl Controller {
                     warn!("a gamepad was paired while the pairing window was closed");
                 }
             }
-            Input::RemoteInfo(remote) => self.registers.set_remote_info(remote),
+            Input::RemoteInfo { pad, info } => {
+                self.pads.set_info(pad, info);
+                self.registers.set_remote_info(self.pads.info());
+            }
+            Input::UpdateLock(locked) => {
+                self.supervise(now, supervisor::Event::MotionLock { locked }, &mut out)
+            }
             Input::DriveFeedback { counts, rpm } => self.drive_feedback(now, counts, rpm, &mut out),
             Input::DrivesReady => {
                 // The counters restarted with the drives' power: the next sample is a
@@ -405,6 +449,8 @@ impl Controller {
                 if matches!(self.supervisor.mode(), Mode::Starting | Mode::Recovering) {
                     self.in_force = STANDING;
                     self.speed = SpeedEstimate::standing(now);
+                    self.commanded_speed = SpeedEstimate::standing(now);
+                    self.commanded_bends = [0.0; 2];
                 }
                 self.supervise(now, supervisor::Event::DrivesReady, &mut out);
             }
@@ -490,8 +536,8 @@ impl Controller {
                 enable_fresh: supervisor.enable_fresh(now, &self.supervisor_params()),
                 pc_on: self.power.pc_on(now, &power_params(&self.registers)),
                 safety_zone: supervisor.safety_zone(),
-                remote_bonded: self.remote_link.bonded,
-                remote_connected: self.remote_link.connected,
+                remote_bonded: self.pads.bonded(),
+                remote_connected: self.pads.connected(),
                 remote_in_control: supervisor.remote_in_control(),
                 estop_pressed: supervisor.estop_pressed(),
                 brakes_applied: self.brakes_applied(),
@@ -527,7 +573,7 @@ impl Controller {
             command,
             Command::Enable { refresh: true } | Command::Velocity { .. }
         );
-        if moves && self.update_lock {
+        if moves && self.supervisor.motion_locked() {
             self.rejections.record(
                 Rejection::UpdateInProgress.code(),
                 frame_subject(frame.id()),
@@ -725,9 +771,15 @@ impl Controller {
                 .observe(motion.distance_mm, motion.rotation_mrad);
         }
         self.speed = SpeedEstimate::measured(now, rpm);
-        let verdict = self
-            .feedback_check
-            .sample(now, counts, rpm, params.counts_per_motor_rev);
+        self.advance_commanded_speed(now);
+        let commanded = Commanded {
+            expected: self.commanded_speed.rpm(),
+            target: self.in_force.rpm,
+            bends_rpm_per_s: core::mem::take(&mut self.commanded_bends),
+        };
+        let verdict =
+            self.feedback_check
+                .sample(now, counts, rpm, commanded, params.counts_per_motor_rev);
         self.feedback_plausibility(now, &verdict, out);
         // Standing by the reported speed and by the counters: a stale speed register
         // must not let the brakes, the flash or a motion register through while the
@@ -738,9 +790,10 @@ impl Controller {
         self.supervise(now, supervisor::Event::AtRest(at_rest), out);
     }
 
-    /// A drive whose counter and speed disagree latches a drive fault (zero with
-    /// `estop_decel`, see the supervisor); the status frame shows why as a rejection
-    /// (0x41 position stuck, 0x42 speed stale; subject 1 left, 2 right).
+    /// A drive whose counter and speed disagree, or whose counter runs against its
+    /// command, latches a drive fault (zero with `estop_decel`, see the supervisor); the
+    /// status frame shows why as a rejection (0x41 position stuck, 0x42 speed stale,
+    /// 0x43 wrong direction; subject 1 left, 2 right).
     fn feedback_plausibility(
         &mut self,
         now: Timestamp,
@@ -760,6 +813,18 @@ impl Controller {
                 .record(Rejection::Feedback(finding).code(), subject);
             self.supervise(now, supervisor::Event::FeedbackImplausible(wheel), out);
         }
+    }
+
+    /// Moves the commanded model along the command in force until `now`.
+    fn advance_commanded_speed(&mut self, now: Timestamp) {
+        let (speed, bends) = self.commanded_speed.advanced_bending(now, &self.in_force);
+        self.commanded_speed = speed;
+        self.note_commanded_bends(bends);
+    }
+
+    fn note_commanded_bends(&mut self, bends: [f64; 2]) {
+        self.commanded_bends[0] += bends[0];
+        self.commanded_bends[1] += bends[1];
     }
 
     fn supervise(&mut self, now: Timestamp, event: supervisor::Event, out: &mut Output) {
@@ -803,6 +868,10 @@ impl Controller {
                 }
             }
             self.speed = self.speed.advanced(now, &self.in_force);
+            self.advance_commanded_speed(now);
+            let before = self.commanded_speed.slope(&self.in_force);
+            let after = self.commanded_speed.slope(&command);
+            self.note_commanded_bends([(after[0] - before[0]).abs(), (after[1] - before[1]).abs()]);
             self.in_force = command;
             out.wheels = Some(command);
         }
@@ -810,24 +879,6 @@ impl Controller {
             out.excite = effects.excite;
         }
         out.setup_drives |= effects.setup_drives;
-    }
-
-    /// `remote_kind`/`remote_battery` follow the link: a disconnect clears them, and a
-    /// link that comes up with no kind reported is the BLE pad's (its task reports no
-    /// kind; the Classic task does).
-    fn note_remote_link(&mut self, connected: bool) {
-        let remote = match self.registers.remote_info() {
-            _ if !connected => RemoteInfo::NONE,
-            RemoteInfo {
-                kind: RemoteKind::None,
-                ..
-            } => RemoteInfo {
-                kind: RemoteKind::BlePad,
-                battery: None,
-            },
-            known => known,
-        };
-        self.registers.set_remote_info(remote);
     }
 
     /// Runs the remote and gives the supervisor what it asks for. `otherwise` is the
@@ -845,18 +896,17 @@ impl Controller {
         if effects.reset_odometry {
             self.odometry.reset();
         }
-        out.disconnect_remote |= effects.disconnect;
+        if effects.disconnect {
+            out.disconnect_remote = self.pads.in_control();
+        }
         let step = match effects.control {
-            Some(Control::Drive { dead_man: true, .. }) if self.update_lock => {
-                // The supervisor sees the dead-man released: the base stays braked.
-                self.rejections
-                    .record(Rejection::UpdateInProgress.code(), 0);
-                Some(supervisor::Event::Remote {
-                    dead_man: false,
-                    twist: Twist::ZERO,
-                })
-            }
             Some(Control::Drive { dead_man, twist }) => {
+                if dead_man && self.supervisor.motion_locked() {
+                    // Refused like CAN motion; the supervisor sees it held, which
+                    // neither drives nor arms while locked.
+                    self.rejections
+                        .record(Rejection::UpdateInProgress.code(), 0);
+                }
                 Some(supervisor::Event::Remote { dead_man, twist })
             }
             Some(Control::Lost) => Some(supervisor::Event::RemoteLinkLost),
@@ -1095,6 +1145,33 @@ impl SpeedEstimate {
         }
     }
 
+    /// Each motor's acceleration now, following `command`, (r/min)/s: towards the
+    /// target at its rate, or none once there.
+    fn slope(self, command: &WheelCommand) -> [f64; 2] {
+        let slope = |speed: f32, target: i32, accel: u32| {
+            let towards = target as f32 - speed;
+            if towards == 0.0 {
+                0.0
+            } else {
+                f64::from(towards.signum()) * f64::from(accel)
+            }
+        };
+        [
+            slope(self.left, command.rpm.left, command.left_accel),
+            slope(self.right, command.rpm.right, command.right_accel),
+        ]
+    }
+
+    /// Moved along `command` until `now`, with how much each motor's acceleration
+    /// changed meanwhile ((r/min)/s; left, right): a ramp that reached its target.
+    fn advanced_bending(self, now: Timestamp, command: &WheelCommand) -> (Self, [f64; 2]) {
+        let advanced = self.advanced(now, command);
+        let before = self.slope(command);
+        let after = advanced.slope(command);
+        let bends = [(after[0] - before[0]).abs(), (after[1] - before[1]).abs()];
+        (advanced, bends)
+    }
+
     /// Rounded to whole r/min (`as` saturates a garbage measurement at the i32 range).
     fn rpm(self) -> MotorRpm {
         MotorRpm {
@@ -1185,9 +1262,14 @@ mod tests {
     fn the_remote_registers_follow_the_link_and_what_the_bluetooth_tasks_report() {
         use crate::hid::playstation::{Battery, BatteryState, PadKind};
         use crate::registers::{Charge, RemoteBattery, RemoteInfo, RemoteKind};
-        let link = |connected| Input::RemoteLink {
+        let link = |pad, connected| Input::RemoteLink {
+            pad,
             bonded: true,
             connected,
+        };
+        let report = |info| Input::RemoteInfo {
+            pad: Pad::Classic,
+            info,
         };
         let dual_shock = RemoteInfo::playstation(
             PadKind::DualShock4,
@@ -1196,41 +1278,34 @@ mod tests {
                 state: BatteryState::Charging,
             }),
         );
+        let full = RemoteInfo {
+            battery: Some(RemoteBattery {
+                percent: 100,
+                charge: Charge::Full,
+            }),
+            ..dual_shock
+        };
         let ble_pad = RemoteInfo {
             kind: RemoteKind::BlePad,
             battery: None,
         };
         // (input) → what `remote_kind`/`remote_battery` hold afterwards
         let table = [
-            (link(false), RemoteInfo::NONE),
-            // A link that comes up without a kind reported is the BLE pad's.
-            (link(true), ble_pad),
-            (link(false), RemoteInfo::NONE),
-            // The Classic task reports the kind first, then the link: it stays.
-            (Input::RemoteInfo(dual_shock), dual_shock),
-            (link(true), dual_shock),
-            // The kind reported after the link replaces the BLE guess.
-            (link(false), RemoteInfo::NONE),
-            (link(true), ble_pad),
-            (Input::RemoteInfo(dual_shock), dual_shock),
-            (
-                Input::RemoteInfo(RemoteInfo {
-                    battery: Some(RemoteBattery {
-                        percent: 100,
-                        charge: Charge::Full,
-                    }),
-                    ..dual_shock
-                }),
-                RemoteInfo {
-                    battery: Some(RemoteBattery {
-                        percent: 100,
-                        charge: Charge::Full,
-                    }),
-                    ..dual_shock
-                },
-            ),
+            (link(Pad::Ble, false), RemoteInfo::NONE),
+            // The BLE task reports no kind: its pads are BLE pads.
+            (link(Pad::Ble, true), ble_pad),
+            (link(Pad::Ble, false), RemoteInfo::NONE),
+            // A PlayStation pad tells its kind with its first full report.
+            (link(Pad::Classic, true), RemoteInfo::NONE),
+            (report(dual_shock), dual_shock),
+            (report(full), full),
             // A lost link never leaves a stale pad or battery behind.
-            (link(false), RemoteInfo::NONE),
+            (link(Pad::Classic, false), RemoteInfo::NONE),
+            (link(Pad::Classic, true), RemoteInfo::NONE),
+            // Two pads: the one in control shows.
+            (link(Pad::Ble, true), RemoteInfo::NONE),
+            (report(dual_shock), dual_shock),
+            (link(Pad::Classic, false), ble_pad),
         ];
         let mut controller = Controller::new(at(0), Registers::defaults());
         for (ms, (input, expected)) in (0..).step_by(10).zip(table) {
@@ -1288,7 +1363,7 @@ mod tests {
     fn an_update_lock_refuses_enable_velocity_and_the_dead_man_but_not_a_withdrawal() {
         let mut controller = Controller::new(at(0), Registers::defaults());
         controller.handle(at(0), Input::DrivesReady);
-        controller.set_update_lock(true);
+        controller.handle(at(0), Input::UpdateLock(true));
         for command in [
             Command::Enable { refresh: true },
             Command::Velocity {
@@ -1309,27 +1384,46 @@ mod tests {
         controller.handle(
             at(10),
             Input::RemoteLink {
+                pad: Pad::Ble,
                 bonded: true,
                 connected: true,
             },
         );
-        let dead_man = Input::Gamepad(GamepadState {
-            left_y: 1.0,
-            buttons: crate::gamepad::Buttons::RIGHT_BUMPER,
-            ..GamepadState::default()
-        });
+        let dead_man = Input::Gamepad {
+            pad: Pad::Ble,
+            state: GamepadState {
+                left_y: 1.0,
+                buttons: crate::gamepad::Buttons::RIGHT_BUMPER,
+                ..GamepadState::default()
+            },
+        };
         let out = controller.handle(at(15), dead_man);
         assert_eq!((out.wheels, out.excite), (None, None));
         let status = controller.status(at(15));
         assert_eq!(status.last_rejection, Rejection::UpdateInProgress.code());
         assert_eq!(status.control, crate::can::ControlSource::None);
         assert_eq!(status.rejected_count, 3);
-        assert!(!controller.update_gate(at(15)).control_active);
         // A withdrawal is never refused.
         controller.handle(at(20), can(Command::Enable { refresh: false }));
         assert_eq!(controller.status(at(20)).rejected_count, 3);
-        // Unlocked, the same commands drive again.
-        controller.set_update_lock(false);
+        // Unlocked, the same commands drive again (the pad's dead-man is let go first:
+        // held through the lock, it would keep CAN from driving).
+        controller.handle(
+            at(25),
+            Input::Gamepad {
+                pad: Pad::Ble,
+                state: GamepadState::default(),
+            },
+        );
+        // A feedback at rest lets CAN drive after the dead-man let go.
+        controller.handle(
+            at(26),
+            Input::DriveFeedback {
+                counts: EncoderCounts { left: 0, right: 0 },
+                rpm: MotorRpm::ZERO,
+            },
+        );
+        controller.handle(at(30), Input::UpdateLock(false));
         controller.handle(at(30), can(Command::Enable { refresh: true }));
         let out = controller.handle(
             at(30),
@@ -1340,6 +1434,51 @@ mod tests {
         );
         assert!(out.wheels.is_some());
         assert!(controller.update_gate(at(30)).control_active);
+    }
+
+    /// A pad that connects during an update with its dead-man held was never seen
+    /// released: when the lock lifts, holding on must not drive; a release after the
+    /// lift arms it.
+    #[test]
+    fn a_dead_man_held_through_an_update_lock_needs_a_release_after_the_lift() {
+        let pad = |state| Input::Gamepad {
+            pad: Pad::Classic,
+            state,
+        };
+        let held = |forward: f32| {
+            pad(GamepadState {
+                left_y: forward,
+                buttons: crate::gamepad::Buttons::RIGHT_BUMPER,
+                ..GamepadState::default()
+            })
+        };
+        let mut controller = Controller::new(at(0), Registers::defaults());
+        controller.handle(at(0), Input::DrivesReady);
+        controller.handle(at(0), Input::UpdateLock(true));
+        controller.handle(
+            at(10),
+            Input::RemoteLink {
+                pad: Pad::Classic,
+                bonded: true,
+                connected: true,
+            },
+        );
+        let out = controller.handle(at(20), held(1.0));
+        assert_eq!((out.wheels, out.excite), (None, None), "locked");
+        controller.handle(at(25), Input::UpdateLock(false));
+        let out = controller.handle(at(30), held(0.9));
+        assert_eq!(
+            (out.wheels, out.excite),
+            (None, None),
+            "a dead-man held through the lock drove after the lift"
+        );
+        controller.handle(at(40), pad(GamepadState::default()));
+        let out = controller.handle(at(50), held(1.0));
+        assert_eq!(
+            out.excite,
+            Some(true),
+            "a release after the lift arms the pad"
+        );
     }
 
     /// A reading's moment moves by a few ms from cycle to cycle (a command write may hold

@@ -534,7 +534,7 @@ mod tests {
     }
 
     /// The limited motor speeds in f64, before rounding and inversion: an independent
-    /// restatement of §5.2 to check the f32 implementation against.
+    /// restatement of docs/behaviour.md, "Wheel speeds", to check the f32 implementation against.
     fn exact_scaled_rpm(params: &KinematicsParams, lin: i32, rot: i32) -> (f64, f64) {
         let half_track = f64::from(rot) / 1000.0 * f64::from(params.wheel_distance_mm) / 2.0;
         let rpm = |mm_s: f64, radius: f32| {

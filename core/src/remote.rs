@@ -21,6 +21,10 @@
 //!   up: a button already down in the first report counts as pressed. The dead-man is
 //!   the exception, enforced by the supervisor: it must be seen released first.
 
+pub mod arbiter;
+
+pub use arbiter::{Pad, PadArbiter};
+
 use crate::gamepad::{Buttons, GamepadState};
 use crate::kinematics::Twist;
 use crate::time::Timestamp;
@@ -397,7 +401,7 @@ mod tests {
 
     #[test]
     fn right_stick_right_turns_clockwise_which_is_positive_rotation() {
-        // Contract §2: positive rotation is clockwise seen from above, so pushing the
+        // docs/behaviour.md, Conventions: positive rotation is clockwise seen from above, so pushing the
         // stick to the right must give a positive rotation.
         let right = stick_twist(0.0, 1.0, 250, 250);
         assert!(right.rotation_mrad_s > 0);

@@ -28,6 +28,10 @@
 //!   a lapse clears the stored velocity, so a returning enable alone never moves the base.
 //! - A held dead-man wins over CAN, armed or not: it drops the CAN velocity and stops
 //!   the base; it drives only once armed (seen released while the base could drive).
+//! - While motion is locked (a firmware update runs or a new image is on trial) no
+//!   source is in control: nothing is stored or armed, and whatever was goes. When the
+//!   lock lifts, a dead-man seen up at that moment is armed, one held through it must
+//!   be released first (as after a recovery).
 //! - Every stop of a source that went away (enable lapse or withdrawal, `cmd_timeout`,
 //!   dead-man release, remote link loss, a dead-man taking control from CAN) brakes
 //!   with the source's own register, but never gentler than `stop_decel`.
@@ -78,6 +82,9 @@ pub enum Event {
     FeedbackImplausible(Wheel),
     /// Whether both wheels are measured at rest, from the latest drive feedback.
     AtRest(bool),
+    /// A firmware update runs or a new image is on trial (`true`), or neither: motion
+    /// is locked meanwhile.
+    MotionLock { locked: bool },
     /// Time passed; timeouts are checked.
     Tick,
 }
@@ -270,6 +277,8 @@ struct Inputs {
     /// The dead-man let go: CAN velocity is dropped until a drive feedback measures
     /// both wheels at rest (or the drives are set up from scratch).
     can_waits_for_rest: bool,
+    /// A firmware update locks motion ([`Event::MotionLock`]).
+    motion_locked: bool,
 }
 
 /// See the module documentation for the state diagram and the rules.
@@ -308,6 +317,7 @@ impl Supervisor {
                 estop_pressed: false,
                 at_rest: true,
                 can_waits_for_rest: false,
+                motion_locked: false,
             },
             faults: DriveFaults {
                 left_silent: false,
@@ -335,7 +345,7 @@ impl Supervisor {
                 if self.enable_fresh(now, params)
                     && !self.remote_in_control()
                     && !self.inputs.can_waits_for_rest
-                    && self.may_drive()
+                    && self.commands_count()
                 {
                     self.inputs.can_command = Some(CanCommand {
                         twist,
@@ -379,8 +389,7 @@ impl Supervisor {
                     self.state = State::Standby;
                     // A dead-man seen up when the drives come back may take control; a
                     // pad that has not reported yet has not been seen released.
-                    let remote = &mut self.inputs.remote;
-                    remote.armed = remote.reported && !remote.dead_man;
+                    self.arm_if_seen_released();
                     // Set up from scratch: the drives stand, de-excited.
                     self.inputs.at_rest = true;
                     self.inputs.can_waits_for_rest = false;
@@ -405,6 +414,7 @@ impl Supervisor {
                     self.inputs.can_waits_for_rest = false;
                 }
             }
+            Event::MotionLock { locked } => self.motion_lock(locked, params),
             Event::Tick => {}
         }
         self.update_motion(now, params, &mut effects);
@@ -427,7 +437,7 @@ impl Supervisor {
     /// Which source's command the drives are following: the remote's dead-man wins over
     /// CAN, and only a state that may drive follows anyone.
     pub fn control(&self) -> ControlSource {
-        if !self.may_drive() {
+        if !self.commands_count() {
             ControlSource::None
         } else if self.remote_in_control() {
             ControlSource::Remote
@@ -499,6 +509,43 @@ impl Supervisor {
         matches!(self.state, State::Standby | State::Active { .. })
     }
 
+    /// Motion is locked by a firmware update (the update task's word).
+    pub fn motion_locked(&self) -> bool {
+        self.inputs.motion_locked
+    }
+
+    /// The sources' commands count: the state may drive and no update locks motion.
+    /// (A drive fault still counts during a lock: that is what `may_drive` is for.)
+    fn commands_count(&self) -> bool {
+        self.may_drive() && !self.inputs.motion_locked
+    }
+
+    /// Arms the dead-man if the latest report showed it up and commands count now: the
+    /// rule when the drives come back and when a lock lifts. A pad that has not reported
+    /// yet has not been seen released.
+    fn arm_if_seen_released(&mut self) {
+        let counts = self.commands_count();
+        let remote = &mut self.inputs.remote;
+        remote.armed = counts && remote.reported && !remote.dead_man;
+    }
+
+    /// A lock forgets the stored CAN velocity and disarms the dead-man: nothing from
+    /// before an update may drive after it. Its lift arms only a dead-man seen up.
+    fn motion_lock(&mut self, locked: bool, params: &Params) {
+        if locked == self.inputs.motion_locked {
+            return;
+        }
+        self.inputs.motion_locked = locked;
+        if locked {
+            if self.inputs.can_command.take().is_some() {
+                self.stop_with(params.can_accel, params);
+            }
+            self.inputs.remote.armed = false;
+        } else {
+            self.arm_if_seen_released();
+        }
+    }
+
     /// The source in control went away: the next stop uses `accel`, or `stop_decel`
     /// when that brakes harder. Only an excited base has anything to stop.
     fn stop_with(&mut self, accel: u32, params: &Params) {
@@ -532,9 +579,9 @@ impl Supervisor {
 
     fn remote_report(&mut self, dead_man: bool, twist: Twist, params: &Params) {
         let was_in_control = self.remote_in_control();
-        let may_drive = self.may_drive();
+        let counts = self.commands_count();
         let remote = &mut self.inputs.remote;
-        if !dead_man && may_drive {
+        if !dead_man && counts {
             remote.armed = true;
         }
         remote.reported = true;
@@ -864,6 +911,76 @@ mod tests {
             &PARAMS,
         );
         assert_eq!(effects.setpoint, setpoint(FORWARD, 350));
+    }
+
+    #[test]
+    fn a_motion_lock_neither_arms_nor_drives_and_its_lift_arms_only_a_dead_man_seen_up() {
+        let lock = |locked| Event::MotionLock { locked };
+        let released = Event::Remote {
+            dead_man: false,
+            twist: Twist::ZERO,
+        };
+        let held = Event::Remote {
+            dead_man: true,
+            twist: FORWARD,
+        };
+        // Locked: a release does not arm, a held dead-man does not drive, CAN is not
+        // stored.
+        let mut supervisor = ready();
+        supervisor.step(at(0), lock(true), &PARAMS);
+        supervisor.step(at(10), released, &PARAMS);
+        assert_eq!(supervisor.step(at(20), held, &PARAMS), Effects::default());
+        supervisor.step(at(30), Event::CanEnable { refresh: true }, &PARAMS);
+        supervisor.step(at(30), released, &PARAMS);
+        assert_eq!(
+            supervisor.step(at(40), Event::CanVelocity(FORWARD), &PARAMS),
+            Effects::default()
+        );
+        assert_eq!(supervisor.control(), ControlSource::None);
+        // Held through the lift: no motion until released after it.
+        supervisor.step(at(50), held, &PARAMS);
+        supervisor.step(at(60), lock(false), &PARAMS);
+        assert_eq!(
+            supervisor.step(at(70), held, &PARAMS).setpoint,
+            None,
+            "a dead-man held through the lock drove"
+        );
+        supervisor.step(at(80), released, &PARAMS);
+        assert_eq!(
+            supervisor.step(at(90), held, &PARAMS).setpoint,
+            setpoint(FORWARD, 350)
+        );
+        // Seen up when the lock lifts: armed, it drives when pressed.
+        let mut supervisor = ready();
+        supervisor.step(at(0), lock(true), &PARAMS);
+        supervisor.step(at(10), released, &PARAMS);
+        supervisor.step(at(20), lock(false), &PARAMS);
+        assert_eq!(
+            supervisor.step(at(30), held, &PARAMS).setpoint,
+            setpoint(FORWARD, 350)
+        );
+    }
+
+    #[test]
+    fn a_motion_lock_stops_a_can_drive_and_disarms_the_dead_man() {
+        let mut supervisor = ready();
+        supervisor.step(at(0), Event::CanEnable { refresh: true }, &PARAMS);
+        supervisor.step(at(0), Event::CanVelocity(FORWARD), &PARAMS);
+        let effects = supervisor.step(at(10), Event::MotionLock { locked: true }, &PARAMS);
+        assert_eq!(effects.setpoint, setpoint(Twist::ZERO, 700));
+        // An armed, released pad is disarmed by the lock and re-armed at the lift only
+        // because it is still seen up then.
+        let mut supervisor = remote_driving_forward();
+        supervisor.step(
+            at(20),
+            Event::Remote {
+                dead_man: false,
+                twist: Twist::ZERO,
+            },
+            &PARAMS,
+        );
+        supervisor.step(at(30), Event::MotionLock { locked: true }, &PARAMS);
+        assert!(!supervisor.inputs.remote.armed);
     }
 
     #[test]

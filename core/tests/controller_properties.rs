@@ -3,19 +3,19 @@
 //! and ticks are
 //! fed to `Controller::handle` with time moving forward, and every invariant is checked
 //! after every event. The module `model` holds the contract's rules for who may drive
-//! (spec §5.1, §6, the supervisor's rules), tracked from the inputs alone.
+//! (docs/behaviour.md, "Who may move the base"), tracked from the inputs alone.
 
 use base_core::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
 use base_core::can::{Command, ControlSource, Mode, RawFrame, ReadEcho, Report, Status, id};
-use base_core::controller::{AT_REST_RPM, Controller, Input, Output};
+use base_core::controller::{AT_REST_RPM, BootReport, Controller, Input, Output};
 use base_core::gamepad::{Buttons, Dpad, GamepadState};
 use base_core::kinematics::{self, KinematicsParams, MotorRpm, SafetyLimits, Twist};
 use base_core::odometry::{EncoderCounts, Pose};
 use base_core::registers::{
-    MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, OPEN_PAIRING_WINDOW_KEY, RESTORE_DEFAULTS_KEY,
-    Reg, RegisterError, Registers,
+    BLUETOOTH_ON_KEY, MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, OPEN_PAIRING_WINDOW_KEY,
+    RESTORE_DEFAULTS_KEY, Reg, RegisterError, Registers,
 };
-use base_core::remote::{MODIFIER_THRESHOLD, PAIRING_WINDOW_MS};
+use base_core::remote::{MODIFIER_THRESHOLD, PAIRING_WINDOW_MS, Pad};
 use base_core::supervisor::Wheel;
 use base_core::time::Timestamp;
 use proptest::prelude::*;
@@ -286,6 +286,11 @@ fn drive_feedback() -> impl Strategy<Value = Input> {
         })
 }
 
+/// Which remote task: the BLE pads' or the PlayStation pads'.
+fn pad_task() -> impl Strategy<Value = Pad> {
+    prop_oneof![Just(Pad::Ble), Just(Pad::Classic)]
+}
+
 /// One event of any kind the shell can deliver.
 fn input() -> impl Strategy<Value = Input> {
     prop_oneof![
@@ -293,10 +298,17 @@ fn input() -> impl Strategy<Value = Input> {
         3 => any::<bool>().prop_map(Input::Estop),
         2 => any::<bool>().prop_map(Input::SafetyZone),
         3 => any::<bool>().prop_map(Input::Button),
-        7 => gamepad().prop_map(Input::Gamepad),
-        2 => (any::<bool>(), prop_oneof![3 => Just(true), 1 => Just(false)])
-            .prop_map(|(bonded, connected)| Input::RemoteLink { bonded, connected }),
+        7 => (pad_task(), gamepad()).prop_map(|(pad, state)| Input::Gamepad { pad, state }),
+        2 => (pad_task(), any::<bool>(), prop_oneof![3 => Just(true), 1 => Just(false)])
+            .prop_map(|(pad, bonded, connected)| Input::RemoteLink { pad, bonded, connected }),
+        // Mostly lifts: a lock held for most of a sequence would leave little to check.
+        1 => prop_oneof![1 => Just(Input::UpdateLock(true)), 3 => Just(Input::UpdateLock(false))],
         1 => Just(Input::RemotePaired),
+        // Bluetooth on after a panic loop (a confirm press does it too).
+        1 => Just(Input::CanFrame(Command::RegisterWrite {
+            address: Reg::Command.address(),
+            value: BLUETOOTH_ON_KEY,
+        }.encode())),
         4 => drive_feedback(),
         3 => Just(Input::DrivesReady),
         1 => wheel().prop_map(Input::DriveSilent),
@@ -313,17 +325,42 @@ fn input() -> impl Strategy<Value = Input> {
     ]
 }
 
+fn connect(pad: Pad) -> Input {
+    Input::RemoteLink {
+        pad,
+        bonded: true,
+        connected: true,
+    }
+}
+
+fn with_dead_man(state: GamepadState) -> GamepadState {
+    GamepadState {
+        buttons: state.buttons.with(Buttons::RIGHT_BUMPER),
+        ..state
+    }
+}
+
 /// A few events that belong together and rarely line up by chance.
 fn episode() -> impl Strategy<Value = Vec<(u64, Input)>> {
     let enable = Input::CanFrame(Command::Enable { refresh: true }.encode());
-    let connect = Input::RemoteLink {
-        bonded: true,
-        connected: true,
-    };
     prop_oneof![
         // CAN drives: a refresh, then a velocity while it is fresh.
         (0..=50u64, velocity_frame().prop_map(Input::CanFrame))
             .prop_map(move |(gap, velocity)| vec![(0, enable), (gap, velocity)]),
+        // CAN drives, then the e-stop is pressed or a drive faults.
+        (
+            0..=50u64,
+            velocity_frame().prop_map(Input::CanFrame),
+            0..=300u64,
+            prop_oneof![
+                Just(Input::Estop(true)),
+                wheel().prop_map(Input::DriveSilent),
+                (wheel(), 1..=255u8).prop_map(|(wheel, code)| Input::DriveAlarm { wheel, code }),
+            ],
+        )
+            .prop_map(move |(gap, velocity, after, stop)| {
+                vec![(0, enable), (gap, velocity), (after, stop)]
+            }),
         // CAN drives, then the speed limit or the geometry changes.
         (
             0..=50u64,
@@ -340,24 +377,128 @@ fn episode() -> impl Strategy<Value = Vec<(u64, Input)>> {
             }),
         // A pad connects, reports the dead-man released (perhaps with a speed level
         // step up), then held with the sticks.
-        (0..=200u64, any::<bool>(), gamepad()).prop_map(move |(gap, level_up, pad)| {
-            let released = GamepadState {
-                dpad: Dpad {
-                    up: level_up,
-                    ..Dpad::default()
-                },
-                ..GamepadState::default()
-            };
-            let held = GamepadState {
-                buttons: pad.buttons.with(Buttons::RIGHT_BUMPER),
-                ..pad
-            };
-            vec![
-                (0, connect),
-                (0, Input::Gamepad(released)),
-                (gap, Input::Gamepad(held)),
-            ]
-        }),
+        (pad_task(), 0..=200u64, any::<bool>(), gamepad()).prop_map(
+            move |(pad, gap, level_up, state)| {
+                let released = GamepadState {
+                    dpad: Dpad {
+                        up: level_up,
+                        ..Dpad::default()
+                    },
+                    ..GamepadState::default()
+                };
+                vec![
+                    (0, connect(pad)),
+                    (
+                        0,
+                        Input::Gamepad {
+                            pad,
+                            state: released,
+                        },
+                    ),
+                    (
+                        gap,
+                        Input::Gamepad {
+                            pad,
+                            state: with_dead_man(state),
+                        },
+                    ),
+                ]
+            }
+        ),
+        // Two pads at once: one drives, the other connects and presses its buttons,
+        // then one of them lets go or leaves.
+        (
+            pad_task(),
+            gamepad(),
+            gamepad(),
+            0..=100u64,
+            prop_oneof![
+                Just(Input::Gamepad {
+                    pad: Pad::Ble,
+                    state: GamepadState::default()
+                }),
+                Just(Input::Gamepad {
+                    pad: Pad::Classic,
+                    state: GamepadState::default()
+                }),
+                pad_task().prop_map(|pad| Input::RemoteLink {
+                    pad,
+                    bonded: true,
+                    connected: false,
+                }),
+            ],
+        )
+            .prop_map(|(first, driving, other, gap, ending)| {
+                let second = if first == Pad::Ble {
+                    Pad::Classic
+                } else {
+                    Pad::Ble
+                };
+                vec![
+                    (0, connect(first)),
+                    (
+                        0,
+                        Input::Gamepad {
+                            pad: first,
+                            state: GamepadState::default(),
+                        },
+                    ),
+                    (
+                        gap,
+                        Input::Gamepad {
+                            pad: first,
+                            state: with_dead_man(driving),
+                        },
+                    ),
+                    (gap, connect(second)),
+                    (
+                        0,
+                        Input::Gamepad {
+                            pad: second,
+                            state: GamepadState::default(),
+                        },
+                    ),
+                    (
+                        gap,
+                        Input::Gamepad {
+                            pad: second,
+                            state: with_dead_man(other),
+                        },
+                    ),
+                    (gap, ending),
+                    (
+                        gap,
+                        Input::Gamepad {
+                            pad: second,
+                            state: with_dead_man(other),
+                        },
+                    ),
+                ]
+            }),
+        // A firmware update locks motion while a pad connects, holds or lets go, and
+        // the lock lifts.
+        (pad_task(), gamepad(), any::<bool>(), 0..=300u64).prop_map(
+            |(pad, state, release_in_lock, gap)| {
+                let during = if release_in_lock {
+                    GamepadState::default()
+                } else {
+                    with_dead_man(state)
+                };
+                vec![
+                    (0, Input::UpdateLock(true)),
+                    (0, connect(pad)),
+                    (gap, Input::Gamepad { pad, state: during }),
+                    (gap, Input::UpdateLock(false)),
+                    (
+                        gap,
+                        Input::Gamepad {
+                            pad,
+                            state: with_dead_man(state),
+                        },
+                    ),
+                ]
+            }
+        ),
         // The pairing window opens, then a new bond or its minute ends it.
         prop_oneof![
             6 => (0..=2000u64, Just(Input::RemotePaired)),
@@ -388,26 +529,41 @@ fn episode() -> impl Strategy<Value = Vec<(u64, Input)>> {
 fn sequence_of(
     input: impl Strategy<Value = Input>,
     episodes: u32,
-) -> impl Strategy<Value = Vec<(u64, Input)>> {
+) -> impl Strategy<Value = Sequence> {
     let single = (gap_ms(), input).prop_map(|event| vec![event]);
     let parts = prop_oneof![8 => single, episodes => episode()];
-    (any::<bool>(), prop::collection::vec(parts, 1..=MAX_EVENTS)).prop_map(
-        |(ready_at_boot, parts)| {
-            let boot = ready_at_boot.then_some((0, Input::DrivesReady));
-            boot.into_iter()
-                .chain(parts.into_iter().flatten())
-                .take(MAX_EVENTS)
-                .collect()
-        },
+    (
+        any::<bool>(),
+        prop::bool::weighted(0.3),
+        prop::collection::vec(parts, 1..=MAX_EVENTS),
     )
+        .prop_map(|(ready_at_boot, bluetooth_off, parts)| {
+            let boot = ready_at_boot.then_some((0, Input::DrivesReady));
+            Sequence {
+                bluetooth_off,
+                events: boot
+                    .into_iter()
+                    .chain(parts.into_iter().flatten())
+                    .take(MAX_EVENTS)
+                    .collect(),
+            }
+        })
 }
 
-fn sequence() -> impl Strategy<Value = Vec<(u64, Input)>> {
-    sequence_of(input(), 1)
+/// A boot and what follows it.
+#[derive(Debug, Clone)]
+struct Sequence {
+    /// The boot found a panic loop: Bluetooth is off until a confirm press or its key.
+    bluetooth_off: bool,
+    events: Vec<(u64, Input)>,
+}
+
+fn sequence() -> impl Strategy<Value = Sequence> {
+    sequence_of(input(), 2)
 }
 
 /// Sequences dominated by CAN frames, most of them garbage.
-fn frame_sequence() -> impl Strategy<Value = Vec<(u64, Input)>> {
+fn frame_sequence() -> impl Strategy<Value = Sequence> {
     let frames = prop_oneof![
         4 => known_id_garbage(),
         2 => any_frame(),
@@ -433,9 +589,9 @@ mod model {
         session: u32,
     }
 
-    /// The gamepad's connection as §13 describes it.
+    /// The connection of the pad in control, as docs/remote.md describes it.
     #[derive(Debug, Clone, Copy, Default)]
-    enum Pad {
+    enum Session {
         #[default]
         Offline,
         Connected {
@@ -449,7 +605,7 @@ mod model {
         SwitchingOff,
     }
 
-    /// §13 speed levels: 50 mm/s steps within 50 … `PS_abs_max_vel`.
+    /// Speed levels (docs/remote.md): 50 mm/s steps within 50 … `PS_abs_max_vel`.
     fn level_within(level_mm_s: u16, registers: &Registers) -> u16 {
         level_mm_s.min(registers.get(Reg::PsAbsMaxVel)).max(50)
     }
@@ -458,7 +614,7 @@ mod model {
         pad.buttons.contains(Buttons::RIGHT_BUMPER)
     }
 
-    /// §13: full left stick forward is the speed level forward, full right stick right
+    /// docs/remote.md: full left stick forward is the speed level forward, full right stick right
     /// is level · 2 / wheel_dist rad/s clockwise; a stick value outside −1 … 1 counts as
     /// the end it is beyond, garbage (NaN, infinite) as centred.
     fn stick_twist(pad: &GamepadState, level_mm_s: u16, registers: &Registers) -> Twist {
@@ -489,7 +645,15 @@ mod model {
         enable_refreshed: Option<Timestamp>,
         session: u32,
         can: Option<CanVelocity>,
-        pad: Pad,
+        /// Which task's pad is connected (BLE, Classic).
+        links: [bool; 2],
+        /// The pad in control: the first one connected, until its link goes down; then
+        /// the other one, if connected, as a fresh connection.
+        in_control: Option<Pad>,
+        pad: Session,
+        /// A firmware update locks motion: no source counts, nothing is stored or armed;
+        /// its lift arms only a dead-man seen up.
+        locked: bool,
         /// A gamepad report arrived since boot or since the link was lost: until then
         /// the dead-man's state is unknown, not "released".
         remote_reported: bool,
@@ -502,9 +666,9 @@ mod model {
         /// The dead-man let go (released, link lost): CAN velocity is dropped until a
         /// drive feedback measures both wheels at rest, or the drives are set up again.
         can_waits_for_rest: bool,
-        /// §13 asks for the pad's disconnect with the input just observed: L2 + Home,
-        /// AFK, or a report from a pad already asked to go.
-        pub disconnect_due: bool,
+        /// The pad (the one in control) whose disconnect is due with the input just
+        /// observed: L2 + Home, AFK, or a report from a pad already asked to go.
+        pub disconnect_due: Option<Pad>,
         /// The pairing window is open until then.
         pairing_until: Option<Timestamp>,
         /// The pairing window opened (`true`) or closed (`false`) with the input just
@@ -517,7 +681,7 @@ mod model {
     }
 
     impl Model {
-        /// §5.1: the last 0x2E4 `40` is younger than `enable_timeout`.
+        /// The last 0x2E4 `40` is younger than `enable_timeout`.
         pub fn enable_fresh(&self, now: Timestamp, registers: &Registers) -> bool {
             let timeout = u64::from(registers.get(Reg::EnableTimeout));
             self.enable_refreshed
@@ -553,7 +717,7 @@ mod model {
             now: Timestamp,
             registers: &Registers,
         ) -> Option<(ControlSource, Twist)> {
-            if self.estop_pressed {
+            if self.estop_pressed || self.locked {
                 None
             } else if self.remote_in_control() {
                 Some((ControlSource::Remote, self.remote_twist(registers)))
@@ -569,7 +733,7 @@ mod model {
         /// The twist the pad's sticks ask for at its speed level.
         fn remote_twist(&self, registers: &Registers) -> Twist {
             match self.pad {
-                Pad::Connected {
+                Session::Connected {
                     level_mm_s,
                     last: Some(pad),
                     ..
@@ -578,17 +742,31 @@ mod model {
             }
         }
 
+        /// The pad in control.
+        pub fn in_control(&self) -> Option<Pad> {
+            self.in_control
+        }
+
         /// The connected pad's speed level.
         pub fn remote_level_mm_s(&self) -> Option<u16> {
             match self.pad {
-                Pad::Connected { level_mm_s, .. } => Some(level_mm_s),
+                Session::Connected { level_mm_s, .. } => Some(level_mm_s),
                 _ => None,
             }
         }
 
+        /// A pad takes control: a fresh connection at the start level.
+        fn connect(&mut self, now: Timestamp, registers: &Registers) {
+            self.pad = Session::Connected {
+                level_mm_s: level_within(registers.get(Reg::PsRelMaxVel), registers),
+                last: None,
+                last_input: now,
+            };
+        }
+
         fn switch_off(&mut self) {
-            self.pad = Pad::SwitchingOff;
-            self.disconnect_due = true;
+            self.pad = Session::SwitchingOff;
+            self.disconnect_due = self.in_control;
             self.remote_lost();
         }
 
@@ -605,7 +783,7 @@ mod model {
         /// After every input: registers that changed (the register write itself)
         /// clamp the speed level into the new range at once.
         pub fn registers_now(&mut self, registers: &Registers) {
-            if let Pad::Connected { level_mm_s, .. } = &mut self.pad {
+            if let Session::Connected { level_mm_s, .. } = &mut self.pad {
                 *level_mm_s = level_within(*level_mm_s, registers);
             }
         }
@@ -619,12 +797,14 @@ mod model {
             before: Mode,
             registers: &Registers,
         ) {
-            let Pad::Connected {
+            let Session::Connected {
                 level_mm_s, last, ..
             } = self.pad
             else {
-                // The BLE task has not dropped it yet: ask again.
-                self.disconnect_due = matches!(self.pad, Pad::SwitchingOff);
+                // The task has not dropped it yet: ask again.
+                if matches!(self.pad, Session::SwitchingOff) {
+                    self.disconnect_due = self.in_control;
+                }
                 return;
             };
             let previous = last.unwrap_or_default();
@@ -644,7 +824,7 @@ mod model {
                 (false, true) => level_mm_s -= 50,
                 _ => {}
             }
-            self.pad = Pad::Connected {
+            self.pad = Session::Connected {
                 level_mm_s: level_within(level_mm_s, registers),
                 last: Some(pad),
                 last_input: now,
@@ -652,7 +832,7 @@ mod model {
 
             let dead_man = dead_man(&pad);
             let was_holding = self.remote_holds();
-            if !dead_man && may_drive(before) {
+            if !dead_man && may_drive(before) && !self.locked {
                 self.remote_armed = true;
             }
             self.remote_reported = true;
@@ -675,10 +855,17 @@ mod model {
             before: Mode,
             registers: &Registers,
         ) {
-            self.disconnect_due = false;
+            self.disconnect_due = None;
             self.pairing_change = None;
+            if registers.get(Reg::BluetoothOff) != 0 && input.is_from_a_remote_task() {
+                // Bluetooth is off: no pad exists for the controller.
+                return;
+            }
             match *input {
                 Input::CanFrame(frame) => match Command::decode(frame.id(), frame.data()) {
+                    // A refreshing enable and a velocity are refused while locked.
+                    Ok(Some(Command::Enable { refresh: true } | Command::Velocity { .. }))
+                        if self.locked => {}
                     Ok(Some(Command::Enable { refresh: true })) => {
                         if !self.enable_fresh(now, registers) {
                             self.session += 1;
@@ -716,23 +903,39 @@ mod model {
                     }
                     _ => {}
                 },
-                Input::Gamepad(pad) => self.gamepad(pad, now, before, registers),
-                Input::RemoteLink {
-                    connected: true, ..
-                } => {
-                    if let Pad::Offline = self.pad {
-                        self.pad = Pad::Connected {
-                            level_mm_s: level_within(registers.get(Reg::PsRelMaxVel), registers),
-                            last: None,
-                            last_input: now,
-                        };
+                // Only the pad in control's reports count.
+                Input::Gamepad { pad, state } if self.in_control == Some(pad) => {
+                    self.gamepad(state, now, before, registers)
+                }
+                Input::RemoteLink { pad, connected, .. } => {
+                    self.links[pad as usize] = connected;
+                    let other = if pad == Pad::Ble {
+                        Pad::Classic
+                    } else {
+                        Pad::Ble
+                    };
+                    if connected && self.in_control.is_none() {
+                        self.in_control = Some(pad);
+                        self.connect(now, registers);
+                    } else if !connected && self.in_control == Some(pad) {
+                        self.pad = Session::Offline;
+                        self.remote_lost();
+                        self.in_control = None;
+                        if self.links[other as usize] {
+                            self.in_control = Some(other);
+                            self.connect(now, registers);
+                        }
                     }
                 }
-                Input::RemoteLink {
-                    connected: false, ..
-                } => {
-                    self.pad = Pad::Offline;
-                    self.remote_lost();
+                Input::UpdateLock(locked) if locked != self.locked => {
+                    self.locked = locked;
+                    if locked {
+                        self.can = None;
+                        self.remote_armed = false;
+                    } else {
+                        self.remote_armed =
+                            may_drive(before) && self.remote_reported && !self.remote_held;
+                    }
                 }
                 // One new bond per opening of the window.
                 Input::RemotePaired => {
@@ -740,14 +943,14 @@ mod model {
                         self.pairing_change = Some(false);
                     }
                 }
-                // §13: no input for PS_afk_time switches the pad off; a held dead-man is
+                // No input for PS_afk_time switches the pad off; a held dead-man is
                 // input (checked on the tick).
                 Input::Tick => {
                     if self.pairing_until.is_some_and(|until| now >= until) {
                         self.pairing_until = None;
                         self.pairing_change = Some(false);
                     }
-                    if let Pad::Connected {
+                    if let Session::Connected {
                         last, last_input, ..
                     } = self.pad
                     {
@@ -762,14 +965,14 @@ mod model {
                 Input::Estop(pressed) => {
                     self.estop_pressed = pressed;
                     if pressed {
-                        // §6: nothing is buffered through an emergency.
+                        // Nothing is buffered through an emergency.
                         self.can = None;
                         self.remote_armed = false;
                     }
                 }
                 Input::SafetyZone(occupied) => self.safety_zone = occupied,
                 Input::DrivesReady if matches!(before, Mode::Starting | Mode::Recovering) => {
-                    self.remote_armed = self.remote_reported && !self.remote_held;
+                    self.remote_armed = self.remote_reported && !self.remote_held && !self.locked;
                     self.can_waits_for_rest = false;
                 }
                 Input::DriveFeedback { rpm, .. } => {
@@ -840,14 +1043,19 @@ struct Step<'a> {
     model: &'a Model,
 }
 
-/// Feeds `events` to a controller booted at 0 with the register defaults and calls
-/// `check` after every event.
+/// Feeds `sequence` to a controller booted at 0 with the register defaults (and
+/// Bluetooth off if the sequence says so) and calls `check` after every event.
 fn run(
-    events: &[(u64, Input)],
+    sequence: &Sequence,
     mut check: impl FnMut(&Step) -> Result<(), TestCaseError>,
 ) -> Result<(), TestCaseError> {
     let mut now = Timestamp::BOOT;
-    let mut controller = Controller::new(now, Registers::defaults());
+    let boot = BootReport {
+        bluetooth_off_after_panics: sequence.bluetooth_off,
+        ..BootReport::default()
+    };
+    let mut controller = Controller::boot(now, Registers::defaults(), &boot);
+    let events = &sequence.events;
     let mut model = Model::default();
     let mut in_force = MotorRpm::ZERO;
     let mut excited = false;
@@ -917,7 +1125,7 @@ fn is_periodic(frame: &RawFrame) -> bool {
     is_feedback(frame) || frame.id() == id::STATUS
 }
 
-/// The kinematics the registers describe (spec §5.2 and the register units).
+/// The kinematics the registers describe (docs/behaviour.md, "Wheel speeds", and the register units).
 fn kinematics_params(registers: &Registers) -> KinematicsParams {
     let motor_dir = registers.get(Reg::MotorDir);
     KinematicsParams {
@@ -986,9 +1194,7 @@ fn supervisor_sees(input: &Input) -> bool {
         ),
         Input::Estop(_)
         | Input::SafetyZone(_)
-        | Input::RemoteLink {
-            connected: false, ..
-        }
+        | Input::UpdateLock(_)
         | Input::DriveFeedback { .. }
         | Input::DrivesReady
         | Input::DriveSilent(_)
@@ -1043,7 +1249,7 @@ proptest! {
 
     /// The speed the drives run at never exceeds `max_motor_vel` either: a limit (or
     /// geometry) written while the base moves applies to the command already running,
-    /// not only to the next one (spec §12: a write is applied at once).
+    /// not only to the next one (a write is applied at once, docs/registers.md).
     #[test]
     fn speed_in_force_never_exceeds_max_motor_vel(events in sequence()) {
         run(&events, |step| {
@@ -1221,7 +1427,7 @@ proptest! {
             prop_assert_eq!(out.excite, None);
             prop_assert!(!out.setup_drives);
             prop_assert_eq!(out.pc_switch, None);
-            prop_assert!(!out.disconnect_remote);
+            prop_assert_eq!(out.disconnect_remote, None);
             prop_assert_eq!(out.pairing_window, None);
             prop_assert_eq!(&out.persist, &Default::default());
             prop_assert_eq!(&step.after.registers, &step.before.registers);
@@ -1366,7 +1572,7 @@ proptest! {
 }
 
 // ---------------------------------------------------------------------------------------
-// Invariant 7: the gamepad is switched off when §13 says so, and only then; the
+// Invariant 7: the gamepad is switched off when docs/remote.md says so, and only then; the
 // pairing window opens only on its key
 // ---------------------------------------------------------------------------------------
 
@@ -1383,10 +1589,33 @@ proptest! {
                 step.out.disconnect_remote, step.model.disconnect_due,
                 "after {:?}: {:?}", step.input, step.model
             );
-            if step.out.disconnect_remote {
+            if step.out.disconnect_remote.is_some() {
                 prop_assert!(!step.after.status.flags.remote_in_control);
                 prop_assert_ne!(step.after.status.control, ControlSource::Remote);
             }
+            Ok(())
+        })?;
+    }
+
+    /// While Bluetooth is off after a panic loop its tasks do not run; should a pad's
+    /// link or report still arrive, it changes nothing: no wheel command, no control,
+    /// no remote flag, no switch-off, no pairing change.
+    #[test]
+    fn pad_inputs_change_nothing_while_bluetooth_is_off(events in sequence()) {
+        run(&events, |step| {
+            if step.before.registers.get(Reg::BluetoothOff) == 0
+                || !step.input.is_from_a_remote_task()
+            {
+                return Ok(());
+            }
+            prop_assert_eq!(step.out.wheels, None);
+            prop_assert_eq!(step.out.excite, None);
+            prop_assert_eq!(step.out.disconnect_remote, None);
+            prop_assert_eq!(step.out.pairing_window, None);
+            let (before, after) = (&step.before.status, &step.after.status);
+            prop_assert_eq!(after.control, before.control);
+            prop_assert!(!after.flags.remote_connected && !after.flags.remote_in_control);
+            prop_assert!(!after.flags.remote_bonded);
             Ok(())
         })?;
     }
@@ -1536,7 +1765,7 @@ proptest! {
         let mut controller = Controller::new(now, Registers::defaults());
         let mut drives = DriveModel::default();
         let mut zone_since: Option<Timestamp> = None;
-        for (gap, input) in &events {
+        for (gap, input) in &events.events {
             drives.advance(*gap);
             now = now.plus_millis(*gap);
             let input = match *input {
@@ -1611,7 +1840,7 @@ type Situation = (&'static str, fn(&Step) -> bool);
 /// pass vacuously. Each must occur in at least a fifth of the sequences.
 #[test]
 fn event_sequences_reach_every_situation_checked() {
-    let situations: [Situation; 17] = [
+    let situations: [Situation; 21] = [
         ("CAN drives", |step| {
             moving_command(step).is_some() && step.after.status.control == ControlSource::Can
         }),
@@ -1624,7 +1853,7 @@ fn event_sequences_reach_every_situation_checked() {
                 && step.model.remote_level_mm_s() > Some(step.after.registers.get(Reg::PsRelMaxVel))
         }),
         ("gamepad asked to disconnect", |step| {
-            step.out.disconnect_remote
+            step.out.disconnect_remote.is_some()
         }),
         ("pairing window closed", |step| {
             step.out.pairing_window == Some(false)
@@ -1670,17 +1899,31 @@ fn event_sequences_reach_every_situation_checked() {
         ("frame rejected", |step| {
             step.after.status.rejected_count != step.before.status.rejected_count
         }),
+        ("a report of the pad not in control", |step| {
+            matches!(step.input, Input::Gamepad { pad, .. }
+                if step.model.in_control().is_some_and(|owner| owner != *pad))
+        }),
+        ("the pad in control handed over to the other", |step| {
+            matches!(step.input, Input::RemoteLink { pad, connected: false, .. }
+                if step.model.in_control().is_some_and(|owner| owner != *pad))
+        }),
+        ("the lock lifted with a dead-man held", |step| {
+            *step.input == Input::UpdateLock(false) && step.before.status.flags.remote_in_control
+        }),
+        ("a pad input while Bluetooth is off", |step| {
+            step.before.registers.get(Reg::BluetoothOff) != 0 && step.input.is_from_a_remote_task()
+        }),
     ];
     let mut runner = TestRunner::deterministic();
     let strategy = sequence();
     let sequences = 200;
-    let mut counts = [0u32; 17];
+    let mut counts = [0u32; 21];
     for _ in 0..sequences {
         let events = strategy
             .new_tree(&mut runner)
             .expect("the strategy generates")
             .current();
-        let mut seen = [false; 17];
+        let mut seen = [false; 21];
         run(&events, |step| {
             for (seen, (_, occurs)) in seen.iter_mut().zip(&situations) {
                 *seen |= occurs(step);

@@ -1,4 +1,4 @@
-//! The odometry's precision goal (spec §7): the arithmetic adds less than 1 mm of error
+//! The odometry's precision goal (docs/behaviour.md, "Odometry"): the arithmetic adds less than 1 mm of error
 //! over 100 km of simulated travel.
 //!
 //! # Why this comparison bounds the arithmetic error

@@ -11,6 +11,7 @@ use base_core::kinematics::MotorRpm;
 use base_core::odometry::EncoderCounts;
 use base_core::power::SwitchLevel;
 use base_core::registers::{Reg, Registers};
+use base_core::remote::Pad;
 use base_core::supervisor::Wheel;
 use base_core::time::Timestamp;
 
@@ -91,13 +92,17 @@ fn velocity(linear_mm_s: i16, rotation_mrad_s: i16) -> Input {
 /// The BLE task reports the bonded gamepad connected, or its link down.
 fn pad_link(connected: bool) -> Input {
     Input::RemoteLink {
+        pad: Pad::Ble,
         bonded: true,
         connected,
     }
 }
 
 fn pad(state: GamepadState) -> Input {
-    Input::Gamepad(state)
+    Input::Gamepad {
+        pad: Pad::Ble,
+        state,
+    }
 }
 
 /// A gamepad report with these buttons held and the sticks and triggers at rest.
@@ -287,8 +292,15 @@ fn check(controller: &Controller, now: Timestamp, out: &Output, check: Check, ro
             );
         }
         PcOn(on) => assert_eq!(status.flags.pc_on, on, "row {row}: PC on"),
-        Disconnect => assert!(out.disconnect_remote, "row {row}: no disconnect request"),
-        NoDisconnect => assert!(!out.disconnect_remote, "row {row}: unexpected disconnect"),
+        Disconnect => assert_eq!(
+            out.disconnect_remote,
+            Some(Pad::Ble),
+            "row {row}: no disconnect request"
+        ),
+        NoDisconnect => assert_eq!(
+            out.disconnect_remote, None,
+            "row {row}: unexpected disconnect"
+        ),
         PairingWindow(open) => {
             assert_eq!(out.pairing_window, Some(open), "row {row}: pairing window")
         }

@@ -60,6 +60,8 @@ pub async fn run<S: OutputPin>(
         remote: RemoteRequest::default(),
         light: None,
     };
+    // What the controller last heard of the update task's motion lock.
+    let mut update_lock = false;
     let mut next_tick = Instant::now() + TICK;
     // One input or one tick per iteration, and a due tick before any queued input: a
     // sustained input backlog can neither starve the timeouts (enable, brakes, the
@@ -83,8 +85,15 @@ pub async fn run<S: OutputPin>(
         // The drops so far, for `can_tx_dropped`: a read of it answers the count
         // up to the input before it.
         controller.set_can_tx_dropped(channels.can_tx.dropped());
-        controller.set_update_lock(channels.update.locked());
         let now = core_now();
+        // A change of the update task's lock is an input of its own, handled first, so
+        // that no input after the change meets the old lock.
+        let locked = channels.update.locked();
+        if locked != update_lock {
+            update_lock = locked;
+            let out = controller.handle(now, Input::UpdateLock(locked));
+            dispatch(&controller, out, &channels, &mut state, &mut pc_switch);
+        }
         let out = controller.handle(now, input);
         channels.update.set_gate(controller.update_gate(now));
         dispatch(&controller, out, &channels, &mut state, &mut pc_switch);
@@ -150,8 +159,8 @@ fn dispatch<S: OutputPin>(
     if let Some(open) = out.pairing_window {
         remote.pairing_open = open;
     }
-    if out.disconnect_remote {
-        remote.disconnects = remote.disconnects.wrapping_add(1);
+    if let Some(pad) = out.disconnect_remote {
+        remote.disconnect(pad);
     }
     if out.bluetooth_on {
         remote.bluetooth_on = true;

@@ -3,13 +3,15 @@
 //! with the stuff bits the virtual bus counts):
 //!
 //! - latency: CAN velocity frame → both drives have the new speed (the base is
-//!   driving), and e-stop edge → zero speed on the wire, each at many phases of the
-//!   control cycle;
+//!   driving), e-stop edge → zero speed on the wire, pad report → both drives have the
+//!   new speed and dead-man release → zero on the wire, each at many phases of the
+//!   control cycle (`virtual_robot::latency`);
 //! - the periods of the feedback frames while driving, and their jitter;
 //! - the Modbus bytes of a control cycle and how busy they keep the RS-485 line, at
 //!   115200 and at 230400 baud;
 //! - CAN frames per second by ID and the bus load, in standby and while driving;
-//! - the fail-safe figures: reset run-on, a failing group frame, a stuck encoder;
+//! - the fail-safe figures: reset run-on, a failing group frame, a stuck encoder, a
+//!   wheel turning against its command;
 //! - a firmware update's transfer of 600 KB over socketcand and over SLCAN, against the
 //!   simulator binary on the wall clock (build it first: `cargo build -p virtual-robot`).
 //!
@@ -21,14 +23,12 @@ use std::collections::{BTreeMap, BTreeSet};
 use base_core::can::{Command, id};
 use base_core::registers::Reg;
 use embassy_futures::join::join;
-use embassy_time::{Duration, Instant, Timer};
+use embassy_time::{Duration, Instant};
 use virtual_robot::can::{BITRATE_BPS, SentFrame};
-use virtual_robot::drives::{DrivesConfig, FeedbackFault, FrameRecord};
+use virtual_robot::drives::{DrivesConfig, DrivesHandle, FeedbackFault, FrameRecord, Reversal};
+use virtual_robot::latency::{PAD_REPORT_INTERVAL_MS, can_latencies, pad_latencies};
 use virtual_robot::robot::{Pc, VirtualRobot, wait_ms};
 
-/// Phases spread over one 50 ms control cycle, 0.1 ms apart: fine enough to catch an
-/// event just after a transaction's first byte.
-const TRIALS: u64 = 500;
 /// Until the drives are set up and the sensors have a first reading.
 const BOOT_MS: u64 = 1_500;
 /// Standby: the controller reports, the PC sends nothing.
@@ -52,13 +52,21 @@ fn main() {
         report_update();
         return;
     }
-    let (velocity, estop) = measure_latencies(&VirtualRobot::new());
+    let (velocity, estop) = can_latencies(&VirtualRobot::new());
     report_latency(
         "CAN velocity frame → both drives have the new speed",
         &velocity,
     );
     report_latency("e-stop edge → zero speed on the wire", &estop);
-    let (velocity, estop) = measure_latencies(&robot_at_baud(FAST_BAUD));
+    let (report, release) = pad_latencies(&VirtualRobot::new());
+    report_latency(
+        &format!(
+            "pad report → both drives have the new speed (the pad reports every {PAD_REPORT_INTERVAL_MS} ms)"
+        ),
+        &report,
+    );
+    report_latency("dead-man release → zero speed on the wire", &release);
+    let (velocity, estop) = can_latencies(&robot_at_baud(FAST_BAUD));
     report_latency(
         "at 230400 baud: CAN velocity frame → both drives have the new speed",
         &velocity,
@@ -75,6 +83,7 @@ fn main() {
     println!();
     report_fail_safe();
     report_stuck_encoder();
+    report_wrong_direction();
 
     let recording = record_buses(&VirtualRobot::new());
     println!();
@@ -280,43 +289,6 @@ fn robot_at_baud(baud: u32) -> VirtualRobot {
     robot
 }
 
-fn measure_latencies(robot: &VirtualRobot) -> (Vec<Duration>, Vec<Duration>) {
-    robot.run(async |pc| {
-        wait_ms(BOOT_MS).await;
-        pc.drive(300, 0, 500).await;
-        let mut velocity = Vec::new();
-        for trial in 0..TRIALS {
-            let speed = if trial % 2 == 0 { 400 } else { 300 };
-            pc.enable();
-            let sent = Instant::now();
-            pc.velocity(speed, 0);
-            // A cycle and 0.1 ms: the next command lands at a new phase of the drive
-            // link's own 50 ms cycle, sometimes while a transaction is on the wire.
-            Timer::after(Duration::from_micros(50_100)).await;
-            let applied =
-                [1, 2].map(|slave| robot.drives.drive(slave).last_new_speed_at.expect("speed"));
-            velocity.push(applied.into_iter().max().expect("two drives") - sent);
-        }
-
-        let mut estop = Vec::new();
-        for trial in 0..TRIALS {
-            pc.drive(300, 0, 300).await;
-            Timer::after(Duration::from_micros(trial * 100)).await;
-            let pressed = Instant::now();
-            robot.press_estop();
-            wait_ms(60).await;
-            let stopped =
-                [1, 2].map(|slave| robot.drives.drive(slave).last_new_speed_at.expect("speed"));
-            estop.push(stopped.into_iter().max().expect("two drives") - pressed);
-            robot.release_estop();
-            wait_ms(100).await;
-            robot.press_button(200).await;
-            wait_ms(800).await;
-        }
-        (velocity, estop)
-    })
-}
-
 /// The fail-safe figures of the drive link: how far the wheels run on after a
 /// controller reset at 500 mm/s (with both drives answering, and with the right drive
 /// silent from the reset on), and how long a group frame may fail before both drives
@@ -478,40 +450,79 @@ fn report_fail_safe() {
     );
 }
 
+/// How far the farther wheel rolls from `fault` on until both stand, while the PC asks
+/// for 500 mm/s; with `driving_ms`, the fault comes after driving that long, else at
+/// rest.
+fn rolled_after(driving_ms: Option<u64>, fault: impl FnOnce(&DrivesHandle)) -> f64 {
+    let wheel_mm = |revolutions: f64| revolutions / 10.0 * 2.0 * std::f64::consts::PI * 142.0;
+    let robot = VirtualRobot::new();
+    robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        if let Some(driving_ms) = driving_ms {
+            pc.drive(500, 0, driving_ms).await;
+        }
+        let before = [1, 2].map(|slave| robot.drives.drive(slave).forward_revolutions());
+        fault(&robot.drives);
+        pc.drive(500, 0, 2_000).await;
+        let stood = [1, 2]
+            .iter()
+            .all(|&slave| robot.drives.drive(slave).forward_rpm().abs() < 0.5);
+        assert!(stood, "both wheels stopped");
+        [1, 2]
+            .into_iter()
+            .zip(before)
+            .map(|(slave, before)| {
+                wheel_mm(robot.drives.drive(slave).forward_revolutions() - before).abs()
+            })
+            .fold(0.0, f64::max)
+    })
+}
+
+/// The worst and the best of some distances.
+fn worst_and_best(rolled: &[f64]) -> (f64, f64) {
+    let worst = rolled.iter().copied().fold(0.0, f64::max);
+    let best = rolled.iter().copied().fold(f64::INFINITY, f64::min);
+    (worst, best)
+}
+
 /// The left encoder sticks at 500 mm/s (its counter stands, its speed stays true) at
 /// ten moments 5 ms apart across a 50 ms feedback cycle, while the PC keeps asking for
 /// 500 mm/s: how far the farther wheel rolls from the fault until both stand.
 fn report_stuck_encoder() {
-    let wheel_mm = |revolutions: f64| revolutions / 10.0 * 2.0 * std::f64::consts::PI * 142.0;
     let rolled: Vec<f64> = (0..10u64)
         .map(|k| {
-            let robot = VirtualRobot::new();
-            robot.run(async |pc| {
-                wait_ms(BOOT_MS).await;
-                pc.drive(500, 0, 2_000 + k * 5).await;
-                let before = [1, 2].map(|slave| robot.drives.drive(slave).forward_revolutions());
-                robot
-                    .drives
-                    .set_feedback_fault(1, Some(FeedbackFault::StuckPosition));
-                pc.drive(500, 0, 2_000).await;
-                let stood = [1, 2]
-                    .iter()
-                    .all(|&slave| robot.drives.drive(slave).forward_rpm().abs() < 0.5);
-                assert!(stood, "both wheels stopped");
-                [1, 2]
-                    .into_iter()
-                    .zip(before)
-                    .map(|(slave, before)| {
-                        wheel_mm(robot.drives.drive(slave).forward_revolutions() - before).abs()
-                    })
-                    .fold(0.0, f64::max)
+            rolled_after(Some(2_000 + k * 5), |drives| {
+                drives.set_feedback_fault(1, Some(FeedbackFault::StuckPosition))
             })
         })
         .collect();
-    let worst = rolled.iter().copied().fold(0.0, f64::max);
-    let best = rolled.iter().copied().fold(f64::INFINITY, f64::min);
+    let (worst, best) = worst_and_best(&rolled);
     println!(
         "stuck encoder -> both wheels stopped: {worst:.0} mm (worst of 10 moments; best {best:.0} mm)"
+    );
+}
+
+/// A drive whose direction parameter is at the other value: from rest the left drive
+/// turns against its command as the PC asks for 500 mm/s; and at 500 mm/s the left
+/// drive's reports turn round (position and speed against the command, the shaft
+/// still as commanded) at ten moments 5 ms apart across a feedback cycle. How far the
+/// farther wheel rolls until both stand.
+fn report_wrong_direction() {
+    let from_rest = rolled_after(None, |drives| {
+        drives.set_reversed(1, Some(Reversal::Motion))
+    });
+    println!("a wheel turning against its command -> both wheels stopped:");
+    println!("  from rest, the left drive reversed: {from_rest:.0} mm");
+    let rolled: Vec<f64> = (0..10u64)
+        .map(|k| {
+            rolled_after(Some(2_000 + k * 5), |drives| {
+                drives.set_reversed(1, Some(Reversal::Feedback))
+            })
+        })
+        .collect();
+    let (worst, best) = worst_and_best(&rolled);
+    println!(
+        "  at 500 mm/s, the left drive's reports turning round: {worst:.0} mm (worst of 10 moments; best {best:.0} mm)"
     );
 }
 
@@ -811,9 +822,7 @@ fn report_line(recording: &BusRecording, cycle_ms: f64) {
     println!(
         "  longest silence on the line: {:.1} ms (the drives' communication timeout: {} ms)",
         ms(longest_silence),
-        base_core::drives::DriveSettings::DEFAULT
-            .drive_comm_timeout_ms
-            .unwrap_or(0)
+        base_core::drives::DriveSettings::DEFAULT.drive_comm_timeout_ms
     );
 }
 

@@ -14,6 +14,7 @@ pub mod fake_hci;
 pub mod file_flash;
 pub mod flash;
 pub mod io;
+pub mod latency;
 pub mod process;
 pub mod robot;
 pub mod runtime;

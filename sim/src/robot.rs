@@ -20,13 +20,17 @@
 use std::sync::{Arc, Mutex, PoisonError};
 
 use base_core::can::{Command, RawFrame, Report, Status, id};
+use base_core::controller::Input;
+use base_core::gamepad::GamepadState;
 use base_core::panic_loop::{Bluetooth, PanicHistory};
 use base_core::registers::UpdateReset;
+use base_core::remote::Pad;
 use base_core::time::Timestamp;
 use base_core::update::otadata::Slot;
 use base_core::update::partitions;
+use base_runtime::channels::{Channels, InputSender};
 use base_runtime::update::{UpdateConfig, UpdateFlash};
-use base_runtime::{Hardware, Settings, channels::Channels};
+use base_runtime::{Hardware, Settings};
 use embassy_futures::select::{Either, select};
 use embassy_time::{Duration, Instant, Timer};
 use embedded_hal::digital::PinState;
@@ -172,6 +176,27 @@ impl VirtualRobot {
         })
     }
 
+    /// [`Self::run`] with pads scripted beside the PC: the script gets [`ScriptedPads`],
+    /// which hand links and decoded reports to the controller where the remote tasks do
+    /// (no radio, no HID decoding: what comes before that is the Bluetooth scenarios').
+    pub fn run_with_pads<T>(&self, script: impl AsyncFnOnce(&Pc, &ScriptedPads<'_>) -> T) -> T {
+        let (hardware, pc) = self.boot();
+        let channels = Channels::new();
+        let pads = ScriptedPads {
+            inputs: channels.remote_ends().inputs,
+        };
+        let firmware = async {
+            Timer::after(self.boot_time).await;
+            base_runtime::run(hardware, self.settings, &channels).await
+        };
+        block_on(async {
+            match select(firmware, script(&pc, &pads)).await {
+                Either::First(never) => never,
+                Either::Second(result) => result,
+            }
+        })
+    }
+
     /// The hardware of one boot, and the robot PC's end of its CAN bus: for runs that
     /// add tasks beside the firmware's (the Bluetooth remote, see [`crate::ble`]).
     pub fn boot(&self) -> (SimHardware, Pc) {
@@ -234,6 +259,35 @@ impl VirtualRobot {
         self.button.set_level(PinState::Low);
         wait_ms(hold_ms).await;
         self.button.set_level(PinState::High);
+    }
+}
+
+/// Pads scripted at the remote tasks' end of the controller's input queue: a link
+/// report or a decoded report goes in as the BLE task or the PlayStation pad's task
+/// would send it ([`VirtualRobot::run_with_pads`]).
+pub struct ScriptedPads<'a> {
+    inputs: InputSender<'a>,
+}
+
+impl ScriptedPads<'_> {
+    /// `pad`'s task reports its pad bonded and connected, or its link down.
+    pub async fn link(&self, pad: Pad, connected: bool) {
+        self.send(Input::RemoteLink {
+            pad,
+            bonded: true,
+            connected,
+        })
+        .await;
+    }
+
+    /// `pad`'s task hands on a decoded report.
+    pub async fn report(&self, pad: Pad, state: GamepadState) {
+        self.send(Input::Gamepad { pad, state }).await;
+    }
+
+    /// Queues `input` as a remote task does (waiting for room, as they do).
+    pub async fn send(&self, input: Input) {
+        self.inputs.send(input).await;
     }
 }
 

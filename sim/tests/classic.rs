@@ -28,8 +28,8 @@ use virtual_robot::robot::Pc;
 /// The pads' public addresses (Sony's prefix).
 const PAD_ADDRESS: &str = "A4:AE:12:00:00:01";
 const STRANGER_ADDRESS: &str = "A4:AE:12:00:00:02";
-/// A BLE pad's random static address.
-/// (used by the bonded-in-turn scenario)
+/// A BLE pad's random static address (the scenarios with a BLE pad beside a
+/// PlayStation pad).
 const BLE_PAD_ADDRESS: &str = "C1:11:22:33:44:55";
 
 /// Creates PlayStation pad `name` of `kind` (ds4, dualsense), puts it in pairing mode,
@@ -406,6 +406,75 @@ fn a_ble_pad_and_a_playstation_pad_bonded_in_turn_both_drive() {
         .await;
     });
     assert!(bond_stored_for(&robot, PAD_ADDRESS));
+}
+
+/// Waits up to 2 s until register `remote_kind` reads `kind`.
+async fn remote_kind_becomes(pc: &Pc, kind: RemoteKind, what: &str) {
+    let deadline = Instant::now() + Duration::from_secs(2);
+    loop {
+        let read = pc.read_register(Reg::RemoteKind.address()).await;
+        if read == Some(kind.code()) {
+            return;
+        }
+        assert!(Instant::now() < deadline, "{what}: read {read:?}");
+        Timer::after_millis(20).await;
+    }
+}
+
+/// No wheel turns for `ms`: the drives' commanded speed stays zero throughout.
+async fn still_for(robot: &RemoteRobot, ms: u64, why: &str) {
+    let end = Instant::now() + Duration::from_millis(ms);
+    while Instant::now() < end {
+        for slave in [1, 2] {
+            let commanded = robot.robot.drives.drive(slave).command;
+            assert!(
+                commanded.is_none_or(|c| c.speed_rpm == 0),
+                "{why}: drive {slave} commanded {commanded:?}"
+            );
+        }
+        Timer::after_millis(5).await;
+    }
+}
+
+#[test]
+fn a_ble_pad_and_a_playstation_pad_connected_at_once_only_the_first_drives() {
+    let Some(_one) = scenario() else { return };
+    let mut peer = Peer::start();
+    let robot = RemoteRobot::new();
+    robot.run(peer.controller(), async |pc| {
+        // The PlayStation pad connects first: it is the pad in control.
+        pair(&mut peer, pc, "ps", "ds4", PAD_ADDRESS).await;
+        remote_kind_becomes(pc, RemoteKind::DualShock4, "the PlayStation pad").await;
+        // The BLE pad is paired in the next window and stays connected beside it.
+        peer.cmd(&format!("pad xbox {BLE_PAD_ADDRESS}")).await;
+        let mark = peer.mark();
+        peer.cmd("advertise xbox").await;
+        open_pairing_window(pc).await;
+        peer.wait_for(mark, &["subscribed", "xbox"], 20_000).await;
+        remote_kind_becomes(pc, RemoteKind::DualShock4, "the pad in control shows").await;
+        // The BLE pad's dead-man and stick do nothing.
+        peer.cmd("release xbox RB").await;
+        peer.cmd("press xbox RB").await;
+        peer.cmd("stick xbox LY 1.0").await;
+        still_for(&robot, 500, "the second pad drove").await;
+        let now = status(pc, 2_000, "a fresh status", |_| true).await;
+        assert!(!now.flags.remote_in_control, "the second pad took control");
+        // The PlayStation pad drives; its release stops the base, whatever the BLE pad
+        // still holds.
+        drive_forward(&mut peer, &robot, pc, "ps").await;
+        peer.cmd("release ps R1").await;
+        wheels(&robot, 3_000, false).await;
+        still_for(&robot, 1_000, "the second pad drove after the first let go").await;
+        // The PlayStation pad is switched off: the BLE pad takes control, but its
+        // dead-man, held since before, must be released first.
+        peer.cmd("off ps").await;
+        remote_kind_becomes(pc, RemoteKind::BlePad, "the BLE pad in control").await;
+        peer.cmd("stick xbox LY 0.9").await;
+        still_for(&robot, 500, "a dead-man held through the hand-over drove").await;
+        peer.cmd("release xbox RB").await;
+        peer.cmd("press xbox RB").await;
+        wheels(&robot, 3_000, true).await;
+    });
 }
 
 #[test]

@@ -1,4 +1,4 @@
-//! Frames from the robot PC to the base controller (spec §3): decoded on the robot,
+//! Frames from the robot PC to the base controller (docs/protocol.md): decoded on the robot,
 //! encoded by the PC side, test tools and the simulator.
 
 use super::{FrameError, MAX_DATA_LEN, RawFrame, id};

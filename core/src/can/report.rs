@@ -1,4 +1,4 @@
-//! Frames from the base controller to the robot PC (spec §4): encoded on the robot,
+//! Frames from the base controller to the robot PC (docs/protocol.md): encoded on the robot,
 //! decoded by test tools and the PC-side CLI.
 
 use super::command::{REGISTER_ERROR, REGISTER_READ_REQUEST, REGISTER_VALUE};

@@ -1,5 +1,5 @@
 //! Request builders and reply parsers. Every 32-bit item is two registers, upper word
-//! first, and both halves always travel in one frame (spec §2).
+//! first, and both halves always travel in one frame (docs/drives.md).
 
 use heapless::Vec;
 
@@ -91,7 +91,7 @@ fn share_write_items(per_member: &[&[u32]]) -> Result<usize, RequestError> {
 // The casts to u8/u16 below cannot truncate: the checks above bound every count far
 // below 256 registers (at most 2 × 61 for a unicast write, 2 × 25 for a share read).
 
-/// Registers a share read asks for: each member adds one for its check word (§3.3).
+/// Registers a share read asks for: each member adds one for its check word (docs/drives.md).
 fn share_read_count(members: usize, items: usize) -> u16 {
     (members * (2 * items + 1)) as u16
 }

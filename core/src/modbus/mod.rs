@@ -41,7 +41,7 @@ pub const MAX_ITEMS: usize = 12;
 pub const MAX_MEMBERS: usize = 2;
 
 /// Most 32-bit items in one unicast write: Modbus allows 123 registers per FC 10h.
-/// The largest write we send is the 24-item share list setup (§6.1 step 3).
+/// The largest write we send is the 24-item share list setup (the setup's step 3, docs/drives.md).
 pub const MAX_WRITE_ITEMS: usize = 61;
 
 /// Length of an exception reply (`addr fc|0x80 code CRC`). A reader that sees bit 7 set

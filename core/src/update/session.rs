@@ -421,7 +421,8 @@ impl Updater {
                         index,
                         crc,
                     } => {
-                        if index + 1 == transfer.windows_written {
+                        // Compared without `index + 1`, which overflows for 0xFFFF.
+                        if transfer.windows_written.checked_sub(1) == Some(index) {
                             // Its WRITTEN reply was lost: say it again.
                             return effects.reply(UpdateReply::Written {
                                 session,

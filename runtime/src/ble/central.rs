@@ -41,6 +41,7 @@ use trouble_host::prelude::*;
 
 use base_core::controller::Input;
 use base_core::hid::{GamepadLayout, VidPid};
+use base_core::remote::Pad;
 
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::signal::Signal;
@@ -139,6 +140,7 @@ where
     report(
         channels,
         Input::RemoteLink {
+            pad: Pad::Ble,
             bonded: bonded.is_some(),
             connected: false,
         },
@@ -431,7 +433,7 @@ impl<C: HciController + ControllerCmdSync<LeSetScanParams>> PadLink<'_, '_, C> {
     ) {
         self.report_link(true).await;
         {
-            let disconnects_before = self.request.disconnects;
+            let disconnects_before = self.request.disconnects_of(Pad::Ble);
             let outcome = select4(
                 client.task(),
                 forward_reports(client, self.channels),
@@ -440,7 +442,7 @@ impl<C: HciController + ControllerCmdSync<LeSetScanParams>> PadLink<'_, '_, C> {
                     loop {
                         let request = self.channels.remote_requests.wait().await;
                         self.request = request;
-                        if request.disconnects != disconnects_before {
+                        if request.disconnects_of(Pad::Ble) != disconnects_before {
                             return;
                         }
                     }
@@ -462,6 +464,7 @@ impl<C: HciController + ControllerCmdSync<LeSetScanParams>> PadLink<'_, '_, C> {
         report(
             self.channels,
             Input::RemoteLink {
+                pad: Pad::Ble,
                 bonded: true,
                 connected,
             },
@@ -559,7 +562,13 @@ async fn forward_reports<C: HciController>(
         // A report that does not decode is dropped: the next one carries the whole
         // state again.
         if let Ok(Some(state)) = layout.decode(report_id, notification.as_ref()) {
-            channels.inputs.send(Input::Gamepad(state)).await;
+            channels
+                .inputs
+                .send(Input::Gamepad {
+                    pad: Pad::Ble,
+                    state,
+                })
+                .await;
         }
     }
 }

@@ -20,6 +20,7 @@ pub use switch::wait_until_on;
 use embassy_sync::signal::Signal;
 
 use base_core::hid::light_bar::BaseLight;
+use base_core::remote::Pad;
 
 use crate::channels::{InputSender, RawMutex};
 use crate::store::PendingWrites;
@@ -30,11 +31,25 @@ use crate::store::PendingWrites;
 pub struct RemoteRequest {
     /// A new pad may be paired (and replace the bonded one) while this is true.
     pub pairing_open: bool,
-    /// Counts the controller's requests to switch the pad off; a change means "drop the
+    /// Counts the controller's requests to switch each task's pad off (indexed by
+    /// [`Pad`], read with [`RemoteRequest::disconnects_of`]); a change means "drop the
     /// link now" (a counter, so two requests in a row are not merged into one state).
-    pub disconnects: u16,
+    pub disconnects: [u16; 2],
     /// Bluetooth, off after a panic loop, was turned on ([`wait_until_on`]).
     pub bluetooth_on: bool,
+}
+
+impl RemoteRequest {
+    /// The switch-off requests so far for `pad`'s task.
+    pub fn disconnects_of(&self, pad: Pad) -> u16 {
+        self.disconnects[pad as usize]
+    }
+
+    /// One more switch-off request for `pad`'s task.
+    pub fn disconnect(&mut self, pad: Pad) {
+        let count = &mut self.disconnects[pad as usize];
+        *count = count.wrapping_add(1);
+    }
 }
 
 /// The remote task's channel ends (see [`crate::channels::Channels`]).

@@ -5,12 +5,12 @@
 //!   controller ══HCI══ split::LeTransport ── ExternalController ── guard ── trouble-host (BLE task)
 //!                          │   (core::hci_split decides)
 //!                          └── split::ClassicPort ── task::run (classic-host, PlayStation decoder)
-//!   controller task ◀──▶ RemoteFanout ◀──▶ both remote tasks
+//!   controller task ──requests──▶ RemoteFanout ──▶ both remote tasks ──inputs (tagged)──▶ controller task
 //! ```
 //!
-//! [`RemoteFanout`] gives each remote task its own request signal and input queue:
-//! both see every request of the controller (the pairing window, a switch-off), and
-//! their link reports are merged into one.
+//! [`RemoteFanout`] gives each remote task its own request signal: both see every
+//! request of the controller (the pairing window, a switch-off). Each task tags its
+//! links and reports with its [`Pad`], and the controller decides which pad controls.
 
 mod split;
 mod task;
@@ -25,15 +25,13 @@ use bt_hci::ReadHciError;
 use bt_hci::controller::ExternalController;
 use bt_hci::transport::Transport;
 use embassy_futures::join::join3;
-use embassy_futures::select::{Either3, select3};
-use embassy_sync::channel::Channel;
 use embassy_sync::signal::Signal;
 use embedded_storage_async::nor_flash::NorFlash;
 
-use base_core::controller::Input;
+use base_core::remote::Pad;
 
 use crate::ble::{RemoteEnds, RemoteRequest};
-use crate::channels::{INPUT_QUEUE, RawMutex};
+use crate::channels::RawMutex;
 
 /// Runs both remotes for ever on one controller reached through `transport`: the BLE
 /// central (`crate::ble::run`, with the random static `ble_address`) and the
@@ -62,13 +60,13 @@ where
             ble_address,
             bond_flash.clone(),
             bond_range.clone(),
-            fanout.ends(Remote::Ble, ends),
+            fanout.ends(Pad::Ble, ends),
         ),
         run(
             ClassicPort::new(transport, &split),
             bond_flash,
             bond_range,
-            fanout.ends(Remote::Classic, ends),
+            fanout.ends(Pad::Classic, ends),
         ),
         fanout.run(ends),
     )
@@ -87,17 +85,12 @@ pub trait TransportError {}
 #[cfg(not(feature = "defmt"))]
 impl<E> TransportError for E {}
 
-/// The two remote tasks' channel ends, and the merge of what they report.
+/// The two remote tasks' request signals: both hear every request of the controller
+/// (the pairing window, a switch-off of either task's pad, Bluetooth on). Their inputs
+/// go straight to the controller, each tagged with its [`Pad`]: which pad controls is
+/// the controller's decision (`base_core::remote::arbiter`).
 pub struct RemoteFanout {
     requests: [Signal<RawMutex, RemoteRequest>; 2],
-    inputs: [Channel<RawMutex, Input, INPUT_QUEUE>; 2],
-}
-
-/// Which remote task.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Remote {
-    Ble = 0,
-    Classic = 1,
 }
 
 impl Default for RemoteFanout {
@@ -110,64 +103,24 @@ impl RemoteFanout {
     pub const fn new() -> Self {
         Self {
             requests: [Signal::new(), Signal::new()],
-            inputs: [Channel::new(), Channel::new()],
         }
     }
 
-    /// The channel ends of one remote task (the flash gate is the controller's).
-    pub fn ends<'a>(&'a self, remote: Remote, ends: RemoteEnds<'a>) -> RemoteEnds<'a> {
+    /// The channel ends of `pad`'s task: its own request signal, the rest the
+    /// controller's.
+    pub fn ends<'a>(&'a self, pad: Pad, ends: RemoteEnds<'a>) -> RemoteEnds<'a> {
         RemoteEnds {
-            remote_requests: &self.requests[remote as usize],
-            inputs: self.inputs[remote as usize].sender(),
-            flash_gate: ends.flash_gate,
-            base_light: ends.base_light,
+            remote_requests: &self.requests[pad as usize],
+            ..ends
         }
     }
 
-    /// Hands every request to both tasks and their inputs to the controller, for ever.
-    /// A pad's link going down is always reported down, even while the other pad is
-    /// connected (so a dead-man held on the lost pad brakes), then up again.
+    /// Hands every request of the controller to both tasks, for ever.
     pub async fn run(&self, ends: RemoteEnds<'_>) -> ! {
-        // (bonded, connected) of each task.
-        let mut links = [(false, false); 2];
         loop {
-            let (remote, input) = match select3(
-                ends.remote_requests.wait(),
-                self.inputs[0].receive(),
-                self.inputs[1].receive(),
-            )
-            .await
-            {
-                Either3::First(request) => {
-                    for signal in &self.requests {
-                        signal.signal(request);
-                    }
-                    continue;
-                }
-                Either3::Second(input) => (0, input),
-                Either3::Third(input) => (1, input),
-            };
-            match input {
-                Input::RemoteLink { bonded, connected } => {
-                    let lost = links[remote].1 && !connected;
-                    links[remote] = (bonded, connected);
-                    let bonded = links.iter().any(|link| link.0);
-                    let connected = links.iter().any(|link| link.1);
-                    if lost && connected {
-                        ends.inputs
-                            .send(Input::RemoteLink {
-                                bonded,
-                                connected: false,
-                            })
-                            .await;
-                    }
-                    ends.inputs
-                        .send(Input::RemoteLink { bonded, connected })
-                        .await;
-                }
-                // Reports of a pad whose link is down are stale.
-                Input::Gamepad(_) if !links[remote].1 => {}
-                input => ends.inputs.send(input).await,
+            let request = ends.remote_requests.wait().await;
+            for signal in &self.requests {
+                signal.signal(request);
             }
         }
     }

@@ -39,6 +39,7 @@ use base_core::hid::playstation::{
     check_full_mode_feature,
 };
 use base_core::registers::RemoteInfo;
+use base_core::remote::Pad;
 use base_core::time::Timestamp;
 use bt_hci::transport::Transport;
 use classic_host::hci::{BdAddr, LinkKey};
@@ -122,6 +123,7 @@ pub async fn run<T: Transport, F: NorFlash>(
     };
     ends.inputs
         .send(Input::RemoteLink {
+            pad: Pad::Classic,
             bonded: params.bond.is_some(),
             connected: false,
         })
@@ -165,7 +167,8 @@ pub async fn run<T: Transport, F: NorFlash>(
             }
             let mut light_event = light_bar::Event::Tick;
             if let Either4::Third(new) = event {
-                disconnect = new.disconnects != request.disconnects;
+                disconnect =
+                    new.disconnects_of(Pad::Classic) != request.disconnects_of(Pad::Classic);
                 request = new;
             }
             params.pairing_window_open = request.pairing_open;
@@ -296,6 +299,7 @@ async fn send<T: Transport>(port: &ClassicPort<'_, T>, packets: &[Packet]) {
 async fn link(ends: &RemoteEnds<'_>, params: &Params, connected: bool) {
     ends.inputs
         .send(Input::RemoteLink {
+            pad: Pad::Classic,
             bonded: params.bond.is_some(),
             connected,
         })
@@ -338,12 +342,22 @@ async fn report(
         }
         if session.info != Some(info) {
             session.info = Some(info);
-            ends.inputs.send(Input::RemoteInfo(info)).await;
+            ends.inputs
+                .send(Input::RemoteInfo {
+                    pad: Pad::Classic,
+                    info,
+                })
+                .await;
         }
     }
     if session.last_state != Some(decoded.state) {
         session.last_state = Some(decoded.state);
-        ends.inputs.send(Input::Gamepad(decoded.state)).await;
+        ends.inputs
+            .send(Input::Gamepad {
+                pad: Pad::Classic,
+                state: decoded.state,
+            })
+            .await;
     }
     new_kind
 }

@@ -405,6 +405,33 @@ fn windows_out_of_turn_are_refused_and_a_lost_written_reply_is_repeated() {
     assert_eq!(bench.written, [0]);
 }
 
+/// A WINDOW for the last index a frame can name (0xFFFF) is out of turn like any
+/// other: refused with WrongWindow, never an overflow of the "repeat WRITTEN" check.
+#[test]
+fn a_window_index_of_0xffff_is_refused_as_out_of_turn() {
+    let image = image("0.3.0");
+    let mut bench = Bench::new();
+    bench.begin(&image, BeginFlags::default());
+    for written in 0..2 {
+        let replies = bench.command(C::Window {
+            session: SID,
+            index: u16::MAX,
+            crc: 0,
+        });
+        assert_eq!(
+            replies,
+            [UpdateReply::Refused {
+                opcode: 0x04,
+                error: UpdateError::WrongWindow,
+                detail: 0
+            }],
+            "after {written} windows written"
+        );
+        bench.window(&image, written);
+    }
+    assert_eq!(bench.written, [0, WINDOW_LEN as u32]);
+}
+
 #[test]
 fn image_checks_refuse_before_any_write() {
     let other_chip = synthetic_image(Chip::Esp32c6, PROJECT, "0.3.0", &[0; 5000]);
