@@ -2,52 +2,117 @@
 //! queued. A bus-off is reported and recovered from here; the controller never waits
 //! for the bus.
 
-use core::cell::Cell;
+use core::cell::RefCell;
 
 use embassy_sync::blocking_mutex::Mutex;
-use embassy_sync::channel::Channel;
+use embassy_sync::signal::Signal;
 use embassy_time::Timer;
+use heapless::Deque;
 
-use base_core::can::RawFrame;
+use base_core::can::{RawFrame, id};
 use base_core::controller::Input;
 
 use crate::channels::{InputSender, RawMutex};
 use crate::hw::{BusState, CanError, CanRx, CanTx};
 use crate::update::UpdateLink;
 
-/// Frames the transmit queue holds. A PC may send a burst of register reads at once,
-/// and every reply is queued at once, while the bus sends one frame per ~0.2 ms: the
-/// queue holds a burst of 24 replies plus one of each periodic frame (position,
-/// heading, battery, weight, status), with three to spare. A longer burst loses
-/// replies, counted in `can_tx_dropped` (register 43). 32 frames of 16 bytes.
-pub const CAN_TX_QUEUE: usize = 32;
+/// Replies the transmit queue holds: register replies and the update task's replies.
+/// A PC may send a burst of register reads at once and every reply is queued at once,
+/// while the bus sends one frame per ~0.2 ms: a burst of 32 is answered in full. A
+/// longer burst, or requests coming faster than the bus carries their replies, loses
+/// the replies that find the queue full, counted in `can_tx_dropped` (register 43).
+/// 32 frames of 16 bytes.
+pub const REPLY_QUEUE: usize = 32;
 
-/// The frames waiting for the CAN TX task, in order. Senders never wait: a full queue
-/// drops the frame and counts it.
+/// The frames waiting for the CAN TX task, in two classes. The periodic feedback frames
+/// ([`id::FEEDBACK`]) have one slot per ID and always go first: a reply never drops
+/// or delays them beyond the one frame already on its way to the wire. Replies wait in
+/// a queue of their own, in order. Senders never wait: a reply that finds its queue
+/// full is dropped and counted, and a feedback frame replaces an older one of its ID
+/// that is still waiting (the bus was off or full of other nodes' frames for a whole
+/// period), which counts as dropped too.
 pub struct FrameQueue {
-    frames: Channel<RawMutex, RawFrame, CAN_TX_QUEUE>,
-    dropped: Mutex<RawMutex, Cell<u32>>,
+    queued: Mutex<RawMutex, RefCell<Queued>>,
+    /// Set by every send; the TX task waits on it when both classes are empty.
+    queued_signal: Signal<RawMutex, ()>,
+}
+
+struct Queued {
+    /// At most one frame per feedback ID, in the order they fell due.
+    feedback: Deque<RawFrame, { id::FEEDBACK.len() }>,
+    replies: Deque<RawFrame, REPLY_QUEUE>,
+    dropped: u32,
+}
+
+impl Queued {
+    fn push(&mut self, frame: RawFrame) {
+        let pushed = if id::is_feedback(frame.id()) {
+            match self
+                .feedback
+                .iter_mut()
+                .find(|waiting| waiting.id() == frame.id())
+            {
+                Some(older) => {
+                    // The newest value in the older one's place: the frame that falls
+                    // due next is the one the PC should get.
+                    *older = frame;
+                    false
+                }
+                // One slot per feedback ID: there is always room.
+                None => self.feedback.push_back(frame).is_ok(),
+            }
+        } else {
+            self.replies.push_back(frame).is_ok()
+        };
+        if !pushed {
+            self.dropped = self.dropped.wrapping_add(1);
+        }
+    }
+
+    fn pop(&mut self) -> Option<RawFrame> {
+        self.feedback
+            .pop_front()
+            .or_else(|| self.replies.pop_front())
+    }
 }
 
 impl FrameQueue {
     pub const fn new() -> Self {
         Self {
-            frames: Channel::new(),
-            dropped: Mutex::new(Cell::new(0)),
+            queued: Mutex::new(RefCell::new(Queued {
+                feedback: Deque::new(),
+                replies: Deque::new(),
+                dropped: 0,
+            })),
+            queued_signal: Signal::new(),
         }
     }
 
-    /// Queues a frame for sending without waiting; a full queue drops it.
+    /// Queues a frame for sending without waiting, in its class by its ID.
     pub fn send(&self, frame: RawFrame) {
-        if self.frames.try_send(frame).is_err() {
-            self.dropped
-                .lock(|dropped| dropped.set(dropped.get().wrapping_add(1)));
-        }
+        self.queued.lock(|queued| queued.borrow_mut().push(frame));
+        self.queued_signal.signal(());
     }
 
-    /// Frames dropped because the queue was full.
+    /// Frames dropped since boot: replies that found their queue full, and feedback
+    /// frames replaced by a newer one before they were sent.
     pub fn dropped(&self) -> u32 {
-        self.dropped.lock(Cell::get)
+        self.queued.lock(|queued| queued.borrow().dropped)
+    }
+
+    /// The frame to send next: feedback before replies.
+    fn take(&self) -> Option<RawFrame> {
+        self.queued.lock(|queued| queued.borrow_mut().pop())
+    }
+
+    /// Waits for the frame to send next.
+    async fn next(&self) -> RawFrame {
+        loop {
+            if let Some(frame) = self.take() {
+                return frame;
+            }
+            self.queued_signal.wait().await;
+        }
     }
 }
 
@@ -84,7 +149,9 @@ pub async fn run_rx<R: CanRx>(mut rx: R, inputs: InputSender<'_>, update: &Updat
 
 pub async fn run_tx<T: CanTx>(mut tx: T, queue: &FrameQueue, inputs: InputSender<'_>) -> ! {
     loop {
-        let raw = queue.frames.receive().await;
+        // Chosen only once the previous frame has left, so that a feedback frame that
+        // falls due meanwhile goes next.
+        let raw = queue.next().await;
         if tx.state() == BusState::Off {
             recover(&mut tx, inputs).await;
         }
@@ -109,13 +176,69 @@ async fn recover<T: CanTx>(tx: &mut T, inputs: InputSender<'_>) {
 mod tests {
     use super::*;
 
+    fn reply(address: u8) -> RawFrame {
+        RawFrame::new(id::REGISTER_READ, &[0, 0, 1, address, 0, 0]).expect("valid frame")
+    }
+
+    fn feedback(frame_id: u16, first: u8) -> RawFrame {
+        RawFrame::new(frame_id, &[first; 8]).expect("valid frame")
+    }
+
+    fn drain(queue: &FrameQueue) -> Vec<RawFrame> {
+        core::iter::from_fn(|| queue.take()).collect()
+    }
+
     #[test]
-    fn a_full_queue_drops_and_counts_instead_of_waiting() {
+    fn a_full_reply_queue_drops_and_counts_instead_of_waiting() {
         let queue = FrameQueue::new();
-        let frame = RawFrame::new(0x0EC, &[0; 8]).expect("valid frame");
-        for _ in 0..CAN_TX_QUEUE + 3 {
-            queue.send(frame);
+        for address in 0..REPLY_QUEUE as u8 + 3 {
+            queue.send(reply(address));
         }
         assert_eq!(queue.dropped(), 3);
+        // The first ones stay, in order.
+        let sent = drain(&queue);
+        assert_eq!(sent.len(), REPLY_QUEUE);
+        assert_eq!(sent[0], reply(0));
+        assert_eq!(sent[REPLY_QUEUE - 1], reply(REPLY_QUEUE as u8 - 1));
+    }
+
+    #[test]
+    fn feedback_frames_go_before_waiting_replies_and_a_full_reply_queue_drops_none_of_them() {
+        let queue = FrameQueue::new();
+        for address in 0..REPLY_QUEUE as u8 + 10 {
+            queue.send(reply(address));
+        }
+        let due = id::FEEDBACK.map(|frame_id| feedback(frame_id, 1));
+        for frame in due {
+            queue.send(frame);
+        }
+        queue.send(reply(99));
+        assert_eq!(
+            queue.dropped(),
+            11,
+            "the replies beyond the queue, no feedback"
+        );
+        let sent = drain(&queue);
+        assert_eq!(
+            sent[..due.len()],
+            due,
+            "every feedback frame first, in order"
+        );
+        assert_eq!(sent[due.len()], reply(0));
+        assert_eq!(sent.len(), due.len() + REPLY_QUEUE);
+    }
+
+    #[test]
+    fn a_feedback_frame_not_yet_sent_is_replaced_in_place_by_the_next_of_its_id() {
+        let queue = FrameQueue::new();
+        queue.send(feedback(id::POSITION, 1));
+        queue.send(feedback(id::HEADING, 1));
+        queue.send(feedback(id::POSITION, 2));
+        queue.send(feedback(id::HEADING, 2));
+        assert_eq!(queue.dropped(), 2);
+        assert_eq!(
+            drain(&queue),
+            [feedback(id::POSITION, 2), feedback(id::HEADING, 2)]
+        );
     }
 }

@@ -36,9 +36,11 @@ pub struct Channels {
     /// event counts and order matters (an e-stop edge must not be overtaken). Senders
     /// await room; the controller only computes, so it drains faster than anyone fills.
     pub inputs: Channel<RawMutex, Input, INPUT_QUEUE>,
-    /// Controller → CAN TX. A queue of frames in order that the controller never waits
-    /// on: when the bus is slow or off and the queue is full, the frame is dropped and
-    /// counted, because control must go on.
+    /// Controller and update task → CAN TX. Two classes the senders never wait on:
+    /// the periodic feedback frames (one slot per ID, sent first, so that no reply
+    /// traffic drops or delays them) and replies (a queue in order; when the bus is
+    /// slow or off and it is full, the reply is dropped and counted, because control
+    /// must go on).
     pub can_tx: FrameQueue,
     /// Controller → drive link. A signal (latest value wins), because the demand is a
     /// state, not an event: only the newest setpoint matters, and the link must never

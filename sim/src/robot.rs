@@ -26,7 +26,10 @@ use base_core::panic_loop::{Bluetooth, PanicHistory};
 use base_core::registers::UpdateReset;
 use base_core::remote::Pad;
 use base_core::time::Timestamp;
+use base_core::update::otadata::Slot;
+use base_core::update::partitions;
 use base_runtime::channels::{Channels, InputSender};
+use base_runtime::update::{UpdateConfig, UpdateFlash};
 use base_runtime::{Hardware, Settings};
 use embassy_futures::select::{Either, select};
 use embassy_time::{Duration, Instant, Timer};
@@ -122,6 +125,48 @@ impl VirtualRobot {
         let firmware = async {
             Timer::after(self.boot_time).await;
             base_runtime::run(hardware, self.settings, &channels).await
+        };
+        block_on(async {
+            match select(firmware, script(&pc)).await {
+                Either::First(never) => never,
+                Either::Second(result) => result,
+            }
+        })
+    }
+
+    /// [`Self::run`] with the firmware update task beside the firmware, as the chip runs
+    /// it, on a blank app flash of its own (the update task answers QUERY; a run that
+    /// writes an image needs the simulator's bootloader model instead).
+    pub fn run_with_update<T>(&self, script: impl AsyncFnOnce(&Pc) -> T) -> T {
+        let (hardware, pc) = self.boot();
+        let channels = Channels::new();
+        let app_flash = RamFlash::new(partitions::FLASH_SIZE as usize);
+        let mut update_flash = UpdateFlash::new(app_flash, Slot::Ota0);
+        let config = UpdateConfig {
+            chip: crate::app_flash::SIM_CHIP,
+            project: base_runtime::update::PROJECT,
+            version: crate::app_flash::FACTORY_VERSION,
+            trial_deadline_ms: base_runtime::update::TRIAL_DEADLINE_MS,
+        };
+        let firmware = async {
+            Timer::after(self.boot_time).await;
+            let role = base_runtime::update::arm(&mut update_flash, &channels.update).await;
+            let update = base_runtime::update::run(
+                &mut update_flash,
+                role,
+                &config,
+                &channels.update,
+                &channels.can_tx,
+            );
+            match select(
+                base_runtime::run(hardware, self.settings, &channels),
+                update,
+            )
+            .await
+            {
+                Either::First(never) => never,
+                Either::Second(reset) => panic!("the update task asked for a reset: {reset:?}"),
+            }
         };
         block_on(async {
             match select(firmware, script(&pc)).await {

@@ -71,6 +71,17 @@ pub mod id {
 
     /// Every ID the base controller sends, e.g. for the PC-side receive filter.
     pub const REPORTS: [u16; 6] = [REGISTER_READ, WEIGHT, BATTERY, POSITION, HEADING, STATUS];
+
+    /// The periodic feedback frames: sent on their own schedule whatever else the bus
+    /// carries. Everything else the base controller sends (register replies, update
+    /// replies) answers a request.
+    pub const FEEDBACK: [u16; 5] = [POSITION, HEADING, BATTERY, WEIGHT, STATUS];
+
+    /// Whether the base controller sends `frame_id` as periodic feedback rather than as
+    /// a reply (see [`FEEDBACK`]).
+    pub fn is_feedback(frame_id: u16) -> bool {
+        FEEDBACK.contains(&frame_id)
+    }
 }
 
 /// Highest identifier of classic CAN 2.0A (11 bits).
@@ -236,6 +247,25 @@ mod tests {
         {
             assert!(*id <= MAX_STANDARD_ID, "{id:#x}");
         }
+    }
+
+    #[test]
+    fn the_periodic_frames_are_feedback_and_every_reply_is_not() {
+        for feedback in [
+            id::POSITION,
+            id::HEADING,
+            id::BATTERY,
+            id::WEIGHT,
+            id::STATUS,
+        ] {
+            assert!(id::is_feedback(feedback), "{feedback:#x}");
+        }
+        for reply in [id::REGISTER_READ, id::UPDATE_REPLY] {
+            assert!(!id::is_feedback(reply), "{reply:#x}");
+        }
+        // Every frame the base controller sends is one or the other, and the feedback
+        // frames are all reports.
+        assert!(id::FEEDBACK.iter().all(|id| id::REPORTS.contains(id)));
     }
 
     #[test]

@@ -9,6 +9,7 @@ pub mod serial;
 pub mod socketcan;
 pub mod socketcand;
 pub mod status;
+pub mod wire_queue;
 
 use std::cell::RefCell;
 use std::io::{self, BufRead, IsTerminal, Write};
@@ -523,7 +524,8 @@ impl View<'_> {
 /// and the SocketCAN interface are nodes beside the controller. Every frame one of
 /// them sends takes its time on the wire (shared with the controller's frames), then
 /// reaches the controller and every other node (not itself, as on a real bus); every
-/// frame the controller sends reaches them all.
+/// frame the controller sends reaches them all. The nodes' frames take the wire in
+/// turn ([`wire_queue`]).
 async fn bridge(
     port: &SerialPort,
     network: &QueueReceiver<Event>,
@@ -550,29 +552,31 @@ enum PcNode {
     Network(u64),
 }
 
-/// Frames of the PC's nodes on their way to the wire: each with the node that sent it
-/// and the time the node had it.
-type ToWire = embassy_sync::channel::Channel<
-    NoopRawMutex,
-    (crate::can::SimFrame, PcNode, Instant),
-    PC_TRANSMIT_QUEUE,
->;
+/// A PC frame waiting for the wire: the time its node had it, and for a network node
+/// its place in the node's queue, given back once the frame has left.
+type Waiting = (
+    crate::can::SimFrame,
+    Instant,
+    Option<wire_queue::CreditToken>,
+);
+
+/// The frames of the PC's nodes on their way to the wire, each node in turn.
+type ToWire = wire_queue::WireQueues<PcNode, Waiting>;
 
 /// Frames of the PC's nodes that have left the wire, for the other nodes.
-type OnWire =
-    embassy_sync::channel::Channel<NoopRawMutex, (crate::can::SimFrame, PcNode), PC_TRANSMIT_QUEUE>;
-
-/// Frames waiting for the bus across all of the PC's nodes: about the queue of an
-/// SLCAN adapter or of a SocketCAN interface (10 frames by default, with the socket's
-/// buffer in front of it).
-const PC_TRANSMIT_QUEUE: usize = 32;
+type OnWire = embassy_sync::channel::Channel<
+    NoopRawMutex,
+    (crate::can::SimFrame, PcNode),
+    { wire_queue::NODE_TRANSMIT_QUEUE },
+>;
 
 /// The PC's frames, one after the other, each for its bus time (in turn with the
 /// controller's), then handed back for the other nodes.
 async fn put_on_wire(peer: &CanPeer, to_wire: &ToWire, on_wire: &OnWire) -> ! {
     loop {
-        let (frame, sender, queued) = to_wire.receive().await;
+        let (sender, (frame, queued, credit)) = to_wire.next().await;
         peer.transmit(frame, queued).await;
+        drop(credit);
         on_wire.send((frame, sender)).await;
     }
 }
@@ -602,8 +606,17 @@ async fn serve_nodes(
                 false => core::future::pending().await,
             }
         };
+        // While the SLCAN adapter's queue is full its lines wait in the serial port,
+        // as a full adapter holds up its writer.
+        let slcan_room = to_wire.waiting(PcNode::Slcan) < wire_queue::NODE_TRANSMIT_QUEUE;
+        let port_event = async {
+            match slcan_room {
+                true => port.events().receive().await,
+                false => core::future::pending().await,
+            }
+        };
         match select4(
-            port.events().receive(),
+            port_event,
             view.peer.receive(),
             network_event,
             on_wire.receive(),
@@ -612,8 +625,7 @@ async fn serve_nodes(
         {
             Either4::First(Some(PortEvent::Line(line))) => {
                 if let Some(frame) = slcan.handle_line(&line) {
-                    let queued = (frame, PcNode::Slcan, now());
-                    queue_for_wire(queued, (to_wire, on_wire), &slcan, &mut clients).await;
+                    to_wire.push(PcNode::Slcan, (frame, now(), None));
                 }
             }
             Either4::First(Some(PortEvent::Closed)) => slcan.port_closed(),
@@ -628,10 +640,13 @@ async fn serve_nodes(
                 clients.offer(&frame, None);
             }
             Either4::Third(Some(Event::Joined(client))) => clients.join(client),
-            Either4::Third(Some(Event::Frame { client, frame })) => {
+            Either4::Third(Some(Event::Frame {
+                client,
+                frame,
+                credit,
+            })) => {
                 view.network.frames_in.set(view.network.frames_in.get() + 1);
-                let queued = (frame, PcNode::Network(client), now());
-                queue_for_wire(queued, (to_wire, on_wire), &slcan, &mut clients).await;
+                to_wire.push(PcNode::Network(client), (frame, now(), Some(credit)));
             }
             Either4::Third(Some(Event::Refused { client, why })) => {
                 view.output
@@ -646,24 +661,6 @@ async fn serve_nodes(
             Either4::Third(None) => network_open = false,
             Either4::Fourth((frame, sender)) => offer_sent(frame, sender, &slcan, &mut clients),
         }
-    }
-}
-
-/// Queues a PC frame for the wire. While the queue is full the simulator takes no
-/// more frames from the PC's programs (they wait in the serial port's lines and the
-/// socketcand connections' queues; nothing is dropped), as a CAN interface's full
-/// transmit queue blocks its writer, and the frames the wire sends in that time go on
-/// to the other nodes.
-async fn queue_for_wire(
-    mut frame: (crate::can::SimFrame, PcNode, Instant),
-    (to_wire, on_wire): (&ToWire, &OnWire),
-    slcan: &SlcanNode<'_>,
-    clients: &mut Clients<'_>,
-) {
-    while let Err(embassy_sync::channel::TrySendError::Full(back)) = to_wire.try_send(frame) {
-        frame = back;
-        let (sent, sender) = on_wire.receive().await;
-        offer_sent(sent, sender, slcan, clients);
     }
 }
 

@@ -13,6 +13,7 @@ use embedded_can::Frame as _;
 use socketcan::{CanFrame, CanSocket, Socket};
 
 use super::socketcand::Event;
+use super::wire_queue::{NODE_TRANSMIT_QUEUE, NodeCredit};
 use crate::can::SimFrame;
 use crate::runtime::QueueSender;
 
@@ -64,6 +65,9 @@ impl SocketCanLink {
             io::Error::new(error.kind(), format!("--socketcan {interface}: {why}"))
         })?);
         let reader = socket.clone();
+        // While the interface's frames fill their queue for the wire, the socket is not
+        // read (its receive buffer takes what comes meanwhile, as the kernel's does).
+        let credit = NodeCredit::new(NODE_TRANSMIT_QUEUE);
         thread::Builder::new()
             .name("socketcan-reader".into())
             .spawn(move || {
@@ -77,6 +81,7 @@ impl SocketCanLink {
                         events.send(Event::Frame {
                             client: NODE,
                             frame,
+                            credit: credit.take(),
                         });
                     }
                 }

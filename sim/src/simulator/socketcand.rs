@@ -24,6 +24,7 @@ use embedded_can::{ExtendedId, Frame, Id, StandardId};
 
 use crate::can::SimFrame;
 use crate::runtime::QueueSender;
+use crate::simulator::wire_queue::{CreditToken, NODE_TRANSMIT_QUEUE, NodeCredit};
 
 /// Where the simulator listens unless told otherwise (socketcand's own default port
 /// is 29536 as well).
@@ -138,8 +139,13 @@ pub fn format_frame(frame: &SimFrame, time: Duration) -> String {
 pub enum Event {
     /// A client finished its handshake: from now on it sees the bus.
     Joined(Client),
-    /// A client sent a frame onto the bus.
-    Frame { client: u64, frame: SimFrame },
+    /// A client sent a frame onto the bus; `credit` is its place in the client's
+    /// queue for the wire ([`crate::simulator::wire_queue`]).
+    Frame {
+        client: u64,
+        frame: SimFrame,
+        credit: CreditToken,
+    },
     /// A client sent something the server does not understand; it stays connected.
     Refused { client: u64, why: String },
     /// A client went away (closed, or its connection failed).
@@ -265,10 +271,16 @@ fn serve_client(id: u64, stream: TcpStream, events: QueueSender<Event>) {
     let _ = thread::Builder::new()
         .name(format!("socketcand-{id}-out"))
         .spawn(move || write_frames(writer, outgoing));
+    // While the client has a full queue of frames waiting for the wire, it is not read.
+    let credit = NodeCredit::new(NODE_TRANSMIT_QUEUE);
     loop {
         match messages.next() {
             Ok(Some(body)) => match parse_request(&body) {
-                Ok(Request::Send(frame)) => events.send(Event::Frame { client: id, frame }),
+                Ok(Request::Send(frame)) => events.send(Event::Frame {
+                    client: id,
+                    frame,
+                    credit: credit.take(),
+                }),
                 Ok(Request::Echo) => {
                     // Answered through the hub's queue would reorder it; echo is rare
                     // and harmless to drop for a client that is this busy.
