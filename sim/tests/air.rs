@@ -427,15 +427,9 @@ fn after_a_reboot_the_bonded_dualshock4_pages_and_reconnects_with_its_key_from_f
     );
 }
 
-/// Both kinds bonded, then a reboot: the PlayStation pad's key must come back too.
-///
-/// Fails today: the Classic task reads its bond with a sequential-storage buffer of
-/// 39 bytes (its record and 16), and the BLE task's item in the same partition is 54
-/// bytes, so `fetch_item` stops with `BufferTooSmall` and the PlayStation pad is
-/// rejected as a stranger (0x0F) after every reboot (`runtime/src/classic/task.rs`,
-/// `BOND_BUFFER`; with 69 bytes it passes).
+/// Both kinds bonded, then a reboot: the PlayStation pad's key must come back too
+/// (it did not, while the Classic task's flash buffer fit only its own record).
 #[test]
-#[ignore = "defect in runtime/src/classic/task.rs: the Classic bond is not read back beside a BLE bond"]
 fn after_a_reboot_both_kinds_of_pad_reconnect_with_the_bonds_from_flash() {
     let _one = one_robot();
     let robot = AirRobot::new(SEED);

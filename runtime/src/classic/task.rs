@@ -46,7 +46,7 @@ use classic_host::hci::{BdAddr, LinkKey};
 use classic_host::{Bond, ClassicHost, Event, Packet, PadEvent, Params};
 
 use super::split::{ClassicPacket, ClassicPort};
-use crate::ble::{RemoteEnds, RemoteRequest};
+use crate::ble::{BOND_RECORD_LEN, RemoteEnds, RemoteRequest};
 
 /// The link supervision timeout the host sets as central: as the BLE link's.
 pub const SUPERVISION_TIMEOUT_MS: u64 = 500;
@@ -66,7 +66,17 @@ const CLASSIC_BOND_KEY: u8 = 1;
 const RECORD_VERSION: u8 = 1;
 /// Version, address, link key.
 const RECORD_LEN: usize = 1 + 6 + 16;
-const BOND_BUFFER: usize = RECORD_LEN + 16;
+/// sequential-storage's work buffer: it reads every item of the partition while it
+/// looks for ours, so it must hold the largest one, the BLE bond beside ours, with its
+/// key and item header. Sized for our record alone, every read failed once a BLE pad
+/// was bonded too, and the PlayStation pad was a stranger after each reboot.
+const BOND_BUFFER: usize = max(RECORD_LEN, BOND_RECORD_LEN) + 16;
+// The BLE task's buffer is sized for its own record: ours must never be larger.
+const _: () = assert!(RECORD_LEN <= BOND_RECORD_LEN);
+
+const fn max(a: usize, b: usize) -> usize {
+    if a > b { a } else { b }
+}
 
 fn slots(ms: u64) -> u16 {
     // 0.625 ms slots.
