@@ -683,7 +683,9 @@ const BOND_KEY: u8 = 0;
 /// sequential-storage's work buffer: the record, its key and the item header.
 const BOND_BUFFER: usize = BOND_RECORD_LEN + 16;
 
-enum BondStoreError {
+/// Why the bond could not be stored.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BondStoreError {
     /// The partition is not whole pages.
     Misconfigured,
     Flash,
@@ -705,14 +707,23 @@ impl<F: NorFlash> BondStore<F> {
     }
 
     async fn store(&mut self, bond: &BondInformation) -> Result<(), BondStoreError> {
-        let mut buffer = [0u8; BOND_BUFFER];
-        let config =
-            MapConfig::try_new(self.range.clone()).map_err(|_| BondStoreError::Misconfigured)?;
-        let mut map = MapStorage::<u8, _, _>::new(&mut self.flash, config, Cache::new_uncached());
-        map.store_item(&mut buffer, &BOND_KEY, &encode_bond(bond))
-            .await
-            .map_err(|_| BondStoreError::Flash)
+        store_bond(&mut self.flash, self.range.clone(), bond).await
     }
+}
+
+/// Writes `bond` as the BLE bond record into the bonds partition `range` of `flash`
+/// (the task's own store; a test bonds a pad ahead of a boot with it).
+pub async fn store_bond<F: NorFlash>(
+    flash: &mut F,
+    range: Range<u32>,
+    bond: &BondInformation,
+) -> Result<(), BondStoreError> {
+    let mut buffer = [0u8; BOND_BUFFER];
+    let config = MapConfig::try_new(range).map_err(|_| BondStoreError::Misconfigured)?;
+    let mut map = MapStorage::<u8, _, _>::new(flash, config, Cache::new_uncached());
+    map.store_item(&mut buffer, &BOND_KEY, &encode_bond(bond))
+        .await
+        .map_err(|_| BondStoreError::Flash)
 }
 
 /// A random static Bluetooth address from the chip's MAC (6 bytes, most significant
