@@ -7,9 +7,10 @@
 //! Virtual time: the bounds here (200 ms to zero on the wire, 2 s until the owner is
 //! back) do not depend on how busy the machine is.
 
+use base_core::can::Mode;
 use embassy_time::{Duration, Instant};
 use virtual_robot::ble::RemoteRobot;
-use virtual_robot::fake_hci::{AttackAt, FakeHandle, PAD_ADDRESS, fake_controller};
+use virtual_robot::fake_hci::{AttackAt, FakeHandle, PAD_ADDRESS, XboxReport, fake_controller};
 use virtual_robot::robot::{Pc, wait_ms};
 
 /// The Xbox Wireless Controller's Report Map (BLE firmware 5), as the pad serves it.
@@ -119,4 +120,118 @@ fn one_empty_att_pdu_from_an_impostor_costs_the_owner_at_most_2_s() {
         );
         assert_eq!(fake.stats().resets, 1, "{at:?}: the host never restarted");
     }
+}
+
+/// The speed both drives were last commanded, in r/min (None before any command).
+fn commanded_rpm(robot: &RemoteRobot) -> [Option<i32>; 2] {
+    [1, 2].map(|slave| {
+        robot
+            .robot
+            .drives
+            .drive(slave)
+            .command
+            .map(|command| command.speed_rpm)
+    })
+}
+
+/// The pad holds the dead-man with the stick forward until both wheels are commanded
+/// forward.
+async fn drive_forward(robot: &RemoteRobot, fake: &FakeHandle, pc: &Pc) {
+    // The dead-man counts only once seen released while the drives are ready.
+    assert!(
+        pc.wait_for_status(5_000, |s| s.mode != Mode::Starting)
+            .await
+            .is_some(),
+        "the drives are set up"
+    );
+    fake.notify(XboxReport::default());
+    wait_ms(50).await;
+    fake.notify(XboxReport {
+        left_y: 0x8000,
+        buttons: XboxReport::RB,
+    });
+    assert!(
+        pc.wait_for_status(2_000, |s| s.flags.remote_in_control)
+            .await
+            .is_some(),
+        "the dead-man gives the remote control"
+    );
+    fake.notify(XboxReport {
+        left_y: XboxReport::FULL_FORWARD,
+        buttons: XboxReport::RB,
+    });
+    assert!(
+        within(2_000, || commanded_rpm(robot)
+            .iter()
+            .all(|rpm| rpm.is_some_and(|rpm| rpm != 0)))
+        .await,
+        "the wheels are commanded forward: {:?}",
+        commanded_rpm(robot)
+    );
+}
+
+/// Waits until both drives are commanded zero; how long it took.
+async fn until_zero_on_the_wire(robot: &RemoteRobot, timeout_ms: u64) -> Option<Duration> {
+    let start = Instant::now();
+    within(timeout_ms, || commanded_rpm(robot) == [Some(0), Some(0)])
+        .await
+        .then(|| start.elapsed())
+}
+
+#[test]
+fn a_host_stopped_by_a_broken_transport_stops_the_wheels_within_200_ms_and_starts_again() {
+    let (robot, controller, fake) = bonded_robot_and_pad();
+    robot.run_virtual(controller, async |pc| {
+        pad_ready(&fake, pc, 10_000).await;
+        drive_forward(&robot, &fake, pc).await;
+        // The transport breaks: trouble-host's runner stops. The pad still holds the
+        // dead-man and sends nothing more (BLE pads report on change).
+        fake.fail_next_read();
+        let zero = until_zero_on_the_wire(&robot, 1_000).await;
+        eprintln!(
+            "host stopped: zero on the wire after {:?} ms",
+            zero.map(|zero| zero.as_millis())
+        );
+        assert!(
+            zero.is_some_and(|zero| zero <= Duration::from_millis(200)),
+            "zero on the wire within 200 ms of the host stopping: {zero:?}, {:?}",
+            commanded_rpm(&robot)
+        );
+        // A fresh host resets the controller and serves the pad again.
+        assert!(
+            within(5_000, || fake.stats().resets == 2 && fake.subscribed()).await,
+            "the host started again and serves the pad: {:?}",
+            fake.stats()
+        );
+    });
+}
+
+#[test]
+fn a_host_that_keeps_stopping_stays_off() {
+    let (robot, controller, fake) = bonded_robot_and_pad();
+    robot.run_virtual(controller, async |pc| {
+        pad_ready(&fake, pc, 10_000).await;
+        for start in 2..=3 {
+            fake.fail_next_read();
+            assert!(
+                within(5_000, || fake.stats().resets == start && fake.subscribed()).await,
+                "start {start}: {:?}",
+                fake.stats()
+            );
+        }
+        // The third stop within a minute: the controller is reset (the pad's link ends
+        // with it) and no host starts again.
+        let connections = fake.stats().connections;
+        fake.fail_next_read();
+        wait_ms(30_000).await;
+        assert_eq!(fake.stats().resets, 4, "{:?}", fake.stats());
+        assert_eq!(fake.stats().connections, connections, "no connection since");
+        assert!(!fake.connected());
+        assert!(
+            pc.wait_for_status(100, |s| !s.flags.remote_connected)
+                .await
+                .is_some(),
+            "the pad counts as gone"
+        );
+    });
 }
