@@ -731,7 +731,10 @@ impl Supervisor {
             effects.excite = Some(true);
         }
 
-        let setpoint = if twist == setpoint.twist {
+        // A stop that brakes harder than the ramp running to the same zero (a source
+        // went away while it asked for zero) is sent too.
+        let harder_stop = twist == Twist::ZERO && accel > setpoint.accel_rpm_per_s;
+        let setpoint = if twist == setpoint.twist && !harder_stop {
             setpoint
         } else {
             let new = Setpoint {
@@ -880,6 +883,26 @@ mod tests {
         supervisor.step(at(0), Event::CanVelocity(FORWARD), &PARAMS);
         let effects = supervisor.step(at(10), Event::CanEnable { refresh: false }, &PARAMS);
         assert_eq!(effects.setpoint, setpoint(Twist::ZERO, 700));
+    }
+
+    #[test]
+    fn an_enable_withdrawn_while_a_gentle_zero_velocity_ramps_down_brakes_with_stop_decel() {
+        // The PC asked for zero with a gentle `CAN_accel`; its enable then goes: the
+        // stop brakes with `stop_decel`, not on along the gentle ramp to the same zero.
+        let params = Params {
+            can_accel: 100,
+            ..PARAMS
+        };
+        let mut supervisor = ready();
+        supervisor.step(at(0), Event::CanEnable { refresh: true }, &params);
+        supervisor.step(at(0), Event::CanVelocity(FORWARD), &params);
+        let effects = supervisor.step(at(10), Event::CanVelocity(Twist::ZERO), &params);
+        assert_eq!(effects.setpoint, setpoint(Twist::ZERO, 100));
+        let effects = supervisor.step(at(20), Event::CanEnable { refresh: false }, &params);
+        assert_eq!(effects.setpoint, setpoint(Twist::ZERO, 600));
+        // A stop already as hard is not sent again.
+        let effects = supervisor.step(at(30), Event::Tick, &params);
+        assert_eq!(effects.setpoint, None);
     }
 
     #[test]

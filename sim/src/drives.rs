@@ -491,6 +491,10 @@ impl DrivesHandle {
         let now = Instant::now();
         bus.advance(now);
         change(&mut bus, now);
+        let config = bus.config.clone();
+        for drive in &mut bus.drives {
+            drive.note_order(now, &config);
+        }
         bus.generation += 1;
         if let Some(reader) = bus.reader.take() {
             reader.wake();
@@ -690,7 +694,16 @@ impl Bus {
             .retain(|reply| reply.wire.end <= now || !from(reply.from));
     }
 
+    /// Executes a complete request frame, then logs what it changed in the motors'
+    /// orders.
     fn process(&mut self, frame: &[WireByte], at: Instant) {
+        self.execute_frame(frame, at);
+        for drive in &mut self.drives {
+            drive.note_order(at, &self.config);
+        }
+    }
+
+    fn execute_frame(&mut self, frame: &[WireByte], at: Instant) {
         let bytes: Vec<u8> = frame.iter().map(|wire| wire.byte).collect();
         let char_time = self.config.char_time();
         let started = frame.first().map_or(at, |first| first.end - char_time);
@@ -1206,6 +1219,11 @@ struct Drive {
     feedback_lie: Option<FeedbackLie>,
     /// Its direction parameter differs from the others' (see "A reversed drive" below).
     reversal: Option<Reversed>,
+    /// What the motor was last told, as the event log saw it; `None` until the log is on.
+    observed: Option<MotorOrder>,
+    /// Changes of [`Self::observed`] not yet taken (see "Motor orders" below).
+    orders: Vec<MotorOrderChange>,
+    power_ons: u32,
 }
 
 impl Drive {
@@ -1234,6 +1252,9 @@ impl Drive {
             malformed_requests: 0,
             feedback_lie: None,
             reversal: None,
+            observed: None,
+            orders: Vec::new(),
+            power_ons: 0,
         }
     }
 
@@ -1284,6 +1305,7 @@ impl Drive {
         {
             self.motor.advance(deadline, &self.regime(config));
             self.raise_alarm(u32::from(ALARM_COMMUNICATION_TIMEOUT));
+            self.note_order(deadline, config);
         }
         self.motor.advance(to, &self.regime(config));
     }
@@ -1301,6 +1323,7 @@ impl Drive {
 
     fn power_on(&mut self, now: Instant) {
         if self.powered_since.is_none() {
+            self.power_ons += 1;
             self.powered_since = Some(now);
             self.counter_origin = self.motor.position_counts;
             self.last_traffic = now;
@@ -1794,5 +1817,110 @@ impl DrivesConfig {
             },
         ];
         self
+    }
+}
+
+// ---------------------------------------------------------------------------------
+// Motor orders: what each motor is told to do, as a log for a whole-robot oracle.
+// ---------------------------------------------------------------------------------
+
+/// What a motor is told to do at a moment. Excited (powered, S-ON, no alarm) it runs
+/// towards its target; de-excited, its brake holds it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MotorOrder {
+    pub powered: bool,
+    /// Counts the drive's power-ons: a change tells a brown-out from a S-OFF.
+    pub power_ons: u32,
+    /// S-ON (driver input command bit 0).
+    pub servo_on: bool,
+    /// Present alarm, 0 = none.
+    pub alarm: u32,
+    /// Shaft r/min in the drive's own direction; 0 while de-excited.
+    pub target_rpm: f64,
+    /// The rate it slows down with, (r/min)/s (the brake's while de-excited).
+    pub decel_rpm_per_s: f64,
+}
+
+impl MotorOrder {
+    /// The motor is driven (its brake is released).
+    pub fn excited(&self) -> bool {
+        self.powered && self.servo_on && self.alarm == 0
+    }
+}
+
+/// A change of one drive's [`MotorOrder`], when it took effect, and the shaft's speed
+/// at that moment.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MotorOrderChange {
+    pub at: Instant,
+    /// The drive's address.
+    pub slave: u8,
+    pub order: MotorOrder,
+    /// The shaft's speed when the order changed, r/min in the drive's own direction.
+    pub speed_rpm: f64,
+}
+
+impl Drive {
+    fn order(&self, config: &DrivesConfig) -> MotorOrder {
+        let regime = self.regime(config);
+        MotorOrder {
+            powered: self.powered_since.is_some(),
+            power_ons: self.power_ons,
+            servo_on: self.servo_on(),
+            alarm: self.alarm,
+            target_rpm: regime.target_rpm,
+            decel_rpm_per_s: regime.decel,
+        }
+    }
+
+    /// Logs the order if it changed since the last one logged (only while the log is on).
+    fn note_order(&mut self, at: Instant, config: &DrivesConfig) {
+        let Some(last) = self.observed else {
+            return;
+        };
+        let order = self.order(config);
+        if order != last {
+            self.observed = Some(order);
+            self.orders.push(MotorOrderChange {
+                at,
+                slave: self.config.address,
+                order,
+                speed_rpm: self.motor.speed_rpm,
+            });
+        }
+    }
+}
+
+impl DrivesHandle {
+    /// Starts logging every change of what the motors are told (see
+    /// [`Self::take_orders`]); the first entries are the orders in force now.
+    pub fn log_orders(&self) {
+        let mut bus = self.bus.borrow_mut();
+        let now = Instant::now();
+        bus.advance(now);
+        let config = bus.config.clone();
+        for drive in &mut bus.drives {
+            let order = drive.order(&config);
+            drive.observed = Some(order);
+            drive.orders.push(MotorOrderChange {
+                at: now,
+                slave: drive.config.address,
+                order,
+                speed_rpm: drive.motor.speed_rpm,
+            });
+        }
+    }
+
+    /// The order changes logged since the last call, both drives, oldest first.
+    pub fn take_orders(&self) -> Vec<MotorOrderChange> {
+        let mut bus = self.bus.borrow_mut();
+        bus.advance(Instant::now());
+        let mut orders: Vec<MotorOrderChange> = bus
+            .drives
+            .iter_mut()
+            .flat_map(|drive| core::mem::take(&mut drive.orders))
+            .collect();
+        orders.sort_by_key(|change| change.at);
+        orders
     }
 }

@@ -6,9 +6,11 @@
 //! timer whenever every task waits, so a test of minutes of driving runs in
 //! milliseconds and always the same way.
 
+pub mod air;
 pub mod app_flash;
 pub mod ble;
 pub mod can;
+pub mod chaos;
 pub mod drives;
 pub mod fake_hci;
 pub mod file_flash;

@@ -321,7 +321,7 @@ fn power_cut_loses_the_setup_and_restarts_the_counters() {
 
         handle.power(false);
         let request = modbus::share_read(GID, 0, ITEMS as u16, 2);
-        assert_eq!(transact(&mut port, &request).await, []);
+        assert_eq!(transact(&mut port, &request).await, [0u8; 0]);
         Timer::after_millis(100).await;
         assert_eq!(
             handle.drive(LEFT).speed_rpm,
@@ -335,7 +335,7 @@ fn power_cut_loses_the_setup_and_restarts_the_counters() {
         assert_eq!(read_alarm(&mut port, LEFT).await, Ok(0));
         assert_eq!(
             transact(&mut port, &request).await,
-            [],
+            [0u8; 0],
             "the share group is gone"
         );
         for slave in [LEFT, RIGHT] {
@@ -374,7 +374,7 @@ fn share_request_before_the_setup_is_ignored() {
             command(600, 1000, 1000),
         )
         .await;
-        assert_eq!(reply, []);
+        assert_eq!(reply, [0u8; 0]);
     });
     assert_eq!(handle.drive(LEFT).command, None);
 }
@@ -416,7 +416,7 @@ fn a_silent_first_member_silences_the_second_which_still_executes() {
             command(-100, 1000, 1000),
         )
         .await;
-        assert_eq!(reply, []);
+        assert_eq!(reply, [0u8; 0]);
         assert_eq!(handle.drive(RIGHT).command.unwrap().speed_rpm, -100);
         assert_eq!(handle.drive(LEFT).command, None);
 
@@ -619,10 +619,10 @@ fn malformed_requests_get_no_reply_and_are_counted() {
         Timer::after_secs(1).await;
         let mut bad_crc = modbus::read_items(LEFT, 0x0080, 1).to_vec();
         bad_crc[7] ^= 0x01;
-        assert_eq!(transact(&mut port, &bad_crc).await, []);
+        assert_eq!(transact(&mut port, &bad_crc).await, [0u8; 0]);
         // A good CRC around a read with a byte too many.
         let too_long = with_crc(&[LEFT, 0x03, 0x00, 0x80, 0x00, 0x02, 0x00]);
-        assert_eq!(transact(&mut port, &too_long).await, []);
+        assert_eq!(transact(&mut port, &too_long).await, [0u8; 0]);
     });
     let left = handle.drive(LEFT);
     let right = handle.drive(RIGHT);
@@ -641,7 +641,7 @@ fn broadcast_executes_on_both_without_a_reply() {
     block_on(async {
         Timer::after_secs(1).await;
         let reply = transact(&mut port, &modbus::write_items(0, 0x007C, &[1])).await;
-        assert_eq!(reply, []);
+        assert_eq!(reply, [0u8; 0]);
     });
     assert!(handle.drive(LEFT).servo_on);
     assert!(handle.drive(RIGHT).servo_on);
