@@ -37,7 +37,8 @@
 //!   pairing window, and any SMP of the wrong length close the link. ([`Rule::Smp`],
 //!   [`Rule::SecurityRequest`])
 //! - **Links**: ACL for a handle that is not an open link is dropped; once a link is
-//!   being closed, everything from it is dropped. ([`Rule::UnknownHandle`],
+//!   being closed, everything from it is dropped, and the host's own commands for it
+//!   are kept from the controller ([`Guard::is_closing`]). ([`Rule::UnknownHandle`],
 //!   [`Rule::Closing`])
 //! - **Events**: an event that does not parse as its code says is dropped (the host
 //!   unwraps the parse of most events); the parse is the HCI crate's, so the caller
@@ -352,6 +353,18 @@ impl<const LINKS: usize> Guard<LINKS> {
         verdict
     }
 
+    /// Whether the guard is closing the link `handle` (from the packet that broke a rule
+    /// until its Disconnection Complete). The host's own commands for that link are
+    /// kept from the controller: a second Disconnect of a link already ending is
+    /// refused by a controller with Command Disallowed, and trouble-host 0.8 stops
+    /// altogether on that answer.
+    pub fn is_closing(&self, handle: u16) -> bool {
+        self.links
+            .iter()
+            .flatten()
+            .any(|link| link.handle == handle && matches!(link.state, LinkState::Closing { .. }))
+    }
+
     /// The next link the caller must close with HCI Disconnect (each is given once).
     pub fn next_link_to_close(&mut self) -> Option<u16> {
         self.links.iter_mut().flatten().find_map(|link| {
@@ -360,6 +373,29 @@ impl<const LINKS: usize> Guard<LINKS> {
                 link.handle
             })
         })
+    }
+}
+
+/// The link a host's HCI command is about (`opcode` and the first bytes of its
+/// parameters), for the commands the BLE host sends on a link: Disconnect, LE
+/// Connection Update, LE Read Remote Features, LE Enable Encryption, the LE Long Term
+/// Key and Remote Connection Parameter Request replies, LE Set Data Length, Read RSSI.
+pub fn command_link(opcode: u16, params: &[u8]) -> Option<u16> {
+    const ON_A_LINK: [u16; 10] = [
+        0x0406, // Disconnect
+        0x1405, // Read RSSI
+        0x2013, // LE Connection Update
+        0x2016, // LE Read Remote Features
+        0x2019, // LE Enable Encryption
+        0x201A, // LE Long Term Key Request Reply
+        0x201B, // LE Long Term Key Request Negative Reply
+        0x2020, // LE Remote Connection Parameter Request Reply
+        0x2021, // LE Remote Connection Parameter Request Negative Reply
+        0x2022, // LE Set Data Length
+    ];
+    match params {
+        [lo, hi, ..] if ON_A_LINK.contains(&opcode) => Some(handle_of(*lo, *hi)),
+        _ => None,
     }
 }
 
@@ -904,6 +940,36 @@ mod tests {
             AclVerdict::Drop(Rule::UnknownHandle)
         );
         assert_eq!(guard.counters().unknown_handle, 5);
+    }
+
+    #[test]
+    fn a_link_is_closing_from_the_refused_packet_until_its_disconnection_complete() {
+        let mut guard = guard();
+        assert!(!guard.is_closing(HANDLE));
+        first(&mut guard, &pdu(CID_ATT, &[]));
+        assert!(guard.is_closing(HANDLE), "before the caller took it");
+        assert_eq!(guard.next_link_to_close(), Some(HANDLE));
+        assert!(
+            guard.is_closing(HANDLE),
+            "while its Disconnect is under way"
+        );
+        assert!(!guard.is_closing(0x0041), "another handle");
+        guard.on_event(EVENT_DISCONNECTION_COMPLETE, &[0, 0x40, 0x00, 0x16]);
+        assert!(!guard.is_closing(HANDLE));
+    }
+
+    #[test]
+    fn commands_on_a_link_name_its_handle_and_others_none() {
+        assert_eq!(command_link(0x0406, &[0x40, 0x00, 0x13]), Some(0x0040));
+        assert_eq!(command_link(0x2019, &[0x41, 0x10, 0, 0]), Some(0x0041));
+        assert_eq!(command_link(0x2013, &[0x42, 0x00]), Some(0x0042));
+        assert_eq!(command_link(0x0406, &[0x40]), None, "too short");
+        assert_eq!(command_link(0x0C03, &[]), None, "Reset");
+        assert_eq!(
+            command_link(0x200D, &[0x40, 0x00]),
+            None,
+            "LE Create Connection"
+        );
     }
 
     #[test]

@@ -30,6 +30,7 @@ use embassy_futures::join::join;
 use embassy_futures::select::{Either, select};
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embedded_storage_async::nor_flash::NorFlash;
+use trouble_host::prelude::{Address, BondInformation, Identity, LongTermKey, SecurityLevel};
 
 use crate::file_flash::FileFlash;
 use crate::flash::{ERASE_SIZE, RamFlash};
@@ -263,6 +264,29 @@ impl RemoteRobot {
                 Either::Second(result) => result,
             }
         })
+    }
+
+    /// Bonds the BLE pad at `address` (random static, least significant byte first)
+    /// ahead of the next boot, as if it had paired: its record in the bond partition.
+    pub fn bond_ble_pad(&self, address: [u8; 6]) {
+        let identity = Identity {
+            addr: Address::random(address),
+            irk: None,
+        };
+        let mut bond = BondInformation::new(
+            identity,
+            LongTermKey::new(0x0BAD_F00D_0123_4567_89AB_CDEF_B1E0_0001),
+            SecurityLevel::Encrypted,
+            true,
+        );
+        bond.encryption_key_len = 16;
+        let mut flash = self.bond_flash.clone();
+        block_on(remote::store_bond(
+            &mut flash,
+            0..BOND_FLASH_SIZE as u32,
+            &bond,
+        ))
+        .expect("the bond partition takes a record");
     }
 
     /// [`Self::run`] on the virtual clock, for a controller that lives on the same

@@ -23,14 +23,16 @@
 //!
 //! Link loss is the supervision timeout (500 ms, asked for at connection), reported as
 //! [`Input::RemoteLink`] with `connected: false`; pads send reports only on change, so
-//! silence is not loss.
+//! silence is not loss. A host that stops is reported the same way before a fresh one
+//! starts ([`run`]).
 
 use core::ops::Range;
 
+use bt_hci::cmd::controller_baseband::Reset;
 use bt_hci::cmd::le::LeSetScanParams;
 use bt_hci::controller::ControllerCmdSync;
-use embassy_futures::select::{Either, Either4, select, select4};
-use embassy_time::{Duration, Timer, with_timeout};
+use embassy_futures::select::{Either, Either3, Either4, select, select3, select4};
+use embassy_time::{Duration, Instant, Timer, with_timeout};
 use embedded_storage_async::nor_flash::NorFlash;
 use heapless::Vec;
 use sequential_storage::cache::Cache;
@@ -108,8 +110,25 @@ enum Attempt {
     Failed,
 }
 
+/// How long the task waits before it starts a stopped host again: time for a
+/// controller that failed to settle, and no tight loop if it fails at once again.
+const PAUSE_BEFORE_RESTART: Duration = Duration::from_millis(500);
+/// A host that stopped this many times within [`STOPS_WINDOW`] stays stopped: the
+/// remote is off until reboot (a controller that keeps failing, or a peer that keeps
+/// making it fail, must not keep the radio in a restart loop).
+const STOPS_BEFORE_OFF: usize = 3;
+const STOPS_WINDOW: Duration = Duration::from_secs(60);
+/// How long the controller may take to answer the HCI Reset that ends the remote.
+const RESET_TIMEOUT: Duration = Duration::from_secs(1);
+
 /// Runs the remote forever. `address` is the chip's Bluetooth address (random static),
 /// `bond_flash` over `bond_range` holds the bond.
+///
+/// The host (trouble-host) stops only when the controller fails it (a transport read
+/// error, an answer it cannot parse). Then the link is reported down at once, so a
+/// held dead-man brakes as on link loss, and a fresh host starts over the same
+/// controller (it resets the controller first) after [`PAUSE_BEFORE_RESTART`]; after
+/// [`STOPS_BEFORE_OFF`] stops within [`STOPS_WINDOW`] the remote stays off.
 pub async fn run<C, F>(
     controller: C,
     address: [u8; 6],
@@ -121,41 +140,8 @@ where
     C: HciController + ControllerCmdSync<LeSetScanParams>,
     F: NorFlash,
 {
-    let mut resources: HostResources<DefaultPacketPool, CONNECTIONS, L2CAP_CHANNELS> =
-        HostResources::new();
-    // trouble-host sees the controller only through the guard (see `guard`).
-    let guard = GuardState::new();
-    let stack = trouble_host::new(GuardedController::new(&controller, &guard), &mut resources)
-        .set_random_address(Address::random(address))
-        .set_io_capabilities(IoCapabilities::NoInputNoOutput)
-        .build();
     let mut bonds = BondStore::new(bond_flash, bond_range);
-    let mut bonded = bonds.load().await;
-    if let Some(bond) = &bonded {
-        // A bond that the stack refuses cannot be used: forget it.
-        if stack.add_bond_information(bond.clone()).is_err() {
-            bonded = None;
-        }
-    }
-    report(
-        channels,
-        Input::RemoteLink {
-            pad: Pad::Ble,
-            bonded: bonded.is_some(),
-            connected: false,
-        },
-    )
-    .await;
-
-    let finder = PadFinder::default();
-    let mut runner = stack.runner();
-    let mut central = stack.central();
-    let mut remote = PadLink {
-        stack: &stack,
-        guard: &guard,
-        channels,
-        request: RemoteRequest::default(),
-    };
+    let bonded = bonds.load().await;
     // A new bond waits here for the next standstill: on the chip a flash erase stalls
     // everything for up to 400 ms, which must never happen while the wheels turn. The
     // pad is served meanwhile; the bond lasts in the stack until it is stored.
@@ -171,54 +157,164 @@ where
             }
         }
     };
-    let never = select4(
-        runner.run_with_handler(&finder),
-        store_bonds_at_rest,
-        guard.close_links(&controller),
-        async {
-            loop {
-                remote.refresh_request();
-                let attempt = if remote.request.pairing_open {
-                    match remote.pair_new_pad(&mut central, &finder).await {
-                        Ok((conn, bond)) => {
-                            if let Some(old) = bonded.replace(bond.clone()) {
-                                // The stack holds the new bond already; drop the old pad's,
-                                // unless the same pad paired again.
-                                if old.identity.addr != bond.identity.addr {
-                                    let _ = stack.remove_bond_information(old.identity);
-                                }
-                            }
-                            unsaved_bond.signal(bond);
-                            report(channels, Input::RemotePaired).await;
-                            remote.serve(&conn).await;
-                            Attempt::Served
-                        }
-                        Err(attempt) => attempt,
-                    }
-                } else if let Some(bond) = &bonded {
-                    remote.reconnect(&mut central, bond).await
-                } else {
-                    remote.wait_for_request().await;
-                    Attempt::Idle
-                };
-                if attempt == Attempt::Failed {
-                    remote.back_off(PAUSE_AFTER_FAILURE).await;
+    let hosts = async {
+        let mut host = Host {
+            bonded,
+            request: RemoteRequest::default(),
+        };
+        let mut stops = StopHistory::default();
+        loop {
+            host.run(&controller, address, channels, &unsaved_bond)
+                .await;
+            // The pad may be holding the dead-man: its link is gone with the host.
+            report(
+                channels,
+                Input::RemoteLink {
+                    pad: Pad::Ble,
+                    bonded: host.bonded.is_some(),
+                    connected: false,
+                },
+            )
+            .await;
+            if stops.one_more(Instant::now()) {
+                error!("remote: the Bluetooth host stopped again; the remote is off until reboot");
+                // No link may outlive the host: the reset ends them (and stops any scan).
+                if with_timeout(
+                    RESET_TIMEOUT,
+                    ControllerCmdSync::<Reset>::exec(&controller, &Reset::new()),
+                )
+                .await
+                .is_err()
+                {
+                    error!("remote: the Bluetooth controller does not answer its reset");
                 }
+                return;
             }
+            error!("remote: the Bluetooth host stopped; it starts again");
+            Timer::after(PAUSE_BEFORE_RESTART).await;
+        }
+    };
+    match select(store_bonds_at_rest, hosts).await {
+        Either::First(never) => never,
+        Either::Second(()) => loop {
+            core::future::pending::<()>().await;
         },
-    )
-    .await;
-    match never {
-        Either4::First(result) => {
-            // The runner only returns on a controller failure; nothing can be done
-            // without it, so keep the remote off and let the rest of the base run.
-            let _ = result;
-            error!("remote: the Bluetooth host stopped; the remote is off until reboot");
-            loop {
-                core::future::pending::<()>().await;
+    }
+}
+
+/// When the host stopped lately: whether it stops too often to start again.
+#[derive(Default)]
+struct StopHistory {
+    stops: Vec<Instant, STOPS_BEFORE_OFF>,
+}
+
+impl StopHistory {
+    /// One more stop at `now`; true if it is the [`STOPS_BEFORE_OFF`]th within
+    /// [`STOPS_WINDOW`].
+    fn one_more(&mut self, now: Instant) -> bool {
+        self.stops
+            .retain(|&stop| now.saturating_duration_since(stop) < STOPS_WINDOW);
+        if self.stops.is_full() {
+            self.stops.remove(0);
+        }
+        let _ = self.stops.push(now);
+        self.stops.is_full()
+    }
+}
+
+/// What outlives one host: the bond and the controller's last request.
+struct Host {
+    bonded: Option<BondInformation>,
+    request: RemoteRequest,
+}
+
+impl Host {
+    /// One host, from its start (HCI Reset) until it stops.
+    async fn run<C>(
+        &mut self,
+        controller: &C,
+        address: [u8; 6],
+        channels: RemoteEnds<'_>,
+        unsaved_bond: &Signal<NoopRawMutex, BondInformation>,
+    ) where
+        C: HciController + ControllerCmdSync<LeSetScanParams>,
+    {
+        let mut resources: HostResources<DefaultPacketPool, CONNECTIONS, L2CAP_CHANNELS> =
+            HostResources::new();
+        // trouble-host sees the controller only through the guard (see `guard`).
+        let guard = GuardState::new();
+        let stack = trouble_host::new(GuardedController::new(controller, &guard), &mut resources)
+            .set_random_address(Address::random(address))
+            .set_io_capabilities(IoCapabilities::NoInputNoOutput)
+            .build();
+        if let Some(bond) = &self.bonded {
+            // A bond that the stack refuses cannot be used: forget it.
+            if stack.add_bond_information(bond.clone()).is_err() {
+                self.bonded = None;
             }
         }
-        Either4::Second(never) | Either4::Third(never) | Either4::Fourth(never) => never,
+        report(
+            channels,
+            Input::RemoteLink {
+                pad: Pad::Ble,
+                bonded: self.bonded.is_some(),
+                connected: false,
+            },
+        )
+        .await;
+
+        let finder = PadFinder::default();
+        let mut runner = stack.runner();
+        let mut central = stack.central();
+        let mut remote = PadLink {
+            stack: &stack,
+            guard: &guard,
+            channels,
+            request: self.request,
+        };
+        let bonded = &mut self.bonded;
+        let stopped = select3(
+            runner.run_with_handler(&finder),
+            guard.close_links(controller),
+            async {
+                loop {
+                    remote.refresh_request();
+                    let attempt = if remote.request.pairing_open {
+                        match remote.pair_new_pad(&mut central, &finder).await {
+                            Ok((conn, bond)) => {
+                                if let Some(old) = bonded.replace(bond.clone()) {
+                                    // The stack holds the new bond already; drop the old
+                                    // pad's, unless the same pad paired again.
+                                    if old.identity.addr != bond.identity.addr {
+                                        let _ = stack.remove_bond_information(old.identity);
+                                    }
+                                }
+                                unsaved_bond.signal(bond);
+                                report(channels, Input::RemotePaired).await;
+                                remote.serve(&conn).await;
+                                Attempt::Served
+                            }
+                            Err(attempt) => attempt,
+                        }
+                    } else if let Some(bond) = bonded.as_ref() {
+                        remote.reconnect(&mut central, bond).await
+                    } else {
+                        remote.wait_for_request().await;
+                        Attempt::Idle
+                    };
+                    if attempt == Attempt::Failed {
+                        remote.back_off(PAUSE_AFTER_FAILURE).await;
+                    }
+                }
+            },
+        )
+        .await;
+        self.request = remote.request;
+        match stopped {
+            // The runner returns only when the controller failed it.
+            Either3::First(_) => {}
+            Either3::Second(never) | Either3::Third(never) => never,
+        }
     }
 }
 
@@ -683,7 +779,9 @@ const BOND_KEY: u8 = 0;
 /// sequential-storage's work buffer: the record, its key and the item header.
 const BOND_BUFFER: usize = BOND_RECORD_LEN + 16;
 
-enum BondStoreError {
+/// Why the bond could not be stored.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BondStoreError {
     /// The partition is not whole pages.
     Misconfigured,
     Flash,
@@ -705,14 +803,23 @@ impl<F: NorFlash> BondStore<F> {
     }
 
     async fn store(&mut self, bond: &BondInformation) -> Result<(), BondStoreError> {
-        let mut buffer = [0u8; BOND_BUFFER];
-        let config =
-            MapConfig::try_new(self.range.clone()).map_err(|_| BondStoreError::Misconfigured)?;
-        let mut map = MapStorage::<u8, _, _>::new(&mut self.flash, config, Cache::new_uncached());
-        map.store_item(&mut buffer, &BOND_KEY, &encode_bond(bond))
-            .await
-            .map_err(|_| BondStoreError::Flash)
+        store_bond(&mut self.flash, self.range.clone(), bond).await
     }
+}
+
+/// Writes `bond` as the BLE bond record into the bonds partition `range` of `flash`
+/// (the task's own store; a test bonds a pad ahead of a boot with it).
+pub async fn store_bond<F: NorFlash>(
+    flash: &mut F,
+    range: Range<u32>,
+    bond: &BondInformation,
+) -> Result<(), BondStoreError> {
+    let mut buffer = [0u8; BOND_BUFFER];
+    let config = MapConfig::try_new(range).map_err(|_| BondStoreError::Misconfigured)?;
+    let mut map = MapStorage::<u8, _, _>::new(flash, config, Cache::new_uncached());
+    map.store_item(&mut buffer, &BOND_KEY, &encode_bond(bond))
+        .await
+        .map_err(|_| BondStoreError::Flash)
 }
 
 /// A random static Bluetooth address from the chip's MAC (6 bytes, most significant

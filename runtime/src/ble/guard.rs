@@ -1,8 +1,9 @@
 //! The HCI controller as the BLE host sees it: the real controller behind the guard
 //! (`base_core::hci_guard`). Every event and ACL packet the controller sends is shown
 //! to the guard first; a packet it refuses never reaches trouble-host, and a link it
-//! closes is disconnected here with HCI Disconnect ([`GuardState::close_links`]).
-//! Commands and outgoing data pass unchanged.
+//! closes is disconnected here with HCI Disconnect ([`GuardState::close_links`]), and
+//! the host's own commands for that link are kept from the controller meanwhile.
+//! Every other command and all outgoing data pass unchanged.
 
 use core::cell::RefCell;
 
@@ -17,7 +18,8 @@ use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::signal::Signal;
 
-use base_core::hci_guard::{AclVerdict, Counters, Guard};
+use base_core::hci_guard::{self, AclVerdict, Counters, Guard};
+use bt_hci::WriteHci;
 
 /// Links the guard follows at once: more than the host's one, so that a link the
 /// controller opens beside it is still followed (and closed if it misbehaves).
@@ -87,6 +89,10 @@ impl GuardState {
         warn!("remote: dropped a malformed event from the controller");
         self.guard
             .lock(|guard| guard.borrow_mut().count_malformed_event());
+    }
+
+    fn is_closing(&self, handle: u16) -> bool {
+        self.guard.lock(|guard| guard.borrow().is_closing(handle))
     }
 
     fn on_event(&self, event: &EventPacket<'_>) -> bool {
@@ -204,12 +210,31 @@ fn copy_into<'a>(buf: &'a mut [u8; PACKET_BUFFER], data: &[u8]) -> &'a [u8] {
     &buf[..len]
 }
 
+impl<C> GuardedController<'_, C> {
+    /// Whether `command` is about a link the guard is closing: the host's command
+    /// stays here, as the guard's Disconnect ends that link anyway. (A controller
+    /// refuses a second Disconnect of a link already ending, or an encryption on it,
+    /// and trouble-host 0.8 stops altogether on such an answer.)
+    fn for_closing_link<Command: cmd::Cmd + ?Sized>(&self, command: &Command) -> bool {
+        let mut params = FirstBytes::default();
+        let _ = command.params().write_hci(&mut params);
+        hci_guard::command_link(Command::OPCODE.to_raw(), params.bytes())
+            .is_some_and(|handle| self.state.is_closing(handle))
+    }
+}
+
 impl<C, Command> ControllerCmdSync<Command> for GuardedController<'_, C>
 where
     C: ControllerCmdSync<Command>,
     Command: SyncCmd + ?Sized,
 {
     async fn exec(&self, command: &Command) -> Result<Command::Return, cmd::Error<Self::Error>> {
+        if self.for_closing_link(command) {
+            // The answer trouble-host takes in its stride for a link that is gone.
+            return Err(cmd::Error::Hci(
+                bt_hci::param::Error::UNKNOWN_CONN_IDENTIFIER,
+            ));
+        }
         self.inner.exec(command).await
     }
 }
@@ -220,6 +245,41 @@ where
     Command: AsyncCmd + ?Sized,
 {
     async fn exec(&self, command: &Command) -> Result<(), cmd::Error<Self::Error>> {
+        if self.for_closing_link(command) {
+            // Taken: what it waits for never comes, the link's Disconnection Complete
+            // ends the wait (trouble-host 0.8 stops on any error here).
+            return Ok(());
+        }
         self.inner.exec(command).await
+    }
+}
+
+/// The first two bytes a command's parameters write (where a link's handle is).
+#[derive(Default)]
+struct FirstBytes {
+    bytes: [u8; 2],
+    len: usize,
+}
+
+impl FirstBytes {
+    fn bytes(&self) -> &[u8] {
+        &self.bytes[..self.len]
+    }
+}
+
+impl embedded_io::ErrorType for FirstBytes {
+    type Error = core::convert::Infallible;
+}
+
+impl embedded_io::Write for FirstBytes {
+    fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
+        let take = buf.len().min(self.bytes.len() - self.len);
+        self.bytes[self.len..self.len + take].copy_from_slice(&buf[..take]);
+        self.len += take;
+        Ok(buf.len())
+    }
+
+    fn flush(&mut self) -> Result<(), Self::Error> {
+        Ok(())
     }
 }
