@@ -347,9 +347,8 @@ impl Updater {
         const OPCODE: u8 = 0x02;
         match &self.state {
             State::Idle => {}
-            // The same PC starting over (its own earlier run died): allowed.
-            State::Open(transfer) if transfer.session == session => {}
-            State::Finished { session: owner, .. } if *owner == session => {}
+            // Also with the running session's own id: another program may have drawn
+            // the same id, and a PC that wants to start over ends its session first.
             State::OnTrial { .. } => return effects.refuse(OPCODE, UpdateError::OnTrial, 0),
             _ => return effects.refuse(OPCODE, UpdateError::Busy, 0),
         }
@@ -365,8 +364,6 @@ impl Updater {
             None
         };
         if let Some((error, detail)) = refusal {
-            // A refused restart leaves nothing half begun: the old transfer ends too.
-            self.state = State::Idle;
             return effects.refuse(OPCODE, error, detail);
         }
         self.state = State::Open(Transfer {

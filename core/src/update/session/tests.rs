@@ -666,3 +666,32 @@ fn an_abort_while_otadata_is_written_for_activation_is_refused() {
         .step(at(102), Event::FlashDone(true), &params());
     assert!(effects.reset, "the activated image must be started");
 }
+
+#[test]
+fn begin_with_the_running_sessions_own_id_is_busy_and_leaves_the_session_as_it_was() {
+    let image = image("0.3.0");
+    let mut bench = Bench::new();
+    bench.begin(&image, BeginFlags::default());
+    bench.window(&image, 0);
+    bench.window(&image, 1);
+    let replies = bench.command(C::Begin {
+        session: SID,
+        size: image.len() as u32,
+        flags: BeginFlags::default(),
+    });
+    assert!(
+        replies.iter().any(refused(UpdateError::Busy)),
+        "{replies:?}"
+    );
+    let state = bench.command(C::Query);
+    assert!(
+        matches!(
+            state[0],
+            UpdateReply::State {
+                windows_written: 2,
+                ..
+            }
+        ),
+        "windows written 2 → {state:?}"
+    );
+}
