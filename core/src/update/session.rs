@@ -7,7 +7,7 @@
 //!   Idle ─────────────────────────────────────▶ Open ──────────────────────▶ (Writing i)
 //!    ▲  ▲                                     │  │ ◀───── FlashDone ok ──────────┘
 //!    │  └──── ABORT, 10 s silence, bad image, │  │
-//!    │         bad digest, flash failure ─────┘  │ FINISH, SHA-256 ok
+//!    │         bad digest, flash failure ─────┘  │ FINISH, SHA-256 ok, whole image ok
 //!    │                                           ▼
 //!    │ ◀──────────── FlashDone (reset) ───── Activating ◀── ACTIVATE ── Finished
 //!
@@ -25,13 +25,15 @@
 //! window whose CRC matches is erased, written and read back by the update task, then
 //! acknowledged with WRITTEN; a mismatch is answered `BadCrc` and the PC sends the
 //! window again. Window 0 holds the image header and app descriptor: they are checked
-//! (chip, project, version) before the first byte is written. Only the inactive slot is
+//! (chip, project, version) before the first byte is written. FINISH answers DONE only
+//! when the whole image passes the bootloader's own checks (segments, checksum, appended
+//! SHA-256), checked window by window as they arrive. Only the inactive slot is
 //! written, at offsets below the announced size; [`Effects`] say where.
 
 use heapless::Vec;
 use sha2::{Digest, Sha256};
 
-use super::image::{self, Chip, ImageInfo};
+use super::image::{self, Chip, ImageInfo, WholeImageCheck};
 use crate::can::update::{
     BeginFlags, DATA_BYTES, DataFrame, Phase, Step, UpdateCommand, UpdateError, UpdateReply,
     VERSION_CHUNK, VERSION_CHUNKS,
@@ -183,11 +185,16 @@ struct Transfer {
     digest: [u8; 32],
     digest_parts: u8,
     hasher: Sha256,
+    /// The bootloader's checks, over the windows as they are written.
+    image_check: WholeImageCheck,
     windows_written: u16,
     window: WindowRx,
     last_heard: Timestamp,
 }
 
+// One updater exists, beside its 4 KiB window, and there is no allocator to box into:
+// the transfer's few hundred bytes cost nothing worth an indirection.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone)]
 enum State {
     Idle,
@@ -373,6 +380,7 @@ impl Updater {
             digest: [0; 32],
             digest_parts: 0,
             hasher: Sha256::new(),
+            image_check: WholeImageCheck::new(),
             windows_written: 0,
             window: WindowRx::Waiting,
             last_heard: now,
@@ -455,6 +463,12 @@ impl Updater {
                         if digest.as_slice() != transfer.digest {
                             self.state = State::Idle;
                             return effects.refuse(opcode, UpdateError::DigestMismatch, 0);
+                        }
+                        // An image the bootloader would refuse is never activated: the
+                        // old one would come back after the reset, and no client learns why.
+                        if let Err(error) = transfer.image_check.finish() {
+                            self.state = State::Idle;
+                            return effects.refuse(opcode, UpdateError::BadImage, error.code());
                         }
                         self.state = State::Finished {
                             session,
@@ -563,6 +577,7 @@ impl Updater {
             return effects.refuse(0x04, error, detail);
         }
         transfer.hasher.update(window);
+        transfer.image_check.feed(window);
         transfer.window = WindowRx::Writing { index };
         effects.flash = Some(FlashOp::WriteWindow {
             offset: u32::from(index) * WINDOW_LEN as u32,

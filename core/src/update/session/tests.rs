@@ -695,3 +695,73 @@ fn begin_with_the_running_sessions_own_id_is_busy_and_leaves_the_session_as_it_w
         "windows written 2 → {state:?}"
     );
 }
+
+/// Whole transfers of images whose window 0 is good but which the bootloader would
+/// refuse: FINISH must not answer DONE, so no client can activate them.
+#[test]
+fn finish_refuses_an_image_the_bootloader_would_refuse() {
+    let good = image("0.3.0");
+    let mut bad_checksum = good.clone();
+    // A byte of the segment's data past window 0: the XOR checksum no longer matches
+    // (the appended SHA-256 is over the changed bytes, as a careless tool would make it).
+    bad_checksum[2 * WINDOW_LEN] ^= 0x40;
+    let checksum_end = good.len() - image::SHA256_LEN;
+    let digest = Sha256::digest(&bad_checksum[..checksum_end]);
+    bad_checksum[checksum_end..].copy_from_slice(&digest);
+    let mut bad_digest = good.clone();
+    *bad_digest.last_mut().unwrap() ^= 0x01;
+    let truncated = good[..good.len() - 100].to_vec();
+    let no_digest = good[..good.len() - image::SHA256_LEN].to_vec();
+    for (name, image, detail) in [
+        (
+            "truncated in the segment",
+            &truncated,
+            image::ImageError::BadSegments,
+        ),
+        (
+            "bad checksum",
+            &bad_checksum,
+            image::ImageError::BadChecksum,
+        ),
+        (
+            "bad appended SHA-256",
+            &bad_digest,
+            image::ImageError::BadDigest,
+        ),
+        (
+            "no appended SHA-256",
+            &no_digest,
+            image::ImageError::BadDigest,
+        ),
+    ] {
+        let mut bench = Bench::new();
+        assert_eq!(
+            bench.begin(image, BeginFlags::default()),
+            [done(Step::Begun)]
+        );
+        let replies = bench.transfer(image);
+        assert!(
+            !replies
+                .iter()
+                .any(|r| matches!(r, UpdateReply::Refused { .. })),
+            "{name}: refused during the transfer: {replies:?}"
+        );
+        assert_eq!(
+            bench.command(C::Finish { session: SID }),
+            [UpdateReply::Refused {
+                opcode: 0x05,
+                error: UpdateError::BadImage,
+                detail: detail.code(),
+            }],
+            "{name}"
+        );
+        assert!(!bench.updater.locks_motion(), "{name}: the session ends");
+        assert!(
+            bench
+                .command(C::Activate { session: SID })
+                .iter()
+                .any(refused(UpdateError::NoSession)),
+            "{name}: ACTIVATE after the refusal"
+        );
+    }
+}
