@@ -267,8 +267,8 @@ def test_motion_is_refused_during_a_session_and_abort_releases_it(base, client):
     # Another program's BEGIN meanwhile: Busy.
     other = UpdateClient(base, session=client.session % 255 + 1)
     busy = other.begin(64 * 1024)
-    assert (busy.kind, busy.opcode, busy.error) == (
-        "refused", p.OP_BEGIN, p.ERROR_CODES["Busy"]), str(busy)
+    assert (busy.kind, busy.opcode, busy.error, busy.session) == (
+        "refused", p.OP_BEGIN, p.ERROR_CODES["Busy"], other.session), str(busy)
     assert_motion_refused(base)
 
     client.abort()

@@ -142,6 +142,8 @@ pub struct Effects {
     pub flash: Option<FlashOp>,
     /// Reset the controller once the replies are sent (after activation or rejection).
     pub reset: bool,
+    /// The session a refusal names: the one the event belongs to.
+    answering: u8,
 }
 
 impl Effects {
@@ -155,6 +157,7 @@ impl Effects {
             opcode,
             error,
             detail,
+            session: self.answering,
         });
     }
 }
@@ -256,7 +259,15 @@ impl Updater {
     }
 
     pub fn step(&mut self, now: Timestamp, event: Event, params: &Params<'_>) -> Effects {
-        let mut effects = Effects::default();
+        let answering = match event {
+            Event::Command(command, _) => command.session(),
+            // A data frame, a flash result and time belong to the running session.
+            Event::Data(_) | Event::FlashDone(_) | Event::Tick => self.session().unwrap_or(0),
+        };
+        let mut effects = Effects {
+            answering,
+            ..Effects::default()
+        };
         match event {
             Event::Command(command, gate) => self.command(now, command, gate, params, &mut effects),
             Event::Data(frame) => self.data(now, frame, params, &mut effects),
@@ -300,20 +311,20 @@ impl Updater {
             | UpdateCommand::Window { session, .. }
             | UpdateCommand::Finish { session }
             | UpdateCommand::Activate { session }
-            | UpdateCommand::Abort { session } => {
-                let owner = match &self.state {
-                    State::Open(transfer) => Some(transfer.session),
-                    State::Finished { session, .. } | State::Activating { session } => {
-                        Some(*session)
-                    }
-                    _ => None,
-                };
-                match owner {
-                    None => effects.refuse(opcode, UpdateError::NoSession, 0),
-                    Some(owner) if owner != session => effects.refuse(opcode, UpdateError::Busy, 0),
-                    Some(_) => self.session_command(now, command, effects),
-                }
-            }
+            | UpdateCommand::Abort { session } => match self.session() {
+                None => effects.refuse(opcode, UpdateError::NoSession, 0),
+                Some(owner) if owner != session => effects.refuse(opcode, UpdateError::Busy, 0),
+                Some(_) => self.session_command(now, command, effects),
+            },
+        }
+    }
+
+    /// The running session's id, if one runs.
+    fn session(&self) -> Option<u8> {
+        match &self.state {
+            State::Open(transfer) => Some(transfer.session),
+            State::Finished { session, .. } | State::Activating { session } => Some(*session),
+            _ => None,
         }
     }
 

@@ -423,7 +423,8 @@ fn a_window_index_of_0xffff_is_refused_as_out_of_turn() {
             [UpdateReply::Refused {
                 opcode: 0x04,
                 error: UpdateError::WrongWindow,
-                detail: 0
+                detail: 0,
+                session: SID,
             }],
             "after {written} windows written"
         );
@@ -752,6 +753,7 @@ fn finish_refuses_an_image_the_bootloader_would_refuse() {
                 opcode: 0x05,
                 error: UpdateError::BadImage,
                 detail: detail.code(),
+                session: SID,
             }],
             "{name}"
         );
@@ -764,4 +766,39 @@ fn finish_refuses_an_image_the_bootloader_would_refuse() {
             "{name}: ACTIVATE after the refusal"
         );
     }
+}
+
+/// On the wire, a refusal names the session of the frame it answers (byte 4, after
+/// the four bytes every controller sends), so a session's owner can tell another
+/// program's refusals from its own.
+#[test]
+fn refusals_on_the_wire_name_the_session_they_answer() {
+    let image = image("0.3.0");
+    let mut bench = Bench::new();
+    bench.begin(&image, BeginFlags::default());
+    let wire = |replies: StdVec<UpdateReply>| -> StdVec<StdVec<u8>> {
+        replies.iter().map(|r| r.encode().data().to_vec()).collect()
+    };
+    // Another program's BEGIN and FINISH, with its own session 0x33.
+    let other = bench.command(C::Begin {
+        session: 0x33,
+        size: 5000,
+        flags: BeginFlags::default(),
+    });
+    assert_eq!(wire(other), [std::vec![0xFF, 0x02, 0x01, 0x00, 0x33]]);
+    let other = bench.command(C::Finish { session: 0x33 });
+    assert_eq!(wire(other), [std::vec![0xFF, 0x05, 0x01, 0x00, 0x33]]);
+    // The owner's own FINISH, too early, and a data frame before any WINDOW: the
+    // running session.
+    let own = bench.command(C::Finish { session: SID });
+    assert_eq!(wire(own), [std::vec![0xFF, 0x05, 0x0F, 0x00, SID]]);
+    let data = bench.step(Event::Data(DataFrame {
+        seq: 4,
+        bytes: [0; DATA_BYTES],
+    }));
+    assert_eq!(wire(data), [std::vec![0xFF, 0x00, 0x09, 0x04, SID]]);
+    // Commands without a session, and data without a session: 0.
+    bench.command(C::Abort { session: SID });
+    let confirm = bench.command(C::Confirm);
+    assert_eq!(wire(confirm), [std::vec![0xFF, 0x08, 0x11, 0x00, 0x00]]);
 }
