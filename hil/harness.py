@@ -184,6 +184,11 @@ class UpdateClient:
     def send(self, frame):
         self.base.send(frame)
 
+    def answers(self, refused):
+        """Whether a REFUSED is this client's: it names this session, or none (a
+        command without a session, or firmware from before refusals named it)."""
+        return refused.session in (self.session, 0)
+
     def flush(self):
         while not self.base.update_replies.empty():
             self.base.update_replies.get_nowait()
@@ -212,7 +217,7 @@ class UpdateClient:
         self.send(frame)
         return self.wait_reply(
             lambda r: (r.kind == "done" and r.step == step)
-            or (r.kind == "refused" and r.opcode == opcode),
+            or (r.kind == "refused" and r.opcode == opcode and self.answers(r)),
             timeout, f"DONE {step} or REFUSED for opcode {opcode:#04x}")
 
     def expect_done(self, frame, step, timeout=2.0):
@@ -285,7 +290,7 @@ class UpdateClient:
                 sent = max(sent, end)
             elif reply.kind == "written" and (reply.session, reply.window) == (self.session, index):
                 return reply
-            elif reply.kind == "refused":
+            elif reply.kind == "refused" and self.answers(reply):
                 return reply
 
     def transfer(self, image, flags=0):

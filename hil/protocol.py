@@ -302,7 +302,8 @@ class UpdateReply:
     def __str__(self):
         if self.kind == "refused":
             name = UPDATE_ERRORS.get(self.error, "?")
-            return f"REFUSED(op {self.opcode:#04x}, {name}, detail {self.detail})"
+            return (f"REFUSED(op {self.opcode:#04x}, {name}, detail {self.detail}, "
+                    f"session {self.session})")
         fields = {k: v for k, v in vars(self).items() if v is not None and k != "kind"}
         return f"{self.kind.upper()}{fields}"
 
@@ -324,5 +325,7 @@ def parse_update_reply(data):
     if kind == 0x85 and len(data) >= 3:
         return UpdateReply("done", session=data[1], step=data[2])
     if kind == 0xFF and len(data) >= 4:
-        return UpdateReply("refused", opcode=data[1], error=data[2], detail=data[3])
+        # Byte 4: the session the refusal answers (0: none; absent from older firmware).
+        return UpdateReply("refused", opcode=data[1], error=data[2], detail=data[3],
+                           session=data[4] if len(data) > 4 else 0)
     raise ValueError(f"not an update reply: {data.hex()}")

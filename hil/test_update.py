@@ -6,7 +6,9 @@ and bad frames on the wire get their documented answers.
 Against the simulator the images are made by the `sim_image` example (64 KiB);
 against a robot they come from `--update-image` and `--update-bad-image`.
 """
+import hashlib
 import random
+import struct
 import threading
 import time
 import zlib
@@ -265,8 +267,8 @@ def test_motion_is_refused_during_a_session_and_abort_releases_it(base, client):
     # Another program's BEGIN meanwhile: Busy.
     other = UpdateClient(base, session=client.session % 255 + 1)
     busy = other.begin(64 * 1024)
-    assert (busy.kind, busy.opcode, busy.error) == (
-        "refused", p.OP_BEGIN, p.ERROR_CODES["Busy"]), str(busy)
+    assert (busy.kind, busy.opcode, busy.error, busy.session) == (
+        "refused", p.OP_BEGIN, p.ERROR_CODES["Busy"], other.session), str(busy)
     assert_motion_refused(base)
 
     client.abort()
@@ -337,3 +339,49 @@ def test_a_bad_window_crc_and_stray_data_frames_get_their_documented_answers(
     client.abort()
     after = client.query()
     assert (after.phase, after.version, after.slot) == ("idle", before.version, before.slot)
+
+
+def checksum_offset(image):
+    """Where the image's XOR checksum is, read as docs/protocol.md ("Writing a client")
+    lays an image out: the 24-byte header (segment count at byte 1), then each segment's
+    8-byte header (its length in bytes 4-7, LE) and data; the checksum is the last byte
+    of the 16-byte block the segments end in, the SHA-256 the 32 bytes after it."""
+    at = 24
+    for _ in range(image[1]):
+        at += 8 + struct.unpack_from("<I", image, at + 4)[0]
+    return at | 0xF
+
+
+def test_an_image_the_bootloader_would_refuse_is_refused_at_finish(
+        base, client, update_images):
+    image = update_images.healthy(client).data
+    checksum_at = checksum_offset(image)
+    bad_checksum = bytearray(image[:checksum_at + 1])
+    bad_checksum[checksum_at] ^= 0x5A
+    bad_checksum += hashlib.sha256(bad_checksum).digest()
+    bad_digest = bytearray(image)
+    bad_digest[checksum_at + 1] ^= 0x01
+    cases = [
+        ("truncated inside its last segment", image[:checksum_at - 16], 7),
+        ("with a bad checksum", bytes(bad_checksum), 8),
+        ("with a bad appended SHA-256", bytes(bad_digest), 9),
+    ]
+    base.wait_until_at_rest()
+    before = client.query()
+    for name, data, detail in cases:
+        begun = client.begin(len(data), p.BEGIN_FORCE | p.BEGIN_ALLOW_DOWNGRADE)
+        assert begun.kind == "done", f"{name}: {begun}"
+        client.send_digest(data)
+        for index in range(p.window_count(len(data))):
+            written = client.send_window(index, p.window_bytes(data, index))
+            assert written is not None and written.kind == "written", f"{name}: {written}"
+        finish = client.command(p.update_finish(client.session), p.DONE_FINISHED)
+        assert (finish.kind, finish.opcode, finish.error, finish.detail) == (
+            "refused", p.OP_FINISH, p.ERROR_CODES["BadImage"], detail), f"{name}: {finish}"
+        # The refusal ended the session: nothing to activate, the old image runs on.
+        activate = client.command(p.update_activate(client.session), p.DONE_ACTIVATED)
+        assert (activate.kind, activate.error) == (
+            "refused", p.ERROR_CODES["NoSession"]), f"{name}: {activate}"
+        after = client.query()
+        assert (after.phase, after.version, after.slot) == (
+            "idle", before.version, before.slot), f"{name}: {after}"

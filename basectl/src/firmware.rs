@@ -166,7 +166,8 @@ fn expect_done(
                 opcode,
                 error,
                 detail,
-            }) if opcode == command.opcode() => {
+                session,
+            }) if opcode == command.opcode() && answers(session, command.session()) => {
                 return Err(refused(&format!("{step:?}"), error, detail));
             }
             Some(_) => {}
@@ -264,6 +265,8 @@ pub fn transfer(
                         session: owner,
                         window,
                     } if owner == session && window == index => break 'window,
+                    // Another program's refusals (its BEGIN refused Busy) are not ours.
+                    UpdateReply::Refused { session: owner, .. } if !answers(owner, session) => {}
                     UpdateReply::Refused {
                         error: UpdateError::BadCrc | UpdateError::WrongWindow,
                         ..
@@ -287,6 +290,12 @@ pub fn transfer(
     }
     stats.seconds = started.elapsed().as_secs_f64();
     Ok(stats)
+}
+
+/// Whether a refusal naming `refused` answers a command of `session`: it names that
+/// session, or none (a controller from before refusals named the session sends none).
+fn answers(refused: u8, session: u8) -> bool {
+    refused == session || refused == 0
 }
 
 /// A session id for this run: different for each program and run.

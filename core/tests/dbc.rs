@@ -782,12 +782,14 @@ fn update_cases() -> Vec<Case> {
                 opcode: 4,
                 error,
                 detail: 3,
+                session: 0x5A,
             },
             vec![
                 ("UpdateReplyKind", named("Refused")),
                 ("RefusedOpcode", value(4)),
                 ("UpdateError", named(error.name())),
                 ("RefusedDetail", value(3)),
+                ("RefusedSession", value(0x5A)),
             ],
         ));
     }

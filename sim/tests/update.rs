@@ -385,6 +385,66 @@ fn update_with_one_damaged_data_frame(lose: bool) -> serde_json::Value {
     report
 }
 
+/// basectl's bus, on which another program's BEGIN (another session id) goes out once,
+/// in the middle of the transfer: the controller refuses it Busy, on the bus every
+/// program reads.
+struct ForeignBeginDuringTransfer<B> {
+    bus: B,
+    own_session: Option<u8>,
+    sent_data_frames: u32,
+    foreign_begins: u32,
+}
+
+impl<B: Bus> Bus for ForeignBeginDuringTransfer<B> {
+    fn send(&mut self, frame: &RawFrame) -> Result<(), BusError> {
+        if let Ok(Some(UpdateCommand::Begin { session, .. })) =
+            UpdateCommand::decode(frame.id(), frame.data())
+        {
+            self.own_session = Some(session);
+        }
+        if frame.id() == base_core::can::id::UPDATE_DATA {
+            self.sent_data_frames += 1;
+            if self.sent_data_frames == 586 + 50 {
+                let foreign = self.own_session.unwrap().wrapping_add(0x80).max(1);
+                self.bus.send(
+                    &UpdateCommand::Begin {
+                        session: foreign,
+                        size: 64 * 1024,
+                        flags: BeginFlags::default(),
+                    }
+                    .encode(),
+                )?;
+                self.foreign_begins += 1;
+            }
+        }
+        self.bus.send(frame)
+    }
+
+    fn receive(&mut self, timeout: Duration) -> Result<Option<RawFrame>, BusError> {
+        self.bus.receive(timeout)
+    }
+}
+
+#[test]
+fn another_programs_refused_begin_does_not_stop_a_running_update() {
+    let simulator = start();
+    let mut bus = ForeignBeginDuringTransfer {
+        bus: connect(&simulator),
+        own_session: None,
+        sent_data_frames: 0,
+        foreign_begins: 0,
+    };
+    standby(&mut bus);
+    let file = image_file(&simulator, "0.2.0");
+    let mut out = Vec::new();
+    let result = firmware::update(&mut bus, &plan(file), TIMEOUT, &mut out);
+    assert_eq!(bus.foreign_begins, 1);
+    result.unwrap();
+    let report: serde_json::Value = serde_json::from_slice(&out).unwrap();
+    assert_eq!(report["outcome"], "confirmed");
+    assert_eq!(firmware::query(&mut bus, TIMEOUT).unwrap().version, "0.2.0");
+}
+
 #[test]
 fn a_window_corrupted_on_the_wire_is_refused_and_sent_again() {
     let report = update_with_one_damaged_data_frame(false);

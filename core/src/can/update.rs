@@ -284,13 +284,17 @@ pub enum UpdateReply {
     Written { session: u8, window: u16 },
     /// `85 sid step`.
     Done { session: u8, step: Step },
-    /// `FF opcode error detail`: `opcode` is the refused command's, or 0 for a data
+    /// `FF opcode error detail sid`: `opcode` is the refused command's, or 0 for a data
     /// frame; `detail` is the image error code for `BadImage`, the expected frame
-    /// index's low byte for `OutOfOrder`, 0 otherwise.
+    /// index's low byte for `OutOfOrder`, 0 otherwise; `session` the session of the
+    /// command refused (0 for one without a session), or the running session for a
+    /// data frame and for what ends it. Controllers before the session byte sent four
+    /// bytes: decoded as session 0.
     Refused {
         opcode: u8,
         error: UpdateError,
         detail: u8,
+        session: u8,
     },
 }
 
@@ -333,6 +337,19 @@ impl UpdateCommand {
             _ => return Err(FrameError::UnknownSubcommand),
         };
         Ok(Some(command))
+    }
+
+    /// The session the command names; 0 for QUERY, CONFIRM and ROLLBACK, which have none.
+    pub const fn session(&self) -> u8 {
+        match *self {
+            Self::Begin { session, .. }
+            | Self::Digest { session, .. }
+            | Self::Window { session, .. }
+            | Self::Finish { session }
+            | Self::Activate { session }
+            | Self::Abort { session } => session,
+            Self::Query | Self::Confirm | Self::Rollback => 0,
+        }
     }
 
     pub const fn opcode(&self) -> u8 {
@@ -446,6 +463,7 @@ impl UpdateReply {
                 opcode: byte(1)?,
                 error: UpdateError::from_code(byte(2)?).ok_or(FrameError::UnknownSubcommand)?,
                 detail: byte(3)?,
+                session: data.get(4).copied().unwrap_or(0),
             },
             _ => return Err(FrameError::UnknownSubcommand),
         };
@@ -491,7 +509,8 @@ impl UpdateReply {
                 opcode,
                 error,
                 detail,
-            } => RawFrame::from_array(at, [REPLY_REFUSED, opcode, error.code(), detail]),
+                session,
+            } => RawFrame::from_array(at, [REPLY_REFUSED, opcode, error.code(), detail, session]),
         }
     }
 }
@@ -569,6 +588,7 @@ mod tests {
                 opcode: 0x04,
                 error: UpdateError::BadCrc,
                 detail: 0,
+                session: 0x5A,
             },
         ];
         for reply in replies {

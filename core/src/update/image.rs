@@ -170,41 +170,178 @@ pub fn verify_whole(image: &[u8], slot_len: usize) -> Result<usize, ImageError> 
     if image.len() > slot_len {
         return Err(ImageError::TooLarge);
     }
-    if image.len() < PREFIX_LEN {
-        return Err(ImageError::TooShort);
+    let mut check = WholeImageCheck::new();
+    check.feed(image);
+    check.finish()
+}
+
+/// Which part of the image the next byte belongs to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Part {
+    /// The 24-byte image header.
+    Header,
+    /// The 8-byte header of segment `index` (load address, length).
+    SegmentHeader {
+        index: u8,
+    },
+    SegmentData {
+        index: u8,
+        left: u32,
+    },
+    /// Zeros up to the checksum byte, the last of a 16-byte block.
+    Padding,
+    Checksum,
+    /// The appended SHA-256 of everything before it.
+    Digest,
+    /// Padding after the digest (the flash tool's alignment): not checked.
+    Trailer,
+    Refused(ImageError),
+}
+
+/// The same checks as [`verify_whole`], over an image that arrives in pieces (the
+/// update session's windows), so the controller needs no copy of the whole image: feed
+/// every byte in order, then [`finish`](Self::finish).
+#[derive(Debug, Clone)]
+pub struct WholeImageCheck {
+    part: Part,
+    /// The fixed-size part being collected: the image header, a segment header, the digest.
+    held: [u8; SHA256_LEN],
+    held_len: usize,
+    seen: usize,
+    segments: u8,
+    hash_appended: bool,
+    checksum: u8,
+    hasher: Sha256,
+    /// Bytes up to the end of the digest.
+    image_len: usize,
+}
+
+impl Default for WholeImageCheck {
+    fn default() -> Self {
+        Self::new()
     }
-    let segments = image[1];
-    let mut at = 24;
-    let mut checksum = CHECKSUM_SEED;
-    for _ in 0..segments {
-        let header = image
-            .get(at..at + SEGMENT_HEADER_LEN)
-            .ok_or(ImageError::BadSegments)?;
-        let len = u32::from_le_bytes([header[4], header[5], header[6], header[7]]) as usize;
-        at += SEGMENT_HEADER_LEN;
-        let data = image
-            .get(at..at.checked_add(len).ok_or(ImageError::BadSegments)?)
-            .ok_or(ImageError::BadSegments)?;
-        checksum = data.iter().fold(checksum, |sum, byte| sum ^ byte);
-        at += len;
+}
+
+impl WholeImageCheck {
+    pub fn new() -> Self {
+        Self {
+            part: Part::Header,
+            held: [0; SHA256_LEN],
+            held_len: 0,
+            seen: 0,
+            segments: 0,
+            hash_appended: false,
+            checksum: CHECKSUM_SEED,
+            hasher: Sha256::new(),
+            image_len: 0,
+        }
     }
-    // The checksum is the last byte of the 16-byte block the segments end in.
-    let checksum_at = at | 0xF;
-    let stored = *image.get(checksum_at).ok_or(ImageError::BadChecksum)?;
-    if stored != checksum {
-        return Err(ImageError::BadChecksum);
+
+    /// The next bytes of the image.
+    pub fn feed(&mut self, mut bytes: &[u8]) {
+        while !bytes.is_empty() {
+            let taken = match self.part {
+                Part::Header => self.hold(bytes, 24),
+                Part::SegmentHeader { .. } => self.hold(bytes, SEGMENT_HEADER_LEN),
+                Part::SegmentData { left, .. } => bytes.len().min(left as usize),
+                // Up to and including the checksum byte at the end of a 16-byte block.
+                Part::Padding => bytes.len().min(15 - self.seen % 16),
+                Part::Checksum => 1,
+                Part::Digest => self.hold(bytes, SHA256_LEN),
+                Part::Trailer | Part::Refused(_) => bytes.len(),
+            };
+            let (now, rest) = bytes.split_at(taken);
+            if !matches!(self.part, Part::Digest | Part::Trailer | Part::Refused(_)) {
+                self.hasher.update(now);
+            }
+            self.seen += taken;
+            self.advance(now);
+            bytes = rest;
+        }
     }
-    let hashed_len = checksum_at + 1;
-    if image[23] != 1 {
-        return Err(ImageError::BadDigest);
+
+    /// Copies up to a `len`-byte part into `held`; returns the bytes taken.
+    fn hold(&mut self, bytes: &[u8], len: usize) -> usize {
+        let taken = bytes.len().min(len - self.held_len);
+        self.held[self.held_len..self.held_len + taken].copy_from_slice(&bytes[..taken]);
+        self.held_len += taken;
+        taken
     }
-    let digest = image
-        .get(hashed_len..hashed_len + SHA256_LEN)
-        .ok_or(ImageError::BadDigest)?;
-    if Sha256::digest(&image[..hashed_len]).as_slice() != digest {
-        return Err(ImageError::BadDigest);
+
+    /// The part after `bytes`, the last ones taken from the current part.
+    fn advance(&mut self, bytes: &[u8]) {
+        let held_full = |len: usize| self.held_len == len;
+        self.part = match self.part {
+            Part::Header if held_full(24) => {
+                self.segments = self.held[1];
+                self.hash_appended = self.held[23] == 1;
+                self.held_len = 0;
+                if self.segments == 0 || self.segments > MAX_SEGMENTS {
+                    Part::Refused(ImageError::BadSegments)
+                } else {
+                    Part::SegmentHeader { index: 0 }
+                }
+            }
+            Part::SegmentHeader { index } if held_full(SEGMENT_HEADER_LEN) => {
+                self.held_len = 0;
+                let h = &self.held;
+                let left = u32::from_le_bytes([h[4], h[5], h[6], h[7]]);
+                self.after_segment_data(index, left)
+            }
+            Part::SegmentData { index, left } => {
+                self.checksum = bytes.iter().fold(self.checksum, |sum, byte| sum ^ byte);
+                self.after_segment_data(index, left - bytes.len() as u32)
+            }
+            Part::Padding if self.seen % 16 == 15 => Part::Checksum,
+            Part::Checksum => {
+                if bytes[0] != self.checksum {
+                    Part::Refused(ImageError::BadChecksum)
+                } else if !self.hash_appended {
+                    Part::Refused(ImageError::BadDigest)
+                } else {
+                    Part::Digest
+                }
+            }
+            Part::Digest if held_full(SHA256_LEN) => {
+                if self.hasher.clone().finalize().as_slice() == self.held {
+                    self.image_len = self.seen;
+                    Part::Trailer
+                } else {
+                    Part::Refused(ImageError::BadDigest)
+                }
+            }
+            unchanged => unchanged,
+        };
     }
-    Ok(hashed_len + SHA256_LEN)
+
+    fn after_segment_data(&self, index: u8, left: u32) -> Part {
+        if left > 0 {
+            Part::SegmentData { index, left }
+        } else if index + 1 < self.segments {
+            Part::SegmentHeader { index: index + 1 }
+        } else if self.seen % 16 == 15 {
+            Part::Checksum
+        } else {
+            Part::Padding
+        }
+    }
+
+    /// The verdict once every byte was fed: the image's length without trailing
+    /// padding, or the first check it failed.
+    pub fn finish(&self) -> Result<usize, ImageError> {
+        if self.seen < PREFIX_LEN {
+            return Err(ImageError::TooShort);
+        }
+        match self.part {
+            Part::Trailer => Ok(self.image_len),
+            Part::Refused(error) => Err(error),
+            Part::Header | Part::SegmentHeader { .. } | Part::SegmentData { .. } => {
+                Err(ImageError::BadSegments)
+            }
+            Part::Padding | Part::Checksum => Err(ImageError::BadChecksum),
+            Part::Digest => Err(ImageError::BadDigest),
+        }
+    }
 }
 
 /// Builds a valid image around `payload` (one segment, whose data starts with an app
@@ -310,6 +447,29 @@ mod tests {
             verify_whole(&image, image.len() - 1),
             Err(ImageError::TooLarge)
         );
+    }
+
+    #[test]
+    fn the_check_in_pieces_gives_the_same_verdict_as_over_the_whole_image() {
+        let image = synthetic_image(Chip::Esp32c3, PROJECT, "1.0.0", &[7; 300]);
+        let mut bad_checksum = image.clone();
+        bad_checksum[100] ^= 0x10;
+        let mut with_trailer = image.clone();
+        with_trailer.extend_from_slice(&[0xFF; 40]);
+        for bytes in [
+            &image,
+            &bad_checksum,
+            &with_trailer,
+            &image[..image.len() - 1],
+        ] {
+            let whole = verify_whole(bytes, 0x1F_0000);
+            for piece in [1, 7, 16, 33, 4096] {
+                let mut check = WholeImageCheck::new();
+                bytes.chunks(piece).for_each(|chunk| check.feed(chunk));
+                assert_eq!(check.finish(), whole, "pieces of {piece}");
+            }
+        }
+        assert_eq!(verify_whole(&with_trailer, 0x1F_0000), Ok(image.len()));
     }
 
     #[test]

@@ -7,7 +7,7 @@
 //!   Idle ─────────────────────────────────────▶ Open ──────────────────────▶ (Writing i)
 //!    ▲  ▲                                     │  │ ◀───── FlashDone ok ──────────┘
 //!    │  └──── ABORT, 10 s silence, bad image, │  │
-//!    │         bad digest, flash failure ─────┘  │ FINISH, SHA-256 ok
+//!    │         bad digest, flash failure ─────┘  │ FINISH, SHA-256 ok, whole image ok
 //!    │                                           ▼
 //!    │ ◀──────────── FlashDone (reset) ───── Activating ◀── ACTIVATE ── Finished
 //!
@@ -25,13 +25,15 @@
 //! window whose CRC matches is erased, written and read back by the update task, then
 //! acknowledged with WRITTEN; a mismatch is answered `BadCrc` and the PC sends the
 //! window again. Window 0 holds the image header and app descriptor: they are checked
-//! (chip, project, version) before the first byte is written. Only the inactive slot is
+//! (chip, project, version) before the first byte is written. FINISH answers DONE only
+//! when the whole image passes the bootloader's own checks (segments, checksum, appended
+//! SHA-256), checked window by window as they arrive. Only the inactive slot is
 //! written, at offsets below the announced size; [`Effects`] say where.
 
 use heapless::Vec;
 use sha2::{Digest, Sha256};
 
-use super::image::{self, Chip, ImageInfo};
+use super::image::{self, Chip, ImageInfo, WholeImageCheck};
 use crate::can::update::{
     BeginFlags, DATA_BYTES, DataFrame, Phase, Step, UpdateCommand, UpdateError, UpdateReply,
     VERSION_CHUNK, VERSION_CHUNKS,
@@ -140,6 +142,8 @@ pub struct Effects {
     pub flash: Option<FlashOp>,
     /// Reset the controller once the replies are sent (after activation or rejection).
     pub reset: bool,
+    /// The session a refusal names: the one the event belongs to.
+    answering: u8,
 }
 
 impl Effects {
@@ -153,6 +157,7 @@ impl Effects {
             opcode,
             error,
             detail,
+            session: self.answering,
         });
     }
 }
@@ -183,11 +188,16 @@ struct Transfer {
     digest: [u8; 32],
     digest_parts: u8,
     hasher: Sha256,
+    /// The bootloader's checks, over the windows as they are written.
+    image_check: WholeImageCheck,
     windows_written: u16,
     window: WindowRx,
     last_heard: Timestamp,
 }
 
+// One updater exists, beside its 4 KiB window, and there is no allocator to box into:
+// the transfer's few hundred bytes cost nothing worth an indirection.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone)]
 enum State {
     Idle,
@@ -249,7 +259,15 @@ impl Updater {
     }
 
     pub fn step(&mut self, now: Timestamp, event: Event, params: &Params<'_>) -> Effects {
-        let mut effects = Effects::default();
+        let answering = match event {
+            Event::Command(command, _) => command.session(),
+            // A data frame, a flash result and time belong to the running session.
+            Event::Data(_) | Event::FlashDone(_) | Event::Tick => self.session().unwrap_or(0),
+        };
+        let mut effects = Effects {
+            answering,
+            ..Effects::default()
+        };
         match event {
             Event::Command(command, gate) => self.command(now, command, gate, params, &mut effects),
             Event::Data(frame) => self.data(now, frame, params, &mut effects),
@@ -293,20 +311,20 @@ impl Updater {
             | UpdateCommand::Window { session, .. }
             | UpdateCommand::Finish { session }
             | UpdateCommand::Activate { session }
-            | UpdateCommand::Abort { session } => {
-                let owner = match &self.state {
-                    State::Open(transfer) => Some(transfer.session),
-                    State::Finished { session, .. } | State::Activating { session } => {
-                        Some(*session)
-                    }
-                    _ => None,
-                };
-                match owner {
-                    None => effects.refuse(opcode, UpdateError::NoSession, 0),
-                    Some(owner) if owner != session => effects.refuse(opcode, UpdateError::Busy, 0),
-                    Some(_) => self.session_command(now, command, effects),
-                }
-            }
+            | UpdateCommand::Abort { session } => match self.session() {
+                None => effects.refuse(opcode, UpdateError::NoSession, 0),
+                Some(owner) if owner != session => effects.refuse(opcode, UpdateError::Busy, 0),
+                Some(_) => self.session_command(now, command, effects),
+            },
+        }
+    }
+
+    /// The running session's id, if one runs.
+    fn session(&self) -> Option<u8> {
+        match &self.state {
+            State::Open(transfer) => Some(transfer.session),
+            State::Finished { session, .. } | State::Activating { session } => Some(*session),
+            _ => None,
         }
     }
 
@@ -347,9 +365,8 @@ impl Updater {
         const OPCODE: u8 = 0x02;
         match &self.state {
             State::Idle => {}
-            // The same PC starting over (its own earlier run died): allowed.
-            State::Open(transfer) if transfer.session == session => {}
-            State::Finished { session: owner, .. } if *owner == session => {}
+            // Also with the running session's own id: another program may have drawn
+            // the same id, and a PC that wants to start over ends its session first.
             State::OnTrial { .. } => return effects.refuse(OPCODE, UpdateError::OnTrial, 0),
             _ => return effects.refuse(OPCODE, UpdateError::Busy, 0),
         }
@@ -365,8 +382,6 @@ impl Updater {
             None
         };
         if let Some((error, detail)) = refusal {
-            // A refused restart leaves nothing half begun: the old transfer ends too.
-            self.state = State::Idle;
             return effects.refuse(OPCODE, error, detail);
         }
         self.state = State::Open(Transfer {
@@ -376,6 +391,7 @@ impl Updater {
             digest: [0; 32],
             digest_parts: 0,
             hasher: Sha256::new(),
+            image_check: WholeImageCheck::new(),
             windows_written: 0,
             window: WindowRx::Waiting,
             last_heard: now,
@@ -458,6 +474,12 @@ impl Updater {
                         if digest.as_slice() != transfer.digest {
                             self.state = State::Idle;
                             return effects.refuse(opcode, UpdateError::DigestMismatch, 0);
+                        }
+                        // An image the bootloader would refuse is never activated: the
+                        // old one would come back after the reset, and no client learns why.
+                        if let Err(error) = transfer.image_check.finish() {
+                            self.state = State::Idle;
+                            return effects.refuse(opcode, UpdateError::BadImage, error.code());
                         }
                         self.state = State::Finished {
                             session,
@@ -566,6 +588,7 @@ impl Updater {
             return effects.refuse(0x04, error, detail);
         }
         transfer.hasher.update(window);
+        transfer.image_check.feed(window);
         transfer.window = WindowRx::Writing { index };
         effects.flash = Some(FlashOp::WriteWindow {
             offset: u32::from(index) * WINDOW_LEN as u32,

@@ -330,6 +330,12 @@ pub async fn run<F: NorFlash>(
                             opcode,
                             error: UpdateError::Malformed,
                             detail: 0,
+                            // The session byte of a command that carries one (BEGIN to
+                            // ABORT, opcodes 2 to 7); a data frame names none.
+                            session: match opcode {
+                                2..=7 => frame.data().get(1).copied().unwrap_or(0),
+                                _ => 0,
+                            },
                         }
                         .encode(),
                     );

@@ -423,7 +423,8 @@ fn a_window_index_of_0xffff_is_refused_as_out_of_turn() {
             [UpdateReply::Refused {
                 opcode: 0x04,
                 error: UpdateError::WrongWindow,
-                detail: 0
+                detail: 0,
+                session: SID,
             }],
             "after {written} windows written"
         );
@@ -665,4 +666,139 @@ fn an_abort_while_otadata_is_written_for_activation_is_refused() {
         .updater
         .step(at(102), Event::FlashDone(true), &params());
     assert!(effects.reset, "the activated image must be started");
+}
+
+#[test]
+fn begin_with_the_running_sessions_own_id_is_busy_and_leaves_the_session_as_it_was() {
+    let image = image("0.3.0");
+    let mut bench = Bench::new();
+    bench.begin(&image, BeginFlags::default());
+    bench.window(&image, 0);
+    bench.window(&image, 1);
+    let replies = bench.command(C::Begin {
+        session: SID,
+        size: image.len() as u32,
+        flags: BeginFlags::default(),
+    });
+    assert!(
+        replies.iter().any(refused(UpdateError::Busy)),
+        "{replies:?}"
+    );
+    let state = bench.command(C::Query);
+    assert!(
+        matches!(
+            state[0],
+            UpdateReply::State {
+                windows_written: 2,
+                ..
+            }
+        ),
+        "windows written 2 → {state:?}"
+    );
+}
+
+/// Whole transfers of images whose window 0 is good but which the bootloader would
+/// refuse: FINISH must not answer DONE, so no client can activate them.
+#[test]
+fn finish_refuses_an_image_the_bootloader_would_refuse() {
+    let good = image("0.3.0");
+    let mut bad_checksum = good.clone();
+    // A byte of the segment's data past window 0: the XOR checksum no longer matches
+    // (the appended SHA-256 is over the changed bytes, as a careless tool would make it).
+    bad_checksum[2 * WINDOW_LEN] ^= 0x40;
+    let checksum_end = good.len() - image::SHA256_LEN;
+    let digest = Sha256::digest(&bad_checksum[..checksum_end]);
+    bad_checksum[checksum_end..].copy_from_slice(&digest);
+    let mut bad_digest = good.clone();
+    *bad_digest.last_mut().unwrap() ^= 0x01;
+    let truncated = good[..good.len() - 100].to_vec();
+    let no_digest = good[..good.len() - image::SHA256_LEN].to_vec();
+    for (name, image, detail) in [
+        (
+            "truncated in the segment",
+            &truncated,
+            image::ImageError::BadSegments,
+        ),
+        (
+            "bad checksum",
+            &bad_checksum,
+            image::ImageError::BadChecksum,
+        ),
+        (
+            "bad appended SHA-256",
+            &bad_digest,
+            image::ImageError::BadDigest,
+        ),
+        (
+            "no appended SHA-256",
+            &no_digest,
+            image::ImageError::BadDigest,
+        ),
+    ] {
+        let mut bench = Bench::new();
+        assert_eq!(
+            bench.begin(image, BeginFlags::default()),
+            [done(Step::Begun)]
+        );
+        let replies = bench.transfer(image);
+        assert!(
+            !replies
+                .iter()
+                .any(|r| matches!(r, UpdateReply::Refused { .. })),
+            "{name}: refused during the transfer: {replies:?}"
+        );
+        assert_eq!(
+            bench.command(C::Finish { session: SID }),
+            [UpdateReply::Refused {
+                opcode: 0x05,
+                error: UpdateError::BadImage,
+                detail: detail.code(),
+                session: SID,
+            }],
+            "{name}"
+        );
+        assert!(!bench.updater.locks_motion(), "{name}: the session ends");
+        assert!(
+            bench
+                .command(C::Activate { session: SID })
+                .iter()
+                .any(refused(UpdateError::NoSession)),
+            "{name}: ACTIVATE after the refusal"
+        );
+    }
+}
+
+/// On the wire, a refusal names the session of the frame it answers (byte 4, after
+/// the four bytes every controller sends), so a session's owner can tell another
+/// program's refusals from its own.
+#[test]
+fn refusals_on_the_wire_name_the_session_they_answer() {
+    let image = image("0.3.0");
+    let mut bench = Bench::new();
+    bench.begin(&image, BeginFlags::default());
+    let wire = |replies: StdVec<UpdateReply>| -> StdVec<StdVec<u8>> {
+        replies.iter().map(|r| r.encode().data().to_vec()).collect()
+    };
+    // Another program's BEGIN and FINISH, with its own session 0x33.
+    let other = bench.command(C::Begin {
+        session: 0x33,
+        size: 5000,
+        flags: BeginFlags::default(),
+    });
+    assert_eq!(wire(other), [std::vec![0xFF, 0x02, 0x01, 0x00, 0x33]]);
+    let other = bench.command(C::Finish { session: 0x33 });
+    assert_eq!(wire(other), [std::vec![0xFF, 0x05, 0x01, 0x00, 0x33]]);
+    // The owner's own FINISH, too early, and a data frame before any WINDOW: the
+    // running session.
+    let own = bench.command(C::Finish { session: SID });
+    assert_eq!(wire(own), [std::vec![0xFF, 0x05, 0x0F, 0x00, SID]]);
+    let data = bench.step(Event::Data(DataFrame {
+        seq: 4,
+        bytes: [0; DATA_BYTES],
+    }));
+    assert_eq!(wire(data), [std::vec![0xFF, 0x00, 0x09, 0x04, SID]]);
+    // Commands without a session, and data without a session: 0.
+    bench.command(C::Abort { session: SID });
+    let confirm = bench.command(C::Confirm);
+    assert_eq!(wire(confirm), [std::vec![0xFF, 0x08, 0x11, 0x00, 0x00]]);
 }
