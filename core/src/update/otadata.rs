@@ -11,10 +11,23 @@
 //! image in the wrong state) and gives up when one copy is corrupt, where the
 //! bootloader simply uses the other.
 
+use core::ops::Range;
+
 use crc::{Algorithm, Crc};
 
 /// Bytes of one entry: sequence number, a 20-byte label, state, CRC.
 pub const ENTRY_LEN: usize = 32;
+/// Where an entry's CRC starts: it is the last word.
+const CRC_AT: usize = 28;
+/// The program operations that write an entry into its erased sector, in this order,
+/// each read back before the next: the sequence number, label and state, then the
+/// CRC. The CRC is what makes an entry valid to the bootloader, so a cut before the
+/// last operation completed leaves an entry it ignores, whichever words of the first
+/// one were programmed (a NOR flash programs the words of one operation in no
+/// promised order). One operation for the whole entry could leave the sequence number
+/// and the CRC programmed and the state still erased: a valid entry in a state nobody
+/// wrote.
+pub const PROGRAM_ORDER: [Range<usize>; 2] = [0..CRC_AT, CRC_AT..ENTRY_LEN];
 /// Each entry has a flash sector of its own.
 pub const SECTOR_LEN: u32 = 4096;
 /// The app slots the sequence numbers count over (`ota_0`, `ota_1`).
@@ -51,8 +64,9 @@ pub enum OtaState {
     /// it themselves first thing on a trial boot ("armed"), so any reset before the
     /// confirm falls back to the previous slot even with a bootloader without rollback.
     Aborted,
-    /// `0xFFFF_FFFF` or any other value: the bootloader treats it as bootable, like
-    /// ESP-IDF images written without rollback support.
+    /// `0xFFFF_FFFF` or any other value: the bootloader treats it as bootable. Neither
+    /// this firmware nor the bootloader writes it; a torn write of another bootloader
+    /// or a tool can leave it, and an image that finds it starts on trial.
     Undefined(u32),
 }
 
@@ -125,7 +139,7 @@ impl Entry {
         Self {
             seq,
             state: OtaState::from_raw(word(24)),
-            crc_ok: word(28) == crc_of(seq),
+            crc_ok: word(CRC_AT) == crc_of(seq),
         }
     }
 
@@ -140,7 +154,7 @@ impl Entry {
         } else {
             !crc_of(self.seq)
         };
-        bytes[28..32].copy_from_slice(&crc.to_le_bytes());
+        bytes[CRC_AT..].copy_from_slice(&crc.to_le_bytes());
         bytes
     }
 }

@@ -10,12 +10,13 @@ use crate::registers::UpdateReset;
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum StartRole {
-    /// Its entry is confirmed (`Valid`, or written without states): run normally.
+    /// Its entry is confirmed (`Valid`): run normally.
     Confirmed,
     /// No entry names this slot: flashed over USB with otadata erased. Runs normally;
     /// the bootloader records it on its next start.
     Unrecorded,
-    /// A new image on its first start: write `arm` first, then prove itself.
+    /// A new image on its first start, or one whose entry has a state nobody wrote: write
+    /// `arm` first, then prove itself.
     Trial { arm: SectorWrite },
     /// Started by a rollback bootloader, which aborts it by itself on the next reset:
     /// prove itself, nothing to arm.
@@ -38,14 +39,16 @@ pub fn on_start(otadata: &OtaData, running: Slot) -> StartRole {
         return StartRole::Unrecorded;
     };
     match otadata.sectors[sector].state {
-        OtaState::New => StartRole::Trial {
+        // A state nobody meant (a torn write) counts as a new image: the cut falls back
+        // to the previous image instead of confirming this one.
+        OtaState::New | OtaState::Undefined(_) => StartRole::Trial {
             arm: SectorWrite {
                 sector,
                 entry: super::otadata::Entry::new(otadata.sectors[sector].seq, OtaState::Aborted),
             },
         },
         OtaState::PendingVerify => StartRole::PendingVerify,
-        OtaState::Valid | OtaState::Undefined(_) => StartRole::Confirmed,
+        OtaState::Valid => StartRole::Confirmed,
         OtaState::Invalid | OtaState::Aborted => StartRole::LastResort,
     }
 }
@@ -262,7 +265,15 @@ mod tests {
             ),
             (OtaState::PendingVerify, StartRole::PendingVerify),
             (OtaState::Valid, StartRole::Confirmed),
-            (OtaState::Undefined(u32::MAX), StartRole::Confirmed),
+            (
+                OtaState::Undefined(u32::MAX),
+                StartRole::Trial {
+                    arm: SectorWrite {
+                        sector: 1,
+                        entry: Entry::new(2, OtaState::Aborted),
+                    },
+                },
+            ),
             (OtaState::Aborted, StartRole::LastResort),
             (OtaState::Invalid, StartRole::LastResort),
         ];

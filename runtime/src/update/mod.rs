@@ -22,7 +22,7 @@ use base_core::can::update::{DataFrame, UpdateCommand, UpdateError, UpdateReply}
 use base_core::can::{FrameError, RawFrame, id};
 use base_core::time::Timestamp;
 use base_core::update::image::Chip;
-use base_core::update::otadata::{ENTRY_LEN, OtaData, SectorWrite, Slot};
+use base_core::update::otadata::{ENTRY_LEN, OtaData, PROGRAM_ORDER, SectorWrite, Slot};
 use base_core::update::partitions::{self, Partition};
 use base_core::update::session::{Event, FlashOp, MotionGate, Params, Updater};
 use base_core::update::trial::{self, ResetRecord, StartRole};
@@ -187,22 +187,40 @@ impl<F: NorFlash> UpdateFlash<F> {
         Ok(OtaData::decode(&first, &second))
     }
 
-    /// Rewrites one otadata sector: erase, program the entry, read back.
+    /// Rewrites one otadata sector: erase, then the entry's program operations in
+    /// [`PROGRAM_ORDER`], each read back before the next, so that the CRC, which makes
+    /// the entry valid, is programmed last.
     pub async fn write_otadata(&mut self, write: SectorWrite) -> Result<(), UpdateFlashError> {
         if write.sector > 1 {
             return Err(UpdateFlashError::OutOfBounds);
         }
         let at = partitions::OTADATA.offset + write.sector as u32 * (partitions::OTADATA.len / 2);
-        self.program(at, &write.entry.encode()).await
+        self.erase(at).await?;
+        let bytes = write.entry.encode();
+        for range in PROGRAM_ORDER {
+            self.program_erased(at + range.start as u32, &bytes[range])
+                .await?;
+        }
+        Ok(())
     }
 
     async fn program(&mut self, at: u32, data: &[u8]) -> Result<(), UpdateFlashError> {
+        self.erase(at).await?;
+        self.program_erased(at, data).await
+    }
+
+    async fn erase(&mut self, at: u32) -> Result<(), UpdateFlashError> {
         let sector = F::ERASE_SIZE as u32;
         self.flash
             .erase(at, at + sector)
             .await
             .map_err(|_| UpdateFlashError::Flash)?;
         yield_now().await;
+        Ok(())
+    }
+
+    /// Programs `data` at `at`, in erased flash, and reads it back.
+    async fn program_erased(&mut self, at: u32, data: &[u8]) -> Result<(), UpdateFlashError> {
         let aligned = data.len() - data.len() % F::WRITE_SIZE;
         for (index, page) in data[..aligned].chunks(PAGE).enumerate() {
             self.flash
