@@ -122,12 +122,15 @@ impl Robot {
             }
             self.running = slot;
             let image = self.images[slot.index()];
-            let role = on_start(&self.otadata, slot);
-            if let StartRole::Trial { arm } = role
-                && !write(self, arm, cut)
+            let start = on_start(&self.otadata, slot);
+            // The image's first write (arming a trial, recording itself on blank
+            // otadata, setting aside a refused image's entry), cut like any other.
+            if let Some(first) = start.write
+                && !write(self, first, cut)
             {
                 continue;
             }
+            let role = start.role;
             if role.on_trial() {
                 let runs = self.unconfirmed_trial_runs.entry(image.id).or_default();
                 *runs += 1;
@@ -256,12 +259,9 @@ proptest! {
                 "image {} runs, but {} was confirmed last (after {:?}; otadata {:?})",
                 now.id, robot.last_confirmed, step, robot.otadata
             );
-            // Whatever runs is confirmed, or the bootloader had nothing better.
-            let role = on_start(&robot.otadata, robot.running);
-            prop_assert!(
-                robot.confirmed.contains(&now.id) || matches!(role, StartRole::LastResort | StartRole::Unrecorded),
-                "image {} runs unconfirmed as {role:?}", now.id
-            );
+            // It runs confirmed, with motion unlocked: never as a last resort.
+            let role = on_start(&robot.otadata, robot.running).role;
+            prop_assert_eq!(role, StartRole::Confirmed, "image {} runs", now.id);
         }
     }
 }
@@ -347,7 +347,7 @@ fn a_refused_image_then_an_update_that_fails_its_trial_goes_back_to_the_confirme
                 robot.otadata
             );
             assert_eq!(
-                on_start(&robot.otadata, robot.running),
+                on_start(&robot.otadata, robot.running).role,
                 StartRole::Confirmed,
                 "{bootloader:?}, {failing:?}"
             );

@@ -702,6 +702,9 @@ pub fn add_boot_info(diagnostic: &mut DiagnosticStatus, boot_info: Option<BootIn
         UpdateReset::FailedTrial => diagnostic
             .message
             .push_str("; rolled back: a new image failed its trial"),
+        UpdateReset::Refused => diagnostic
+            .message
+            .push_str("; update refused: the bootloader did not load the new image"),
     }
 }
 

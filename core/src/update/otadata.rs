@@ -312,6 +312,14 @@ impl OtaData {
         })
     }
 
+    /// Both sectors erased or holding no valid entry: the bootloader starts `ota_0` (or
+    /// the first slot that loads) and records it.
+    pub fn is_blank(&self) -> bool {
+        self.sectors
+            .iter()
+            .all(|entry| entry.seq == u32::MAX || !entry.crc_ok)
+    }
+
     /// The state after `write` completed.
     pub fn with(mut self, write: SectorWrite) -> Self {
         self.sectors[write.sector] = write.entry;
