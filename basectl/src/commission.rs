@@ -9,12 +9,18 @@
 //! every drive still does what it is told and reports it faithfully. Only a person
 //! looking at the wheels sees that, so basectl asks, and from the two answers names
 //! the fault: swapped addresses, or which `motor_dir` bit is wrong.
+//!
+//! What the pose frames do show is a drive whose reports run against its command (its
+//! direction parameter differs from the one the base was set up with, a replaced
+//! drive): the heading turns the wrong way, and the controller stops the base with a
+//! `WrongDirection` fault once it is sure. The check names that before asking.
 
 use std::fmt;
 use std::io::Write;
 use std::time::{Duration, Instant};
 
-use base_core::can::{Command, Mode};
+use base_core::can::{Command, Mode, Rejection, Status};
+use base_core::plausibility::Finding;
 use base_core::registers::{MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, Reg};
 
 use crate::base::{Base, Error};
@@ -242,7 +248,11 @@ pub fn wheels(
             / f64::from(wheel_dist)
             * 1000.0;
         if turned_mrad * expected_sign < (expected_mrad / 3.0) as i64 {
-            let mode = base.status().map_or(Mode::Starting, |status| status.mode);
+            let status = base.status();
+            if let Some(against) = against_its_command(side, turned_mrad, expected_mrad, status) {
+                return Err(Error::Aborted(against));
+            }
+            let mode = status.map_or(Mode::Starting, |status| status.mode);
             return Err(Error::Aborted(format!(
                 "the controller did not see its {side} drive turn forward (heading changed \
                  {turned_mrad} mrad, about {}{expected_mrad:.0} expected; mode {mode:?})",
@@ -264,6 +274,43 @@ pub fn wheels(
         }
         _ => Err(Error::Aborted(diagnosis.to_string())),
     }
+}
+
+/// The fault when the controller's `side` drive ran against its command: the heading
+/// turned at least a third of `expected_mrad` the wrong way, or the controller stopped
+/// the base because that wheel turned against its command. `None` otherwise.
+pub fn against_its_command(
+    side: Side,
+    turned_mrad: i64,
+    expected_mrad: f64,
+    status: Option<Status>,
+) -> Option<String> {
+    let (expected_sign, subject) = match side {
+        Side::Left => (1, 1),
+        Side::Right => (-1, 2),
+    };
+    let wrong_direction = Rejection::Feedback(Finding::WrongDirection).code();
+    let stopped = status.is_some_and(|status| {
+        status.mode == Mode::Fault
+            && status.last_rejection == wrong_direction
+            && status.last_rejection_subject == subject
+    });
+    let backward = turned_mrad * expected_sign <= -((expected_mrad / 3.0) as i64);
+    if !(stopped || backward) {
+        return None;
+    }
+    let reaction = if stopped {
+        ", and the controller stopped the base (WrongDirection, a drive fault)"
+    } else {
+        ""
+    };
+    Some(format!(
+        "the controller saw its {side} drive turn backward when told forward (heading \
+         changed {turned_mrad:+} mrad){reaction}: that drive's position runs against its \
+         command, so its direction parameter differs from the one this base was set up \
+         with (a replaced drive?). Set it as on the drive it replaced (MEXE02), press the \
+         front button to confirm, and run this check again"
+    ))
 }
 
 /// The base must be able to drive, without a person in the safety zone (its limits
@@ -326,6 +373,36 @@ mod tests {
 
     fn turned(side: Side, forward: bool) -> Seen {
         Seen::Turned { side, forward }
+    }
+
+    /// A drive running against its command is named from the heading alone, or from
+    /// the controller's WrongDirection fault on that wheel; a wheel that merely turned
+    /// too little is not.
+    #[test]
+    fn a_drive_against_its_command_is_named_from_the_heading_or_the_fault() {
+        let fault = |subject: u8| Status {
+            mode: Mode::Fault,
+            last_rejection: 0x43,
+            last_rejection_subject: subject,
+            ..Status::default()
+        };
+        let named = |side, turned, status| {
+            against_its_command(side, turned, 240.0, status)
+                .is_some_and(|text| text.contains("direction parameter"))
+        };
+        assert!(named(Side::Left, -200, None));
+        assert!(named(Side::Right, 200, None));
+        assert!(named(Side::Left, -20, Some(fault(1))));
+        assert!(named(Side::Right, 10, Some(fault(2))));
+        assert!(
+            !named(Side::Left, -20, Some(fault(2))),
+            "the other wheel's fault"
+        );
+        assert!(!named(Side::Left, 30, None), "too little, not backward");
+        assert!(
+            !named(Side::Right, -240, None),
+            "forward for the right wheel"
+        );
     }
 
     #[test]

@@ -14,7 +14,7 @@ use crate::feedback::{FeedbackPeriods, FeedbackSchedule};
 use crate::gamepad::GamepadState;
 use crate::kinematics::{self, KinematicsParams, MotorRpm, SafetyLimits, Twist, WheelCommand};
 use crate::odometry::{EncoderCounts, Odometry, OdometryParams};
-use crate::plausibility::{self, FeedbackCheck};
+use crate::plausibility::{self, Commanded, FeedbackCheck};
 use crate::power::{self, PowerControl, SwitchLevel};
 use crate::registers::{
     BootInfo, MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, RESTORE_DEFAULTS_KEY, Reg,
@@ -225,6 +225,15 @@ pub struct Controller {
     in_force: WheelCommand,
     /// What the drives run at, from the latest measurement; the next ramp starts here.
     speed: SpeedEstimate,
+    /// What the drives would run at had each followed every command since the last
+    /// setup, from the moment it was sent: the commanded ramps alone, never moved to a
+    /// measurement, so that a wheel turning against its command cannot drag it along.
+    /// The feedback check compares each wheel's direction with it.
+    commanded_speed: SpeedEstimate,
+    /// How much that model's acceleration changed since the last drive feedback,
+    /// summed, (r/min)/s (left, right): where its speed bent between two samples,
+    /// which the feedback check allows for.
+    commanded_bends: [f64; 2],
     rejections: Rejections,
     faults: ShellFaults,
     /// Which of the connected pads controls the remote; the links for the status frame.
@@ -264,6 +273,8 @@ impl Controller {
             },
             in_force: STANDING,
             speed: SpeedEstimate::standing(now),
+            commanded_speed: SpeedEstimate::standing(now),
+            commanded_bends: [0.0; 2],
             rejections: Rejections::default(),
             faults: ShellFaults::default(),
             pads: PadArbiter::new(),
@@ -438,6 +449,8 @@ impl Controller {
                 if matches!(self.supervisor.mode(), Mode::Starting | Mode::Recovering) {
                     self.in_force = STANDING;
                     self.speed = SpeedEstimate::standing(now);
+                    self.commanded_speed = SpeedEstimate::standing(now);
+                    self.commanded_bends = [0.0; 2];
                 }
                 self.supervise(now, supervisor::Event::DrivesReady, &mut out);
             }
@@ -758,9 +771,15 @@ impl Controller {
                 .observe(motion.distance_mm, motion.rotation_mrad);
         }
         self.speed = SpeedEstimate::measured(now, rpm);
-        let verdict = self
-            .feedback_check
-            .sample(now, counts, rpm, params.counts_per_motor_rev);
+        self.advance_commanded_speed(now);
+        let commanded = Commanded {
+            expected: self.commanded_speed.rpm(),
+            target: self.in_force.rpm,
+            bends_rpm_per_s: core::mem::take(&mut self.commanded_bends),
+        };
+        let verdict =
+            self.feedback_check
+                .sample(now, counts, rpm, commanded, params.counts_per_motor_rev);
         self.feedback_plausibility(now, &verdict, out);
         // Standing by the reported speed and by the counters: a stale speed register
         // must not let the brakes, the flash or a motion register through while the
@@ -771,9 +790,10 @@ impl Controller {
         self.supervise(now, supervisor::Event::AtRest(at_rest), out);
     }
 
-    /// A drive whose counter and speed disagree latches a drive fault (zero with
-    /// `estop_decel`, see the supervisor); the status frame shows why as a rejection
-    /// (0x41 position stuck, 0x42 speed stale; subject 1 left, 2 right).
+    /// A drive whose counter and speed disagree, or whose counter runs against its
+    /// command, latches a drive fault (zero with `estop_decel`, see the supervisor); the
+    /// status frame shows why as a rejection (0x41 position stuck, 0x42 speed stale,
+    /// 0x43 wrong direction; subject 1 left, 2 right).
     fn feedback_plausibility(
         &mut self,
         now: Timestamp,
@@ -793,6 +813,18 @@ impl Controller {
                 .record(Rejection::Feedback(finding).code(), subject);
             self.supervise(now, supervisor::Event::FeedbackImplausible(wheel), out);
         }
+    }
+
+    /// Moves the commanded model along the command in force until `now`.
+    fn advance_commanded_speed(&mut self, now: Timestamp) {
+        let (speed, bends) = self.commanded_speed.advanced_bending(now, &self.in_force);
+        self.commanded_speed = speed;
+        self.note_commanded_bends(bends);
+    }
+
+    fn note_commanded_bends(&mut self, bends: [f64; 2]) {
+        self.commanded_bends[0] += bends[0];
+        self.commanded_bends[1] += bends[1];
     }
 
     fn supervise(&mut self, now: Timestamp, event: supervisor::Event, out: &mut Output) {
@@ -836,6 +868,10 @@ impl Controller {
                 }
             }
             self.speed = self.speed.advanced(now, &self.in_force);
+            self.advance_commanded_speed(now);
+            let before = self.commanded_speed.slope(&self.in_force);
+            let after = self.commanded_speed.slope(&command);
+            self.note_commanded_bends([(after[0] - before[0]).abs(), (after[1] - before[1]).abs()]);
             self.in_force = command;
             out.wheels = Some(command);
         }
@@ -1107,6 +1143,33 @@ impl SpeedEstimate {
             right: toward(self.right, command.rpm.right, command.right_accel),
             at: now,
         }
+    }
+
+    /// Each motor's acceleration now, following `command`, (r/min)/s: towards the
+    /// target at its rate, or none once there.
+    fn slope(self, command: &WheelCommand) -> [f64; 2] {
+        let slope = |speed: f32, target: i32, accel: u32| {
+            let towards = target as f32 - speed;
+            if towards == 0.0 {
+                0.0
+            } else {
+                f64::from(towards.signum()) * f64::from(accel)
+            }
+        };
+        [
+            slope(self.left, command.rpm.left, command.left_accel),
+            slope(self.right, command.rpm.right, command.right_accel),
+        ]
+    }
+
+    /// Moved along `command` until `now`, with how much each motor's acceleration
+    /// changed meanwhile ((r/min)/s; left, right): a ramp that reached its target.
+    fn advanced_bending(self, now: Timestamp, command: &WheelCommand) -> (Self, [f64; 2]) {
+        let advanced = self.advanced(now, command);
+        let before = self.slope(command);
+        let after = advanced.slope(command);
+        let bends = [(after[0] - before[0]).abs(), (after[1] - before[1]).abs()];
+        (advanced, bends)
     }
 
     /// Rounded to whole r/min (`as` saturates a garbage measurement at the i32 range).

@@ -12,14 +12,40 @@
 //! without bound), or the standstill that gates the brakes, the flash and the motion
 //! registers. So a mismatch latches a drive fault that stops the base.
 //!
+//! The same windows compare the counter with what the controller commanded: a counter
+//! that runs against the sign of the command ([`Finding::WrongDirection`]) belongs to
+//! a drive whose direction parameter differs from the one the controller was set up
+//! for (a replaced drive, a parameter reset). Its position and speed agree with each
+//! other, so the first check sees nothing, while the base spins or drives the wrong
+//! way, or drives right with the odometry running backwards. The commanded speed is
+//! the controller's own model of the ramps it sent ([`Commanded::expected`]), never
+//! corrected by a measurement, so a wheel that keeps turning the wrong way cannot
+//! drag it along. A wheel only counts as turning against its command when its counter,
+//! averaged over a window, runs opposite to the target and to every speed the model
+//! asked for over that window and the one before, each by at least
+//! [`MIN_COMPARED_RPM`], in two windows in a row. A reversal passes through zero on
+//! its ramp, and a drive follows it late (the command waits for the line, a failed
+//! write is tried again, the drive's speed filter); a wheel that lags a reversal is
+//! opposite only to the model's newest speeds, never to those of the window before.
+//!
+//! The samples come every 50 ms or so; a speed that bends between two of them (a ramp
+//! that starts or ends, a PC turning the wheels round every few tens of ms at a high
+//! `CAN_accel`) is missed by the speeds at the sampling moments, and their prediction
+//! then misses an honest drive's counter. The controller knows where its commanded
+//! ramps bend, so the tolerance grows by the most each bend can make the prediction
+//! miss ([`bend_miss_rpm_ms`]), in the window of the bend and the one after (the
+//! drive follows a little late). A steady speed, the stuck encoder's case, has no
+//! bend and keeps the plain tolerance.
+//!
 //! Each sample also says whether the counter moved since the previous one, so that
 //! standstill is judged from the position as well as from the reported speed
 //! ([`Verdict::position_standing`]).
 //!
 //! What the drives' feedback cannot show: a shaft that turns as commanded but drives
-//! its wheel the wrong way (swapped drive addresses, a wrong `motor_dir`). Position,
-//! speed and command all agree in the drive's own frame; only the mapping from shaft
-//! to wheel is wrong, and nothing on the base measures the wheels independently. The
+//! its wheel the wrong way (swapped drive addresses, a wrong `motor_dir`, a drive
+//! whose direction parameter turns its reports round with its shaft). Position, speed
+//! and command all agree in the drive's own frame; only the mapping from shaft to
+//! wheel is wrong, and nothing on the base measures the wheels independently. The
 //! commissioning check (`basectl commission wheels`) covers that, with a person
 //! watching the wheels.
 
@@ -54,6 +80,25 @@ pub enum Finding {
     PositionStuck,
     /// The counter runs; the reported speed lags far behind or says it stands.
     SpeedStale,
+    /// The counter runs against the sign of what the wheel was commanded.
+    WrongDirection,
+}
+
+/// What the controller commanded each drive, as its own model has it.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Commanded {
+    /// The speed each drive would run at now had it followed every command since the
+    /// drives were set up, each from the moment it was sent and at its rate: the
+    /// commanded ramps alone, never corrected by a measurement.
+    pub expected: MotorRpm,
+    /// The speed each drive was last told to reach.
+    pub target: MotorRpm,
+    /// How much that model's acceleration changed since the previous sample, summed
+    /// over every change (a ramp that starts, ends or turns round), in (r/min)/s: left,
+    /// right. Each change bends the speed between two samples, which the speeds at the
+    /// sampling moments cannot see.
+    pub bends_rpm_per_s: [f64; 2],
 }
 
 /// What one sample showed.
@@ -92,27 +137,87 @@ struct WheelWindow {
     /// The position the reported speeds predict since the window's start, in
     /// revolution-milliseconds per minute (r/min × ms): divide by 60 000 for turns.
     predicted_rpm_ms: f64,
-    /// Windows in a row that disagreed, and how.
+    /// How far the reported speeds' prediction may miss the counter in this window and
+    /// in the previous one because the commanded speed bent between two samples, in
+    /// r/min × ms (see [`bend_miss_rpm_ms`]).
+    bend_miss_rpm_ms: f64,
+    previous_bend_miss_rpm_ms: f64,
+    /// The commanded speeds (the model's) this window and the previous one saw.
+    expected: SpeedRange,
+    previous_expected: SpeedRange,
+    /// Windows in a row whose counter and reported speed disagreed.
     bad_windows: u8,
+    /// Windows in a row whose counter ran against the command.
+    wrong_way_windows: u8,
     latched: bool,
 }
 
+/// The lowest and highest of some speeds, r/min.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+struct SpeedRange {
+    low: i32,
+    high: i32,
+}
+
+impl SpeedRange {
+    fn of(rpm: i32) -> Self {
+        Self {
+            low: rpm,
+            high: rpm,
+        }
+    }
+
+    fn with(self, other: Self) -> Self {
+        Self {
+            low: self.low.min(other.low),
+            high: self.high.max(other.high),
+        }
+    }
+
+    /// `rpm` is at least [`MIN_COMPARED_RPM`] on one side of zero, and every speed in
+    /// the range at least as far on the other.
+    fn all_opposite(self, rpm: f64) -> bool {
+        (rpm >= MIN_COMPARED_RPM && f64::from(self.high) <= -MIN_COMPARED_RPM)
+            || (rpm <= -MIN_COMPARED_RPM && f64::from(self.low) >= MIN_COMPARED_RPM)
+    }
+}
+
+/// The most a speed's trapezoid over one sampling interval of `elapsed_ms` can miss
+/// its position when its acceleration changes by `bends_rpm_per_s` in between, r/min ×
+/// ms: a bend of Δa at c ms into an interval of h ms misses Δa·c·(h − c)/2, at most
+/// Δa·h²/8 (with Δa in (r/min)/s, divided by 1000 for r/min × ms).
+fn bend_miss_rpm_ms(bends_rpm_per_s: f64, elapsed_ms: u64) -> f64 {
+    let h = elapsed_ms as f64;
+    bends_rpm_per_s * h * h / 8.0 / 1000.0
+}
+
 impl WheelWindow {
-    fn start(counts: i32, rpm: i32) -> Self {
+    fn start(counts: i32, rpm: i32, expected_rpm: i32) -> Self {
         Self {
             start_counts: counts,
             last_counts: counts,
             last_rpm: rpm,
-            predicted_rpm_ms: 0.0,
-            bad_windows: 0,
-            latched: false,
+            expected: SpeedRange::of(expected_rpm),
+            previous_expected: SpeedRange::of(expected_rpm),
+            ..Self::default()
         }
     }
 
-    /// Adds one sample `elapsed_ms` after the previous; whether the counter stood.
-    fn add(&mut self, elapsed_ms: u64, counts: i32, rpm: i32) -> bool {
+    /// Adds one sample `elapsed_ms` after the previous, with how much the commanded
+    /// acceleration changed since then; whether the counter stood.
+    fn add(
+        &mut self,
+        elapsed_ms: u64,
+        counts: i32,
+        rpm: i32,
+        expected_rpm: i32,
+        bends_rpm_per_s: f64,
+    ) -> bool {
         let mean_rpm = (f64::from(self.last_rpm) + f64::from(rpm)) / 2.0;
         self.predicted_rpm_ms += mean_rpm * elapsed_ms as f64;
+        self.bend_miss_rpm_ms += bend_miss_rpm_ms(bends_rpm_per_s, elapsed_ms);
+        self.expected = self.expected.with(SpeedRange::of(expected_rpm));
         let standing = counts.wrapping_sub(self.last_counts).unsigned_abs() <= STANDING_COUNTS;
         self.last_counts = counts;
         self.last_rpm = rpm;
@@ -120,30 +225,55 @@ impl WheelWindow {
     }
 
     /// Judges the window that spans `span_ms` and starts the next one at the last
-    /// sample. Returns a finding once it latches.
-    fn judge(&mut self, span_ms: u64, counts_per_rev: f64) -> Option<Finding> {
+    /// sample (commanded `expected_rpm`); `target_rpm` is the command in force now.
+    /// Returns a finding once it latches: one per wheel until the check restarts.
+    fn judge(
+        &mut self,
+        span_ms: u64,
+        counts_per_rev: f64,
+        expected_rpm: i32,
+        target_rpm: i32,
+    ) -> Option<Finding> {
         let counted = f64::from(self.last_counts.wrapping_sub(self.start_counts));
         let counted_rpm = counted / counts_per_rev * 60_000.0 / span_ms as f64;
         let predicted_rpm = self.predicted_rpm_ms / span_ms as f64;
+        // A drive follows the model a little late, so its bends may fall into the
+        // window after the model's.
+        let bend_miss_rpm =
+            (self.bend_miss_rpm_ms + self.previous_bend_miss_rpm_ms) / span_ms as f64;
+        // Against everything the model asked for over two windows: a wheel that
+        // follows a reversal late runs opposite to the model's latest speeds only.
+        let commanded = self.expected.with(self.previous_expected);
         self.start_counts = self.last_counts;
         self.predicted_rpm_ms = 0.0;
+        self.previous_bend_miss_rpm_ms = self.bend_miss_rpm_ms;
+        self.bend_miss_rpm_ms = 0.0;
+        self.previous_expected = self.expected;
+        self.expected = SpeedRange::of(expected_rpm);
         let larger = counted_rpm.abs().max(predicted_rpm.abs());
-        let disagree =
-            larger >= MIN_COMPARED_RPM && (counted_rpm - predicted_rpm).abs() > TOLERANCE * larger;
-        if !disagree {
-            self.bad_windows = 0;
+        let disagree = larger >= MIN_COMPARED_RPM
+            && (counted_rpm - predicted_rpm).abs() > TOLERANCE * larger + bend_miss_rpm;
+        let wrong_way = commanded.all_opposite(counted_rpm)
+            && SpeedRange::of(target_rpm).all_opposite(counted_rpm);
+        let in_a_row = |windows: u8, bad: bool| if bad { windows.saturating_add(1) } else { 0 };
+        self.bad_windows = in_a_row(self.bad_windows, disagree);
+        self.wrong_way_windows = in_a_row(self.wrong_way_windows, wrong_way);
+        if self.latched {
             return None;
         }
-        self.bad_windows = self.bad_windows.saturating_add(1);
-        if self.latched || self.bad_windows < BAD_WINDOWS_TO_LATCH {
-            return None;
-        }
-        self.latched = true;
-        Some(if counted_rpm.abs() < predicted_rpm.abs() {
-            Finding::PositionStuck
+        let finding = if self.bad_windows >= BAD_WINDOWS_TO_LATCH {
+            if counted_rpm.abs() < predicted_rpm.abs() {
+                Finding::PositionStuck
+            } else {
+                Finding::SpeedStale
+            }
+        } else if self.wrong_way_windows >= BAD_WINDOWS_TO_LATCH {
+            Finding::WrongDirection
         } else {
-            Finding::SpeedStale
-        })
+            return None;
+        };
+        self.latched = true;
+        Some(finding)
     }
 }
 
@@ -176,20 +306,23 @@ impl FeedbackCheck {
         self.window = None;
     }
 
-    /// One feedback sample at `now`: raw counters and reported speeds, as read.
+    /// One feedback sample at `now`: raw counters and reported speeds, as read, and
+    /// what the controller commanded.
     pub fn sample(
         &mut self,
         now: Timestamp,
         counts: EncoderCounts,
         rpm: MotorRpm,
+        commanded: Commanded,
         counts_per_rev: f64,
     ) -> Verdict {
+        let expected = commanded.expected;
         let Some(window) = &mut self.window else {
             self.window = Some(Window {
                 started: now,
                 last_sample: now,
-                left: WheelWindow::start(counts.left, rpm.left),
-                right: WheelWindow::start(counts.right, rpm.right),
+                left: WheelWindow::start(counts.left, rpm.left, expected.left),
+                right: WheelWindow::start(counts.right, rpm.right, expected.right),
             });
             return Verdict {
                 position_standing: true,
@@ -198,8 +331,18 @@ impl FeedbackCheck {
         };
         let elapsed_ms = now.millis_since(window.last_sample);
         window.last_sample = now;
-        let left_standing = window.left.add(elapsed_ms, counts.left, rpm.left);
-        let right_standing = window.right.add(elapsed_ms, counts.right, rpm.right);
+        let [left_bends, right_bends] = commanded.bends_rpm_per_s;
+        let left_standing =
+            window
+                .left
+                .add(elapsed_ms, counts.left, rpm.left, expected.left, left_bends);
+        let right_standing = window.right.add(
+            elapsed_ms,
+            counts.right,
+            rpm.right,
+            expected.right,
+            right_bends,
+        );
         let mut verdict = Verdict {
             left: None,
             right: None,
@@ -207,8 +350,14 @@ impl FeedbackCheck {
         };
         let span_ms = now.millis_since(window.started);
         if span_ms >= WINDOW_MS {
-            verdict.left = window.left.judge(span_ms, counts_per_rev);
-            verdict.right = window.right.judge(span_ms, counts_per_rev);
+            let target = commanded.target;
+            verdict.left = window
+                .left
+                .judge(span_ms, counts_per_rev, expected.left, target.left);
+            verdict.right =
+                window
+                    .right
+                    .judge(span_ms, counts_per_rev, expected.right, target.right);
             window.started = now;
         }
         verdict
@@ -244,40 +393,77 @@ mod tests {
     type FoundAt = (u64, Finding);
 
     /// Runs the check over `ms` with a sample every `period_ms`: the left shaft at
-    /// `rpm(t)`, reported as `left`; the right shaft honest at the same speed. Returns
-    /// the first finding per wheel with its time.
+    /// `rpm(t)`, reported as `left`; the right shaft honest at the same speed; both
+    /// commanded as they turn. Returns the first finding per wheel with its time.
     fn run(
         ms: u64,
         period_ms: u64,
         rpm: impl Fn(u64) -> f64,
         left: Report,
     ) -> [Option<FoundAt>; 2] {
+        let commanded = |t: u64| (rpm(t), rpm(t));
+        run_commanded(ms, period_ms, &rpm, left, &commanded)
+    }
+
+    /// Runs the check over `ms` with a sample every `period_ms`: the left shaft at
+    /// `left_shaft(t)`, reported as `left`; both wheels commanded `commanded(t)` =
+    /// (the model's speed now, the target in force); the right shaft follows the model
+    /// honestly. Returns the first finding per wheel with its time.
+    fn run_commanded(
+        ms: u64,
+        period_ms: u64,
+        left_shaft: &dyn Fn(u64) -> f64,
+        left: Report,
+        commanded: &dyn Fn(u64) -> (f64, f64),
+    ) -> [Option<FoundAt>; 2] {
+        let right_shaft = |t: u64| commanded(t).0;
+        let shafts: [&dyn Fn(u64) -> f64; 2] = [left_shaft, &right_shaft];
         let mut check = FeedbackCheck::new();
-        let mut position = 0.0f64;
+        let mut position = [0.0f64; 2];
         let mut frozen_at: Option<i32> = None;
         let (mut left_found, mut right_found) = (None, None);
         for t in (0..=ms).step_by(period_ms as usize) {
             if t > 0 {
-                // Trapezoid over the period: exact for ramps.
-                let mean = (rpm(t - period_ms) + rpm(t)) / 2.0;
-                position += mean * period_ms as f64 * COUNTS_PER_RPM_MS;
+                for (position, shaft) in position.iter_mut().zip(shafts) {
+                    // Trapezoids of 1 ms: exact for ramps, close for anything else.
+                    for ms in t - period_ms..t {
+                        let mean = (shaft(ms) + shaft(ms + 1)) / 2.0;
+                        *position += mean * COUNTS_PER_RPM_MS;
+                    }
+                }
             }
-            let true_counts = position.round() as i32;
-            let true_rpm = rpm(t).round() as i32;
+            let true_counts = position.map(|counts| counts.round() as i32);
+            let true_rpm = shafts.map(|shaft| shaft(t).round() as i32);
             let (left_counts, left_rpm) = match left {
-                Report::Honest => (true_counts, true_rpm),
-                Report::StuckCounter => (*frozen_at.get_or_insert(true_counts), true_rpm),
-                Report::FrozenSpeed(reads) => (true_counts, reads),
+                Report::Honest => (true_counts[0], true_rpm[0]),
+                Report::StuckCounter => (*frozen_at.get_or_insert(true_counts[0]), true_rpm[0]),
+                Report::FrozenSpeed(reads) => (true_counts[0], reads),
+            };
+            let (expected, target) = commanded(t);
+            // The model's bends since the previous sample: its acceleration's changes,
+            // from its speed each ms.
+            let slope = |ms: u64| (commanded(ms + 1).0 - commanded(ms).0) * 1000.0;
+            let bends: f64 = (t.saturating_sub(period_ms)..t)
+                .map(|ms| (slope(ms) - slope(ms.saturating_sub(1))).abs())
+                .sum();
+            let both = |rpm: f64| MotorRpm {
+                left: rpm.round() as i32,
+                right: rpm.round() as i32,
             };
             let verdict = check.sample(
                 Timestamp::from_millis(t),
                 EncoderCounts {
                     left: left_counts,
-                    right: true_counts,
+                    right: true_counts[1],
                 },
                 MotorRpm {
                     left: left_rpm,
-                    right: true_rpm,
+                    right: true_rpm[1],
+                },
+                Commanded {
+                    expected: both(expected),
+                    target: both(target),
+                    bends_rpm_per_s: [bends; 2],
                 },
                 COUNTS_PER_REV,
             );
@@ -333,6 +519,144 @@ mod tests {
         }
     }
 
+    /// Speed at `t` of a ramp from `from` to `to` that starts at `at_ms` at `rate`
+    /// (r/min)/s.
+    fn ramp(t: u64, at_ms: u64, from: f64, to: f64, rate: f64) -> f64 {
+        let step = rate * t.saturating_sub(at_ms) as f64 / 1000.0;
+        if to > from {
+            (from + step).min(to)
+        } else {
+            (from - step).max(to)
+        }
+    }
+
+    /// A drive whose direction parameter is at the other value, at 336 r/min (500 mm/s)
+    /// unless said otherwise, at each sampling period the link may run: found on the
+    /// left wheel alone, within two windows plus the window it began in (plus two
+    /// windows more from rest, where the commanded speed still passes below 40 r/min).
+    #[test]
+    fn a_wheel_turning_against_its_command_is_found_within_three_windows_of_it() {
+        type Shaft = &'static dyn Fn(u64) -> f64;
+        type Commands = &'static dyn Fn(u64) -> (f64, f64);
+        let cases: [(&str, Shaft, Commands, u64); 5] = [
+            ("steadily against", &|_| -336.0, &|_| (336.0, 336.0), 0),
+            (
+                "turned round while driving",
+                &|t| if t < 1_000 { 336.0 } else { -336.0 },
+                &|_| (336.0, 336.0),
+                1_000,
+            ),
+            (
+                "from rest at 700 (r/min)/s, the drive 50 ms late",
+                &|t| -ramp(t, 50, 0.0, 336.0, 700.0),
+                &|t| (ramp(t, 0, 0.0, 336.0, 700.0), 336.0),
+                2 * WINDOW_MS,
+            ),
+            ("commanded backwards", &|_| 336.0, &|_| (-336.0, -336.0), 0),
+            ("at 45 r/min", &|_| -45.0, &|_| (45.0, 45.0), 0),
+        ];
+        for period_ms in [10, 20, 37, 50] {
+            for (case, shaft, commanded, began_ms) in cases {
+                let [left, right] =
+                    run_commanded(2_000, period_ms, shaft, Report::Honest, commanded);
+                let (at, finding) = left.unwrap_or_else(|| panic!("{case}: found"));
+                assert_eq!(finding, Finding::WrongDirection, "{case}");
+                let by = began_ms + 3 * WINDOW_MS + period_ms;
+                assert!(at <= by, "{case} at {period_ms} ms: found at {at} ms");
+                assert_eq!(right, None, "{case}");
+            }
+        }
+    }
+
+    /// What a PC may ask, followed by honest drives: the target turning round between
+    /// ±336 and ±900 r/min every 20 ms to 1 s, at 700, 4500 and 30 000 (r/min)/s, each
+    /// drive following the commanded ramp up to 150 ms late (a command behind two
+    /// failed writes, each tried again after the next read). No finding.
+    #[test]
+    fn honest_drives_following_reversals_late_raise_no_finding() {
+        const MS: u64 = 3_000;
+        for rate in [700.0, 4_500.0, 30_000.0] {
+            for every_ms in [20, 37, 50, 100, 250, 1_000] {
+                for speed in [336.0, 900.0] {
+                    let target = |t: u64| {
+                        if (t / every_ms).is_multiple_of(2) {
+                            speed
+                        } else {
+                            -speed
+                        }
+                    };
+                    let mut model = vec![0.0f64; MS as usize + 1];
+                    for t in 1..=MS {
+                        let previous = model[t as usize - 1];
+                        model[t as usize] = ramp(1, 0, previous, target(t - 1), rate);
+                    }
+                    for late_ms in [0, 20, 60, 150] {
+                        let shaft =
+                            |t: u64| t.checked_sub(late_ms).map_or(0.0, |t| model[t as usize]);
+                        let commanded = |t: u64| (model[t as usize], target(t));
+                        for period_ms in [10, 20, 37, 50] {
+                            let found =
+                                run_commanded(MS, period_ms, &shaft, Report::Honest, &commanded);
+                            assert_eq!(
+                                found,
+                                [None, None],
+                                "{rate} (r/min)/s, ±{speed} every {every_ms} ms, {late_ms} ms late, sampled every {period_ms} ms"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// The allowance for bends does not hide a stuck encoder from a PC that changes
+    /// its speed every 50 ms (between 300 and 400 r/min at 700 (r/min)/s, as a planner
+    /// does).
+    #[test]
+    fn a_stuck_encoder_is_found_while_the_speed_changes_every_50_ms() {
+        let mut model = vec![300.0f64; 2_001];
+        for t in 1..=2_000usize {
+            let target = if (t / 50).is_multiple_of(2) {
+                400.0
+            } else {
+                300.0
+            };
+            model[t] = ramp(1, 0, model[t - 1], target, 700.0);
+        }
+        for period_ms in [20, 50] {
+            let [left, right] = run(
+                2_000,
+                period_ms,
+                |t| model[t as usize],
+                Report::StuckCounter,
+            );
+            let (at, finding) = left.expect("found");
+            assert_eq!(finding, Finding::PositionStuck);
+            assert!(at <= 3 * WINDOW_MS + period_ms, "found at {at} ms");
+            assert_eq!(right, None);
+        }
+    }
+
+    /// Nothing to compare: a wheel pushed while it is told to stand, one creeping
+    /// below 40 r/min against its command, and one turning against a command that
+    /// already stops it (the stop is on its way either way).
+    #[test]
+    fn a_wheel_against_a_standstill_or_below_the_compared_speed_is_no_finding() {
+        type Shaft = &'static dyn Fn(u64) -> f64;
+        type Commands = &'static dyn Fn(u64) -> (f64, f64);
+        let cases: [(&str, Shaft, Commands); 3] = [
+            ("pushed at rest", &|_| -100.0, &|_| (0.0, 0.0)),
+            ("creeping", &|_| -30.0, &|_| (30.0, 30.0)),
+            ("stopping", &|t| -ramp(t, 0, 336.0, 0.0, 700.0), &|t| {
+                (ramp(t, 0, 336.0, 0.0, 700.0), 0.0)
+            }),
+        ];
+        for (case, shaft, commanded) in cases {
+            let found = run_commanded(2_000, 20, shaft, Report::Honest, commanded);
+            assert_eq!(found, [None, None], "{case}");
+        }
+    }
+
     #[test]
     fn a_stuck_counter_at_standstill_is_no_finding() {
         let [left, _] = run(2_000, 20, |_| 0.0, Report::StuckCounter);
@@ -357,6 +681,7 @@ mod tests {
                     left: 336,
                     right: 0,
                 },
+                Commanded::default(),
                 COUNTS_PER_REV,
             );
             found += verdict.findings().count();
@@ -373,6 +698,7 @@ mod tests {
             at(0),
             EncoderCounts { left: 0, right: 0 },
             rpm,
+            Commanded::default(),
             COUNTS_PER_REV,
         );
         assert!(first.position_standing, "one sample shows no motion");
@@ -383,6 +709,7 @@ mod tests {
                 right: -36,
             },
             rpm,
+            Commanded::default(),
             COUNTS_PER_REV,
         );
         assert!(still.position_standing, "jitter within 36 counts");
@@ -393,6 +720,7 @@ mod tests {
                 right: 2_000,
             },
             rpm,
+            Commanded::default(),
             COUNTS_PER_REV,
         );
         assert!(!rolling.position_standing, "the right counter ran");
@@ -405,6 +733,7 @@ mod tests {
                 right: 0,
             },
             rpm,
+            Commanded::default(),
             COUNTS_PER_REV,
         );
         let wrapped = check.sample(
@@ -414,6 +743,7 @@ mod tests {
                 right: 0,
             },
             rpm,
+            Commanded::default(),
             COUNTS_PER_REV,
         );
         assert!(wrapped.position_standing);
@@ -430,6 +760,7 @@ mod tests {
                 right: 0,
             },
             rpm,
+            Commanded::default(),
             COUNTS_PER_REV,
         );
         check.restart();
@@ -438,6 +769,7 @@ mod tests {
             Timestamp::from_millis(200),
             EncoderCounts::default(),
             rpm,
+            Commanded::default(),
             COUNTS_PER_REV,
         );
         assert_eq!(verdict.findings().count(), 0);

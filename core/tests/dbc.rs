@@ -203,10 +203,11 @@ const SCALE_CALIBRATION_ERRORS: [ScaleCalibrationError; 6] = [
 
 /// Reasons that are no refused command but are shown the same way: the drive
 /// feedback's (0x40..).
-const FEEDBACK_REASONS: [Rejection; 3] = [
+const FEEDBACK_REASONS: [Rejection; 4] = [
     Rejection::OdometryDiscontinuity,
     Rejection::Feedback(Finding::PositionStuck),
     Rejection::Feedback(Finding::SpeedStale),
+    Rejection::Feedback(Finding::WrongDirection),
 ];
 
 /// Motion refused while a firmware update runs or an image is on trial (0x50).

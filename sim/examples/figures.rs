@@ -10,7 +10,8 @@
 //! - the Modbus bytes of a control cycle and how busy they keep the RS-485 line, at
 //!   115200 and at 230400 baud;
 //! - CAN frames per second by ID and the bus load, in standby and while driving;
-//! - the fail-safe figures: reset run-on, a failing group frame, a stuck encoder;
+//! - the fail-safe figures: reset run-on, a failing group frame, a stuck encoder, a
+//!   wheel turning against its command;
 //! - a firmware update's transfer of 600 KB over socketcand and over SLCAN, against the
 //!   simulator binary on the wall clock (build it first: `cargo build -p virtual-robot`).
 //!
@@ -24,7 +25,7 @@ use base_core::registers::Reg;
 use embassy_futures::join::join;
 use embassy_time::{Duration, Instant};
 use virtual_robot::can::{BITRATE_BPS, SentFrame};
-use virtual_robot::drives::{DrivesConfig, FeedbackFault, FrameRecord};
+use virtual_robot::drives::{DrivesConfig, DrivesHandle, FeedbackFault, FrameRecord, Reversal};
 use virtual_robot::latency::{PAD_REPORT_INTERVAL_MS, can_latencies, pad_latencies};
 use virtual_robot::robot::{Pc, VirtualRobot, wait_ms};
 
@@ -82,6 +83,7 @@ fn main() {
     println!();
     report_fail_safe();
     report_stuck_encoder();
+    report_wrong_direction();
 
     let recording = record_buses(&VirtualRobot::new());
     println!();
@@ -448,40 +450,79 @@ fn report_fail_safe() {
     );
 }
 
+/// How far the farther wheel rolls from `fault` on until both stand, while the PC asks
+/// for 500 mm/s; with `driving_ms`, the fault comes after driving that long, else at
+/// rest.
+fn rolled_after(driving_ms: Option<u64>, fault: impl FnOnce(&DrivesHandle)) -> f64 {
+    let wheel_mm = |revolutions: f64| revolutions / 10.0 * 2.0 * std::f64::consts::PI * 142.0;
+    let robot = VirtualRobot::new();
+    robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        if let Some(driving_ms) = driving_ms {
+            pc.drive(500, 0, driving_ms).await;
+        }
+        let before = [1, 2].map(|slave| robot.drives.drive(slave).forward_revolutions());
+        fault(&robot.drives);
+        pc.drive(500, 0, 2_000).await;
+        let stood = [1, 2]
+            .iter()
+            .all(|&slave| robot.drives.drive(slave).forward_rpm().abs() < 0.5);
+        assert!(stood, "both wheels stopped");
+        [1, 2]
+            .into_iter()
+            .zip(before)
+            .map(|(slave, before)| {
+                wheel_mm(robot.drives.drive(slave).forward_revolutions() - before).abs()
+            })
+            .fold(0.0, f64::max)
+    })
+}
+
+/// The worst and the best of some distances.
+fn worst_and_best(rolled: &[f64]) -> (f64, f64) {
+    let worst = rolled.iter().copied().fold(0.0, f64::max);
+    let best = rolled.iter().copied().fold(f64::INFINITY, f64::min);
+    (worst, best)
+}
+
 /// The left encoder sticks at 500 mm/s (its counter stands, its speed stays true) at
 /// ten moments 5 ms apart across a 50 ms feedback cycle, while the PC keeps asking for
 /// 500 mm/s: how far the farther wheel rolls from the fault until both stand.
 fn report_stuck_encoder() {
-    let wheel_mm = |revolutions: f64| revolutions / 10.0 * 2.0 * std::f64::consts::PI * 142.0;
     let rolled: Vec<f64> = (0..10u64)
         .map(|k| {
-            let robot = VirtualRobot::new();
-            robot.run(async |pc| {
-                wait_ms(BOOT_MS).await;
-                pc.drive(500, 0, 2_000 + k * 5).await;
-                let before = [1, 2].map(|slave| robot.drives.drive(slave).forward_revolutions());
-                robot
-                    .drives
-                    .set_feedback_fault(1, Some(FeedbackFault::StuckPosition));
-                pc.drive(500, 0, 2_000).await;
-                let stood = [1, 2]
-                    .iter()
-                    .all(|&slave| robot.drives.drive(slave).forward_rpm().abs() < 0.5);
-                assert!(stood, "both wheels stopped");
-                [1, 2]
-                    .into_iter()
-                    .zip(before)
-                    .map(|(slave, before)| {
-                        wheel_mm(robot.drives.drive(slave).forward_revolutions() - before).abs()
-                    })
-                    .fold(0.0, f64::max)
+            rolled_after(Some(2_000 + k * 5), |drives| {
+                drives.set_feedback_fault(1, Some(FeedbackFault::StuckPosition))
             })
         })
         .collect();
-    let worst = rolled.iter().copied().fold(0.0, f64::max);
-    let best = rolled.iter().copied().fold(f64::INFINITY, f64::min);
+    let (worst, best) = worst_and_best(&rolled);
     println!(
         "stuck encoder -> both wheels stopped: {worst:.0} mm (worst of 10 moments; best {best:.0} mm)"
+    );
+}
+
+/// A drive whose direction parameter is at the other value: from rest the left drive
+/// turns against its command as the PC asks for 500 mm/s; and at 500 mm/s the left
+/// drive's reports turn round (position and speed against the command, the shaft
+/// still as commanded) at ten moments 5 ms apart across a feedback cycle. How far the
+/// farther wheel rolls until both stand.
+fn report_wrong_direction() {
+    let from_rest = rolled_after(None, |drives| {
+        drives.set_reversed(1, Some(Reversal::Motion))
+    });
+    println!("a wheel turning against its command -> both wheels stopped:");
+    println!("  from rest, the left drive reversed: {from_rest:.0} mm");
+    let rolled: Vec<f64> = (0..10u64)
+        .map(|k| {
+            rolled_after(Some(2_000 + k * 5), |drives| {
+                drives.set_reversed(1, Some(Reversal::Feedback))
+            })
+        })
+        .collect();
+    let (worst, best) = worst_and_best(&rolled);
+    println!(
+        "  at 500 mm/s, the left drive's reports turning round: {worst:.0} mm (worst of 10 moments; best {best:.0} mm)"
     );
 }
 
@@ -781,9 +822,7 @@ fn report_line(recording: &BusRecording, cycle_ms: f64) {
     println!(
         "  longest silence on the line: {:.1} ms (the drives' communication timeout: {} ms)",
         ms(longest_silence),
-        base_core::drives::DriveSettings::DEFAULT
-            .drive_comm_timeout_ms
-            .unwrap_or(0)
+        base_core::drives::DriveSettings::DEFAULT.drive_comm_timeout_ms
     );
 }
 

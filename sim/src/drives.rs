@@ -1204,6 +1204,8 @@ struct Drive {
     malformed_requests: usize,
     /// What its feedback lies about, if anything (see "Encoder faults" below).
     feedback_lie: Option<FeedbackLie>,
+    /// Its direction parameter differs from the others' (see "A reversed drive" below).
+    reversal: Option<Reversed>,
 }
 
 impl Drive {
@@ -1231,6 +1233,7 @@ impl Drive {
             requests_handled: 0,
             malformed_requests: 0,
             feedback_lie: None,
+            reversal: None,
         }
     }
 
@@ -1259,7 +1262,7 @@ impl Drive {
         match self.running {
             Some(command) => Regime {
                 target_rpm: if command.operation_type == CONTINUOUS_OPERATION {
-                    f64::from(command.speed_rpm)
+                    self.shaft_sign() * f64::from(command.speed_rpm)
                 } else {
                     0.0
                 },
@@ -1301,6 +1304,10 @@ impl Drive {
             self.powered_since = Some(now);
             self.counter_origin = self.motor.position_counts;
             self.last_traffic = now;
+            if let Some(Reversed::Feedback { mirror_counts }) = &mut self.reversal {
+                // The counter restarts at 0 and runs negated from there.
+                *mirror_counts = self.motor.position_counts;
+            }
         }
     }
 
@@ -1673,16 +1680,23 @@ enum FeedbackLie {
 impl Drive {
     /// The counter as the drive reports it.
     fn reported_position_counts(&self) -> i32 {
-        match self.feedback_lie {
-            Some(FeedbackLie::PositionAt(counts)) => counts,
+        match (self.feedback_lie, self.reversal) {
+            (Some(FeedbackLie::PositionAt(counts)), _) => counts,
+            (_, Some(Reversed::Feedback { mirror_counts })) => {
+                // Mirrored at the moment the reversal began, so the counter runs on
+                // from where it was, backwards.
+                (2.0 * mirror_counts - self.motor.position_counts - self.counter_origin).floor()
+                    as i64 as i32
+            }
             _ => self.position_counts(),
         }
     }
 
     /// The speed as the drive reports it, whole r/min.
     fn reported_speed_rpm(&self) -> i32 {
-        match self.feedback_lie {
-            Some(FeedbackLie::SpeedAt(rpm)) => rpm,
+        match (self.feedback_lie, self.reversal) {
+            (Some(FeedbackLie::SpeedAt(rpm)), _) => rpm,
+            (_, Some(Reversed::Feedback { .. })) => -(self.motor.speed_rpm.round() as i32),
             _ => self.motor.speed_rpm.round() as i32,
         }
     }
@@ -1700,6 +1714,65 @@ impl DrivesHandle {
             drive.feedback_lie = fault.map(|fault| match fault {
                 FeedbackFault::StuckPosition => FeedbackLie::PositionAt(drive.position_counts()),
                 FeedbackFault::SpeedReads(rpm) => FeedbackLie::SpeedAt(rpm),
+            });
+        });
+    }
+}
+
+// ---------------------------------------------------------------------------------
+// A reversed drive: its direction parameter at the other value (a replaced drive, a
+// parameter reset), so its position and speed run against the sign of its command
+// while agreeing with each other.
+// ---------------------------------------------------------------------------------
+
+/// How a reversed drive's direction differs; the controller sees the same either way
+/// (position and speed against the command, agreeing with each other).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Reversal {
+    /// The shaft turns against the sign of the command, and the drive reports it as it
+    /// turns: the wheel drives the wrong way.
+    Motion,
+    /// The shaft turns as commanded, but the drive reports position and speed negated:
+    /// the wheel drives the right way, the odometry sees it backwards.
+    Feedback,
+}
+
+/// A [`Reversal`] with where the negated counter was mirrored.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Reversed {
+    Motion,
+    /// The shaft position (in the motor's counts since the start) at which the
+    /// reported counter turned round.
+    Feedback {
+        mirror_counts: f64,
+    },
+}
+
+impl Drive {
+    /// −1 when the shaft turns against its command, else +1.
+    fn shaft_sign(&self) -> f64 {
+        match self.reversal {
+            Some(Reversed::Motion) => -1.0,
+            _ => 1.0,
+        }
+    }
+}
+
+impl DrivesHandle {
+    /// Reverses a drive's direction from now on (`None` restores it). A running motor
+    /// reversed by [`Reversal::Motion`] ramps through zero towards the other sign at its
+    /// command's rates. The reversal survives power cycles, as a parameter would.
+    ///
+    /// # Panics
+    /// If no drive has the address `slave`.
+    pub fn set_reversed(&self, slave: u8, reversal: Option<Reversal>) {
+        self.change(|bus, _| {
+            let drive = &mut bus.drives[bus.index_of(slave)];
+            drive.reversal = reversal.map(|reversal| match reversal {
+                Reversal::Motion => Reversed::Motion,
+                Reversal::Feedback => Reversed::Feedback {
+                    mirror_counts: drive.motor.position_counts,
+                },
             });
         });
     }

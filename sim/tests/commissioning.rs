@@ -3,7 +3,9 @@
 //! looks at the wheels through the simulator's `status` command, which reports how far
 //! each wheel really turned, by the side it sits on (not by its drive's address).
 //! With the drives' address switches swapped (`--swap-drive-addresses`) the check
-//! must name the swap; the controller alone cannot see it.
+//! must name the swap; the controller alone cannot see it. With a drive whose
+//! direction parameter is at the other value (`--reverse-drive`) the controller sees
+//! it turn against its command, and the check names that before asking.
 
 use std::time::Duration;
 
@@ -129,4 +131,26 @@ fn swapped_drive_addresses_are_found_by_the_wheel_check() {
         }
         other => panic!("expected the swap to be named, got {other:?}\n{text}"),
     }
+}
+
+#[test]
+fn a_drive_turning_against_its_command_is_named_by_the_wheel_check() {
+    let mut simulator = SimulatorProcess::launch(env!("CARGO_BIN_EXE_virtual-base-controller"))
+        .arg("--reverse-drive")
+        .arg("1")
+        .start()
+        .expect("starts");
+    std::thread::sleep(Duration::from_secs(2));
+    let (result, text) = check_wheels(&mut simulator);
+    match result {
+        Err(Error::Aborted(diagnosis)) => {
+            assert!(
+                diagnosis.contains("the controller saw its left drive turn backward"),
+                "{diagnosis}"
+            );
+            assert!(diagnosis.contains("direction parameter"), "{diagnosis}");
+        }
+        other => panic!("expected the reversed drive to be named, got {other:?}\n{text}"),
+    }
+    assert!(!text.contains("you saw"), "named before asking:\n{text}");
 }

@@ -4,8 +4,9 @@
 //! recovery de-excited. Each test is a fault a reviewer reproduced on the old firmware.
 
 use base_core::can::Mode;
-use base_core::drives::reg;
+use base_core::drives::{DriveSettings, reg, settings};
 use embassy_time::{Duration, Instant};
+use virtual_robot::drives::DrivesConfig;
 use virtual_robot::robot::{VirtualRobot, wait_ms};
 
 /// The drives answer 1 s after power-on; their setup takes a few transactions more.
@@ -338,11 +339,7 @@ fn both_drives_lost_while_driving_are_both_latched() {
 #[test]
 fn a_cut_rs485_line_stops_the_wheels_by_the_drives_communication_timeout() {
     let robot = VirtualRobot::new();
-    let timeout = robot
-        .settings
-        .drives
-        .drive_comm_timeout_ms
-        .expect("on by default");
+    let timeout = robot.settings.drives.drive_comm_timeout_ms;
     robot.run(async |pc| {
         wait_ms(BOOT_MS).await;
         pc.drive(100, 0, 1_000).await;
@@ -631,22 +628,199 @@ fn a_stop_through_a_line_that_fails_long_requests_stops_within_300_mm() {
         true,
     );
     assert_stops_within_300_mm("requests over 25 bytes fail", result);
-    // With the drives' own timeout off (they keep their factory 0), only the link can
-    // stop them: the short S-OFF broadcast gets through where the zero does not.
-    let mut robot = VirtualRobot::new();
-    robot.settings.drives.drive_comm_timeout_ms = None;
-    let result = run_on_after_on(
-        robot,
-        |robot| robot.drives.fail_requests_longer_than(Some(25)),
-        true,
-    );
-    assert_stops_within_300_mm("requests over 25 bytes fail, timeout off", result);
+}
+
+// ---------------------------------------------------------------------------------------
+// Every line fault, whatever the accepted settings (issue 30, item 7): the base stops
+// within 300 mm from 500 mm/s. Settings with which it could not (the drives' own
+// timeout off or too long, too many failures before a loss, a long reply timeout, a
+// slow line, a long frame gap) are refused: the drives are held and never set up.
+// ---------------------------------------------------------------------------------------
+
+/// The accepted settings at their edges: the shortest and the longest drives' timeout,
+/// each with the slowest line, the longest reply timeout and frame gap and the most
+/// failures before a loss; and the fastest line with the longest timeout.
+fn edge_settings() -> Vec<(&'static str, DriveSettings)> {
+    let slowest = |timeout_ms: u16| {
+        let mut settings = DriveSettings::DEFAULT;
+        settings.drive_comm_timeout_ms = timeout_ms;
+        settings.line.baud = settings::MIN_BAUD;
+        settings.line.min_silent_interval_us = settings::MAX_MIN_SILENT_INTERVAL_US;
+        settings.reply_timeout_ms = *settings::REPLY_TIMEOUT_MS.end();
+        settings.failures_before_loss = *settings::FAILURES_BEFORE_LOSS.end();
+        settings
+    };
+    let mut fastest = DriveSettings::DEFAULT;
+    fastest.drive_comm_timeout_ms = *settings::COMM_TIMEOUT_MS.end();
+    fastest.line.baud = 230_400;
+    vec![
+        ("the defaults", DriveSettings::DEFAULT),
+        (
+            "shortest timeout, slowest line",
+            slowest(*settings::COMM_TIMEOUT_MS.start()),
+        ),
+        (
+            "longest timeout, slowest line",
+            slowest(*settings::COMM_TIMEOUT_MS.end()),
+        ),
+        ("longest timeout, 230400 baud", fastest),
+    ]
+}
+
+/// A robot whose controller uses `settings` and whose drives talk at their baud rate.
+fn robot_with(settings: DriveSettings) -> VirtualRobot {
+    let mut robot = VirtualRobot::with_drives(DrivesConfig {
+        baud: settings.line.baud,
+        ..DrivesConfig::commissioned()
+    });
+    robot.settings.drives = settings;
+    robot
+}
+
+/// What stops the base after a line fault.
+#[derive(Debug, Clone, Copy)]
+enum Stop {
+    /// Nobody: the PC keeps asking for 500 mm/s; only the link can tell.
+    None,
+    Pc,
+    Estop,
+}
+
+/// Drives at 500 mm/s, causes `fault`, then `stop`; returns the farthest either
+/// wheel rolled from the fault on, after checking that both stand 3 s later and
+/// stay standing.
+fn run_on_mm_after(robot: &VirtualRobot, fault: &dyn Fn(&VirtualRobot), stop: Stop) -> f64 {
+    robot.run(async |pc| {
+        wait_ms(BOOT_MS).await;
+        pc.drive(500, 0, 2_000).await;
+        let before = revolutions(robot);
+        fault(robot);
+        let speed = match stop {
+            Stop::None => 500,
+            Stop::Pc => 0,
+            Stop::Estop => {
+                robot.press_estop();
+                500
+            }
+        };
+        pc.drive(speed, 0, 3_000).await;
+        let run_on = run_on_mm(robot, before);
+        for slave in [1, 2] {
+            let rpm = robot.drives.drive(slave).speed_rpm;
+            assert_eq!(rpm, 0.0, "drive {slave} still turns after {run_on:.0} mm");
+        }
+        pc.drive(speed, 0, 3_000).await;
+        let later = run_on_mm(robot, before);
+        assert!(
+            later - run_on < 1.0,
+            "rolled on: {run_on:.0} → {later:.0} mm"
+        );
+        run_on
+    })
+}
+
+/// A line that fails every request longer than N bytes, for N from "everything" to
+/// "only the command write": the reads (8 bytes) pass from N = 8 on, so the link sees
+/// nothing wrong until the stop has to go out. Then the faults that break the
+/// feedback (replies lost or garbled, a busy drive, silent drives), where the link
+/// has to stop the base while the PC still asks for 500 mm/s.
+#[test]
+fn every_line_fault_stops_the_base_within_300_mm_at_the_edges_of_the_accepted_settings() {
+    type Fault = Box<dyn Fn(&VirtualRobot)>;
+    let mut faults: Vec<(String, Fault, &[Stop])> = Vec::new();
+    for max_len in [7, 8, 12, 13, 17, 25, 29, 37, 40] {
+        faults.push((
+            format!("requests over {max_len} bytes fail"),
+            Box::new(move |robot| robot.drives.fail_requests_longer_than(Some(max_len))),
+            &[Stop::Pc, Stop::Estop],
+        ));
+    }
+    let every: &[Stop] = &[Stop::None, Stop::Pc, Stop::Estop];
+    faults.push((
+        "replies lost".into(),
+        Box::new(|robot| robot.drives.lose_replies(true)),
+        every,
+    ));
+    faults.push((
+        "every reply garbled".into(),
+        Box::new(|robot| {
+            robot.drives.garble_replies_of(1, true);
+            robot.drives.garble_replies_of(2, true);
+        }),
+        every,
+    ));
+    faults.push((
+        "the right drive's replies garbled".into(),
+        Box::new(|robot| robot.drives.garble_replies_of(2, true)),
+        every,
+    ));
+    faults.push((
+        "the left drive busy".into(),
+        Box::new(|robot| robot.drives.set_busy(1, true)),
+        every,
+    ));
+    faults.push((
+        "the right drive cut off".into(),
+        Box::new(|robot| robot.drives.set_silent(2, true)),
+        every,
+    ));
+    faults.push((
+        "both drives cut off".into(),
+        Box::new(|robot| {
+            robot.drives.set_silent(1, true);
+            robot.drives.set_silent(2, true);
+        }),
+        every,
+    ));
+    for (name, settings) in edge_settings() {
+        assert_eq!(settings.check(), Ok(()), "{name}");
+        let mut worst = (0.0, String::new());
+        for (fault, cause, stops) in &faults {
+            for &stop in *stops {
+                let run_on = run_on_mm_after(&robot_with(settings), cause.as_ref(), stop);
+                if run_on > worst.0 {
+                    worst = (run_on, format!("{fault}, stop {stop:?}"));
+                }
+            }
+        }
+        assert!(worst.0 <= 300.0, "{name}: {:.0} mm ({})", worst.0, worst.1);
+    }
+}
+
+/// Settings with which a line fault could keep the base from stopping are refused:
+/// the drives are held, stopped and de-excited, and never set up; the base stays in
+/// Starting and does not move, whatever the PC asks. Before, with the drives' timeout
+/// off, a line that failed requests over 12 bytes let the base roll on for 2,498 mm
+/// after the PC's stop (and for ever).
+#[test]
+fn drive_settings_that_could_keep_the_base_from_stopping_keep_it_from_driving() {
+    let mut off = DriveSettings::DEFAULT;
+    off.drive_comm_timeout_ms = 0;
+    let mut slow = DriveSettings::DEFAULT;
+    slow.line.baud = 19_200;
+    for (name, settings) in [("timeout off", off), ("19200 baud", slow)] {
+        assert!(settings.check().is_err(), "{name}");
+        let robot = robot_with(settings);
+        robot.run(async |pc| {
+            wait_ms(BOOT_MS).await;
+            let before = revolutions(&robot);
+            pc.drive(500, 0, 3_000).await;
+            assert!(run_on_mm(&robot, before) < 1.0, "{name}: the base moved");
+            for slave in [1, 2] {
+                let drive = robot.drives.drive(slave);
+                assert!(!drive.servo_on, "{name}: drive {slave} excited");
+                assert!(!drive.share.is_member(), "{name}: drive {slave} set up");
+            }
+            let status = pc.status().expect("status");
+            assert_eq!(status.mode, Mode::Starting, "{name}");
+        });
+    }
 }
 
 // ---------------------------------------------------------------------------------------
 // Nothing goes to the flash and no brake is reported applied while a wheel may still
 // turn (issue 21, case 6): a silent drive counts as turning until its own
-// communication timeout has certainly tripped, and for ever with that timeout off.
+// communication timeout has certainly tripped.
 // ---------------------------------------------------------------------------------------
 
 /// Flash operations and status frames seen while some wheel still turned or was
@@ -728,32 +902,5 @@ fn no_flash_write_and_no_brake_reported_while_a_silent_drive_may_turn() {
         assert_eq!(robot.drives.drive(2).alarm, 0x85);
         let status = next_status(pc, 1_500, |status| !status.persist_pending).await;
         assert!(status.is_some(), "persisted once both wheels surely stand");
-    });
-}
-
-#[test]
-fn with_the_drives_timeout_off_a_silent_drive_keeps_the_flash_closed_until_it_answers() {
-    let mut robot = VirtualRobot::new();
-    robot.settings.drives.drive_comm_timeout_ms = None;
-    robot.run(async |pc| {
-        let seen = watch_a_silent_drive(&robot, pc, 4_000).await;
-        assert!(
-            robot.drives.drive(2).forward_rpm() > 300.0,
-            "nothing can stop the cut drive"
-        );
-        assert_eq!(seen.flash_operations, 0, "{seen:?}");
-        assert_eq!(seen.brakes_reported_applied, 0, "{seen:?}");
-        let status = pc.status().expect("status");
-        assert!(status.persist_pending && !status.flags.brakes_applied);
-        // Back on the line: the hold stops it and its S-OFF is answered; only then
-        // the values go to the flash and the brakes are reported applied.
-        robot.drives.set_silent(2, false);
-        let status = next_status(pc, 3_000, |status| {
-            !status.persist_pending && status.flags.brakes_applied
-        })
-        .await
-        .expect("persisted once the drive answered de-excited");
-        assert_eq!(status.mode, Mode::Fault);
-        assert!(!some_wheel_may_turn(&robot));
     });
 }

@@ -9,7 +9,7 @@ use base_core::modbus::{
 use embassy_time::{Duration, Instant, Timer, with_timeout};
 use embedded_io_async::{Read, Write};
 use proptest::prelude::*;
-use virtual_robot::drives::{DrivesConfig, DrivesHandle, DrivesPort, Mounting};
+use virtual_robot::drives::{DrivesConfig, DrivesHandle, DrivesPort, Mounting, Reversal};
 use virtual_robot::runtime::{block_on, now};
 
 const GID: u8 = 15;
@@ -202,6 +202,57 @@ fn speed_ramps_at_the_commanded_rates() {
         assert_close(handle.drive(LEFT).speed_rpm, -300.0, 1e-6);
         assert_close(handle.drive(RIGHT).speed_rpm, 300.0, 1e-6);
     });
+}
+
+/// A drive whose direction parameter is at the other value: commanded +600 r/min, it
+/// reports position and speed at −600, the two agreeing. `Motion` turns its shaft
+/// backwards; `Feedback` turns it forwards and reports it backwards, its counter
+/// running on from where it was.
+#[test]
+fn a_reversed_drive_reports_position_and_speed_against_its_command() {
+    let (mut port, handle) = drives();
+    block_on(async {
+        set_up(&mut port).await;
+        let start = cycle(&mut port, command(0, 1000, 1000), command(0, 1000, 1000)).await;
+        assert_eq!(start.member(1)[0], 0);
+        handle.set_reversed(LEFT, Some(Reversal::Motion));
+        handle.set_reversed(RIGHT, Some(Reversal::Feedback));
+        cycle(
+            &mut port,
+            command(600, 1000, 1000),
+            command(600, 1000, 1000),
+        )
+        .await;
+        let applied = handle.drive(LEFT).last_command_at.unwrap();
+        Timer::at(applied + Duration::from_millis(1_000)).await;
+        let first = cycle(
+            &mut port,
+            command(600, 1000, 1000),
+            command(600, 1000, 1000),
+        )
+        .await;
+        let first_at = now();
+        Timer::after(Duration::from_millis(100)).await;
+        let second = cycle(
+            &mut port,
+            command(600, 1000, 1000),
+            command(600, 1000, 1000),
+        )
+        .await;
+        // Both transactions take the same time, so their ends are as far apart as the
+        // moments they read.
+        let elapsed_s = (now() - first_at).as_micros() as f64 / 1e6;
+        for member in [0, 1] {
+            let speed = second.member(member)[1] as i32;
+            assert_eq!(speed, -600, "member {member} reports its speed reversed");
+            let counted =
+                (second.member(member)[0] as i32).wrapping_sub(first.member(member)[0] as i32);
+            // 600 r/min: 10 revolutions of 36 000 counts per second.
+            assert_close(f64::from(counted), -360_000.0 * elapsed_s, 2.0);
+        }
+    });
+    assert_close(handle.drive(LEFT).speed_rpm, -600.0, 1e-9);
+    assert_close(handle.drive(RIGHT).speed_rpm, 600.0, 1e-9);
 }
 
 #[test]

@@ -22,8 +22,9 @@ pub enum Rejection {
     /// motor can turn in the time since the previous sample, and the odometry took
     /// that sample as a new baseline. Counted and shown the same way.
     OdometryDiscontinuity,
-    /// Not a refused command: a drive's position counter and reported speed disagreed
-    /// for two windows in a row, and the base stopped with a latched drive fault.
+    /// Not a refused command: a drive's position counter and reported speed disagreed,
+    /// or its counter ran against its command, for two windows in a row, and the base
+    /// stopped with a latched drive fault.
     Feedback(Finding),
     /// Velocity, enable or the gamepad's dead-man while a firmware update runs or a
     /// new image is on trial: refused, the base stays braked.
@@ -32,7 +33,7 @@ pub enum Rejection {
 
 impl Rejection {
     /// Every reason this firmware reports, in code order.
-    pub const ALL: [Rejection; 22] = [
+    pub const ALL: [Rejection; 23] = [
         Rejection::Frame(FrameError::WrongLength),
         Rejection::Frame(FrameError::BadVelocityMarker),
         Rejection::Frame(FrameError::UnknownSubcommand),
@@ -54,6 +55,7 @@ impl Rejection {
         Rejection::OdometryDiscontinuity,
         Rejection::Feedback(Finding::PositionStuck),
         Rejection::Feedback(Finding::SpeedStale),
+        Rejection::Feedback(Finding::WrongDirection),
         Rejection::UpdateInProgress,
     ];
 
@@ -73,6 +75,7 @@ impl Rejection {
             Rejection::OdometryDiscontinuity => 0x40,
             Rejection::Feedback(Finding::PositionStuck) => 0x41,
             Rejection::Feedback(Finding::SpeedStale) => 0x42,
+            Rejection::Feedback(Finding::WrongDirection) => 0x43,
             Rejection::UpdateInProgress => 0x50,
         }
     }
@@ -103,6 +106,7 @@ impl Rejection {
             Rejection::OdometryDiscontinuity => "OdometryDiscontinuity",
             Rejection::Feedback(Finding::PositionStuck) => "PositionStuck",
             Rejection::Feedback(Finding::SpeedStale) => "SpeedStale",
+            Rejection::Feedback(Finding::WrongDirection) => "WrongDirection",
             Rejection::UpdateInProgress => "UpdateInProgress",
         }
     }
@@ -164,6 +168,9 @@ impl Rejection {
             }
             Rejection::Feedback(Finding::SpeedStale) => {
                 "a drive's position counter ran while its reported speed stood or lagged (stale speed): drive fault"
+            }
+            Rejection::Feedback(Finding::WrongDirection) => {
+                "a drive's position counter ran against the sign of its command (its direction parameter differs): drive fault"
             }
             Rejection::UpdateInProgress => {
                 "velocity, enable or the gamepad while a firmware update runs or a new image is on trial"

@@ -32,8 +32,8 @@
 //!   ├── a setup request, in CycleWait
 //!   │
 //!   │   N failed reads, or N failed writes (S-ON and S-OFF included), in a row:
-//!   │   StoppingBlind(zero ×3 [, braking, S-OFF ×3 when the drives' timeout is off],
-//!   │   silent) ──▶ Probing(left, right) ──▶ Holding(UntilSetupRequested)
+//!   │   StoppingBlind(zero ×3, silent) ──▶ Probing(left, right)
+//!   │                                             ──▶ Holding(UntilSetupRequested)
 //!   │                                                         │        ▲
 //!   │                                                         ▼        │ poll_interval
 //!   └──────────── a setup request ◀─────────────── HoldPause(UntilSetupRequested)
@@ -66,8 +66,7 @@
 //!   drive answers unicast) end the cycle (a failed write is tried again after the
 //!   next read, so it never starves the feedback). Nothing a drive says can be
 //!   trusted then, so the stop needs no reply: zero by broadcast, then silence until
-//!   every drive's communication timeout has surely tripped (with it off: S-OFF by
-//!   broadcast first). Then each drive is probed and the lost ones are reported ([`Input::DriveSilent`]; both when both
+//!   every drive's communication timeout has surely tripped. Then each drive is probed and the lost ones are reported ([`Input::DriveSilent`]; both when both
 //!   answer alone, because the commands cannot reach the wheels).
 //! - In the cycle the link steps at least every third of the drives' communication
 //!   timeout. A longer gap means the chip stalled (a flash erase, which waits for both
@@ -187,7 +186,8 @@ pub struct Effects {
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Hold {
     /// Boot, a setup request or a failed setup: the drives are set up once the
-    /// power-up wait has passed and both answer.
+    /// power-up wait has passed and both answer (and never with settings the
+    /// firmware refuses).
     ForSetup,
     /// After a loss, until the controller asks for a setup.
     UntilSetupRequested,
@@ -211,12 +211,6 @@ pub enum BlindStep {
     /// Zero speed with `stop_decel` and the trigger, in one broadcast; the n-th of
     /// [`BLIND_REPEATS`].
     Zero(u8),
-    /// Only with the drives' timeout off: until `stop_decel` had [`STOP_TIME_MS`] to
-    /// stop the wheels.
-    Braking,
-    /// Only with the drives' timeout off: S-OFF by broadcast; the n-th of
-    /// [`BLIND_REPEATS`].
-    ServoOff(u8),
     /// Nothing on the line, so that every drive's communication timeout trips
     /// (alarm 85h: de-excited, brake applied) whatever it made of the frames above.
     Silent,
@@ -224,9 +218,6 @@ pub enum BlindStep {
 
 /// How often each blind broadcast goes out: a frame lost to noise is not the end.
 pub const BLIND_REPEATS: u8 = 3;
-/// The time `estop_decel` is allowed to stop the wheels from `max_motor_vel` (the
-/// registers' rule), before the blind S-OFF.
-pub const STOP_TIME_MS: u64 = 300;
 /// Silence beyond the drives' communication timeout before the link talks again.
 pub const SILENCE_MARGIN_MS: u64 = 100;
 
@@ -351,7 +342,7 @@ pub enum State {
     CycleWait { wake_at: Timestamp, cycle: Cycle },
     /// N failed reads or writes: the drives are stopped without needing a reply, then
     /// the line stays silent until their communication timeout has surely tripped.
-    StoppingBlind { step: BlindStep, since: Timestamp },
+    StoppingBlind { step: BlindStep },
     /// After the blind stop: the share control block of one drive is being read.
     Probing { wheel: Wheel, lost: bool },
 }
@@ -389,8 +380,7 @@ pub struct DriveLink {
     powered_up_at: Timestamp,
     /// Per wheel: the drive is known de-excited, its brake holding. Only an answered
     /// S-OFF, or the silence after a blind stop that its own communication timeout
-    /// cannot have survived, says so; an S-ON (answered or not) unsays it, and a drive
-    /// that is silent with that timeout off stays unknown until it answers an S-OFF.
+    /// cannot have survived, says so; an S-ON (answered or not) unsays it.
     brakes_confirmed: [bool; 2],
     /// When the link last stepped. In the cycle it steps at least every third of the
     /// drives' timeout; a longer gap means the chip stalled (a flash erase).
@@ -403,8 +393,16 @@ pub struct DriveLink {
 }
 
 impl DriveLink {
-    /// The link at boot, and its first request: the hold of the left drive.
+    /// The link at boot, and its first request: the hold of the left drive. Settings
+    /// the firmware refuses ([`DriveSettings::check`]) keep it holding: the drives stay
+    /// stopped and de-excited, and are never set up.
     pub fn boot(now: Timestamp, settings: &DriveSettings) -> (Self, Effects) {
+        if let Err(refused) = settings.check() {
+            error!(
+                "drive settings refused, the drives stay held: {}",
+                refused.reason()
+            );
+        }
         let defaults = Registers::defaults();
         let mut link = Self {
             state: State::CheckingGroup,
@@ -454,10 +452,7 @@ impl DriveLink {
                 | State::BroadcastingZero { .. }
                 | State::ResettingTimeoutAlarm { .. }
         );
-        if in_cycle
-            && timeout_ms > 0
-            && now.millis_since(self.last_step_at) >= timeout_ms
-            && self.brakes_confirmed()
+        if in_cycle && now.millis_since(self.last_step_at) >= timeout_ms && self.brakes_confirmed()
         {
             warn!("drive link stalled beyond the drives' timeout at rest");
             self.stalled_at_rest = true;
@@ -533,11 +528,11 @@ impl DriveLink {
                 self.on_probe(wheel, lost, reply, settings, &mut effects)
             }
             // A broadcast draws no reply; its "reply" says the frame is out.
-            (State::StoppingBlind { step, since }, Event::Reply(_)) => {
-                self.on_blind_sent(now, step, since, settings, &mut effects)
+            (State::StoppingBlind { step }, Event::Reply(_)) => {
+                self.on_blind_sent(now, step, settings, &mut effects)
             }
-            (State::StoppingBlind { step, since }, Event::Timer) => {
-                self.on_blind_timer(step, since, settings, &mut effects)
+            (State::StoppingBlind { step }, Event::Timer) => {
+                self.on_blind_timer(step, settings, &mut effects)
             }
             // The runtime sends a reply only for a request and a timer only for a wait:
             // anything else changes nothing.
@@ -678,7 +673,7 @@ impl DriveLink {
         }
         match hold {
             Hold::ForSetup if now >= self.powered_up_at => {
-                if round.answering == [true, true] {
+                if round.answering == [true, true] && settings.check().is_ok() {
                     return self.send_setup(
                         Wheel::Left,
                         SetupStep::ShareControl,
@@ -739,10 +734,11 @@ impl DriveLink {
                 modbus::write_items(slave, reg::SHARE_CONTROL, &share_control(wheel, settings))
             }
             SetupStep::ShareLists => modbus::write_items(slave, reg::SHARE_LISTS, &share_lists()),
-            SetupStep::CommTimeout => {
-                let timeout_ms = settings.drive_comm_timeout_ms.unwrap_or(0);
-                modbus::write_items(slave, reg::COMM_TIMEOUT, &[u32::from(timeout_ms)])
-            }
+            SetupStep::CommTimeout => modbus::write_items(
+                slave,
+                reg::COMM_TIMEOUT,
+                &[u32::from(settings.drive_comm_timeout_ms)],
+            ),
             SetupStep::ReadAlarm | SetupStep::ReadAlarmAfterReset => {
                 modbus::read_items(slave, reg::PRESENT_ALARM, 1)
             }
@@ -773,12 +769,9 @@ impl DriveLink {
         let alarm = || modbus::parse_read(bytes, slave, 1).map(|values| values[0]);
         let next = match step {
             SetupStep::ShareControl => echo(reg::SHARE_CONTROL, 3).map(|()| SetupStep::ShareLists),
-            SetupStep::ShareLists => echo(reg::SHARE_LISTS, 2 * reg::SHARE_LIST_SLOTS).map(|()| {
-                match settings.drive_comm_timeout_ms {
-                    Some(_) => SetupStep::CommTimeout,
-                    None => SetupStep::ReadAlarm,
-                }
-            }),
+            SetupStep::ShareLists => {
+                echo(reg::SHARE_LISTS, 2 * reg::SHARE_LIST_SLOTS).map(|()| SetupStep::CommTimeout)
+            }
             SetupStep::CommTimeout => echo(reg::COMM_TIMEOUT, 1).map(|()| SetupStep::ReadAlarm),
             SetupStep::ReadAlarm => alarm().map(|code| match code {
                 0 => SetupStep::ServoOff,
@@ -1090,7 +1083,7 @@ impl DriveLink {
         report(effects, Input::ModbusError);
         cycle.write_failures = cycle.write_failures.saturating_add(1);
         if cycle.write_failures >= settings.failures_before_loss {
-            return self.escalate(now, settings, effects);
+            return self.escalate(settings, effects);
         }
         cycle.write_retry_at = cycle.read_at.max(now);
         self.next_in_cycle(now, cycle, settings, effects);
@@ -1169,7 +1162,7 @@ impl DriveLink {
             };
             *failures = failures.saturating_add(1);
             if *failures >= settings.failures_before_loss {
-                return self.escalate(now, settings, effects);
+                return self.escalate(settings, effects);
             }
             return self.next_in_cycle(now, cycle, settings, effects);
         };
@@ -1270,34 +1263,23 @@ impl DriveLink {
     /// N failed reads or writes in a row: no command reached the drives or no feedback
     /// came for that long, so nothing the drives say can be trusted. Stop them in a
     /// way that needs no reply, fall silent, then find out why.
-    fn escalate(&mut self, now: Timestamp, settings: &DriveSettings, effects: &mut Effects) {
+    fn escalate(&mut self, settings: &DriveSettings, effects: &mut Effects) {
         warn!("drive link lost: blind stop, then silence");
-        self.send_blind(BlindStep::Zero(1), now, settings, effects);
+        self.send_blind(BlindStep::Zero(1), settings, effects);
     }
 
-    fn send_blind(
-        &mut self,
-        step: BlindStep,
-        since: Timestamp,
-        settings: &DriveSettings,
-        effects: &mut Effects,
-    ) {
+    fn send_blind(&mut self, step: BlindStep, settings: &DriveSettings, effects: &mut Effects) {
         const BROADCAST: u8 = 0;
-        let frame = match step {
-            BlindStep::Zero(_) => {
-                let decel = settings.accel_unit.field(self.demand.stop_decel);
-                // Operation type, position, speed 0, rates, torque limit 100 % (the
-                // drives' own default), trigger: the trigger comes last and applies
-                // the rest in the same frame.
-                let fields = [settings.operation_type, 0, 0, decel, decel, 1_000, 1];
-                modbus::write_items(BROADCAST, reg::DDO_OPERATION_TYPE, &fields)
-            }
-            BlindStep::ServoOff(_) => {
-                modbus::write_items(BROADCAST, reg::DRIVER_INPUT_COMMAND, &[0])
-            }
-            BlindStep::Braking | BlindStep::Silent => return,
+        let BlindStep::Zero(_) = step else {
+            return;
         };
-        self.state = State::StoppingBlind { step, since };
+        let decel = settings.accel_unit.field(self.demand.stop_decel);
+        // Operation type, position, speed 0, rates, torque limit 100 % (the drives' own
+        // default), trigger: the trigger comes last and applies the rest in the same
+        // frame.
+        let fields = [settings.operation_type, 0, 0, decel, decel, 1_000, 1];
+        let frame = modbus::write_items(BROADCAST, reg::DDO_OPERATION_TYPE, &fields);
+        self.state = State::StoppingBlind { step };
         effects.next = Some(Next::Send(Request::new(frame, Target::Unicast)));
     }
 
@@ -1305,74 +1287,41 @@ impl DriveLink {
         &mut self,
         now: Timestamp,
         step: BlindStep,
-        since: Timestamp,
         settings: &DriveSettings,
         effects: &mut Effects,
     ) {
         match step {
             BlindStep::Zero(sent) if sent < BLIND_REPEATS => {
-                self.send_blind(BlindStep::Zero(sent + 1), since, settings, effects)
+                self.send_blind(BlindStep::Zero(sent + 1), settings, effects)
             }
-            // With the drives' timeout on, silence now: it trips in every drive, the
-            // one that executes nothing too, and de-excites it; a drive that took the
-            // zero brakes meanwhile.
-            BlindStep::Zero(_) if comm_timeout_ms(settings) > 0 => {
-                self.fall_silent(now, since, settings, effects)
-            }
-            // Without it only the drives' S-OFF can end the excitation: once the
-            // zero had its time.
-            BlindStep::Zero(_) => {
-                let wake_at = since.plus_millis(STOP_TIME_MS).max(now);
-                self.state = State::StoppingBlind {
-                    step: BlindStep::Braking,
-                    since,
-                };
-                effects.next = Some(Next::WaitUntil(wake_at));
-            }
-            BlindStep::ServoOff(sent) if sent < BLIND_REPEATS => {
-                self.send_blind(BlindStep::ServoOff(sent + 1), since, settings, effects)
-            }
-            BlindStep::ServoOff(_) => self.fall_silent(now, since, settings, effects),
-            BlindStep::Braking | BlindStep::Silent => {}
+            // Silence now: the drives' timeout trips in every drive, the one that
+            // executes nothing too, and de-excites it; a drive that took the zero
+            // brakes meanwhile.
+            BlindStep::Zero(_) => self.fall_silent(now, settings, effects),
+            BlindStep::Silent => {}
         }
     }
 
     /// Nothing on the line until the drives' timeout has surely tripped.
-    fn fall_silent(
-        &mut self,
-        now: Timestamp,
-        since: Timestamp,
-        settings: &DriveSettings,
-        effects: &mut Effects,
-    ) {
+    fn fall_silent(&mut self, now: Timestamp, settings: &DriveSettings, effects: &mut Effects) {
         self.excited = false;
         let wake_at = now.plus_millis(comm_timeout_ms(settings) + SILENCE_MARGIN_MS);
         self.state = State::StoppingBlind {
             step: BlindStep::Silent,
-            since,
         };
         effects.next = Some(Next::WaitUntil(wake_at));
     }
 
-    fn on_blind_timer(
-        &mut self,
-        step: BlindStep,
-        since: Timestamp,
-        settings: &DriveSettings,
-        effects: &mut Effects,
-    ) {
+    fn on_blind_timer(&mut self, step: BlindStep, settings: &DriveSettings, effects: &mut Effects) {
         match step {
-            BlindStep::Braking => self.send_blind(BlindStep::ServoOff(1), since, settings, effects),
             BlindStep::Silent => {
-                // Only `fall_silent` waits here, and with the timeout on it waited
-                // beyond it: every drive tripped (alarm 85h, de-excited, brake closed),
-                // the one that heard nothing long before. With it off nothing is known.
-                if comm_timeout_ms(settings) > 0 {
-                    self.brakes_confirmed = [true; 2];
-                }
+                // Only `fall_silent` waits here, and it waited beyond the drives'
+                // timeout: every drive tripped (alarm 85h, de-excited, brake closed),
+                // the one that heard nothing long before.
+                self.brakes_confirmed = [true; 2];
                 self.send_probe(Wheel::Left, false, settings, effects)
             }
-            BlindStep::Zero(_) | BlindStep::ServoOff(_) => {}
+            BlindStep::Zero(_) => {}
         }
     }
 
@@ -1470,27 +1419,24 @@ fn share_lists() -> [u32; 2 * reg::SHARE_LIST_SLOTS] {
 /// The time between two cycle frames: `loop_end_delay`, but at most a third of the
 /// drives' communication timeout, so that a long cycle can never trip it.
 pub fn cycle_period_ms(cycle_ms: u16, settings: &DriveSettings) -> u32 {
-    let cycle = u32::from(cycle_ms.max(1));
-    match settings.drive_comm_timeout_ms {
-        Some(timeout) if timeout > 0 => cycle.min((u32::from(timeout) / 3).max(1)),
-        _ => cycle,
-    }
+    u32::from(cycle_ms.max(1)).min(a_third_of_the_timeout_ms(settings))
 }
 
 /// The pause between two hold rounds: `poll_interval_ms`, but at most a third of the
 /// drives' communication timeout, so that a held drive never trips it.
 pub fn hold_pause_ms(settings: &DriveSettings) -> u32 {
-    match settings.drive_comm_timeout_ms {
-        Some(timeout) if timeout > 0 => settings
-            .poll_interval_ms
-            .min((u32::from(timeout) / 3).max(1)),
-        _ => settings.poll_interval_ms,
-    }
+    settings
+        .poll_interval_ms
+        .min(a_third_of_the_timeout_ms(settings))
 }
 
-/// The drives' communication timeout the link set, ms; 0 when off or left alone.
+fn a_third_of_the_timeout_ms(settings: &DriveSettings) -> u32 {
+    (u32::from(settings.drive_comm_timeout_ms) / 3).max(1)
+}
+
+/// The drives' communication timeout the link sets, ms.
 fn comm_timeout_ms(settings: &DriveSettings) -> u64 {
-    u64::from(settings.drive_comm_timeout_ms.unwrap_or(0))
+    u64::from(settings.drive_comm_timeout_ms)
 }
 
 /// Oriental alarm codes are one byte (e.g. 84h); the register is 32 bits wide.

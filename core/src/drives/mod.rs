@@ -7,7 +7,7 @@ pub mod link;
 pub mod settings;
 
 pub use link::{DriveDemand, DriveLink};
-pub use settings::{AccelUnit, DriveSettings, LineSettings, Parity};
+pub use settings::{AccelUnit, DriveSettings, LineSettings, Parity, SettingError};
 
 /// Drive registers (address = 2 × NET-ID) and the NET-IDs of the share lists.
 pub mod reg {

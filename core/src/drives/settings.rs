@@ -108,10 +108,13 @@ pub struct DriveSettings {
     /// Time between S-ON and the first non-zero speed (Panasonic waits 50 ms).
     pub excite_settle_ms: u32,
     /// Drive-side communication watchdog (register 0x138A, alarm 85h), ms, written in
-    /// every setup; `None` leaves the drives' own value (0 = off from the factory).
-    /// When no valid frame (to any slave) crossed the line for this long, a drive
-    /// raises alarm 85h and stops: the wheels stop when the controller hangs or the
-    /// line breaks, without the controller. The recovery resets it like any alarm.
+    /// every setup. When no valid frame (to any slave) crossed the line for this long,
+    /// a drive raises alarm 85h and stops: the wheels stop when the controller hangs
+    /// or the line breaks, without the controller. The recovery resets it like any
+    /// alarm. It is what stops a drive the controller cannot reach (a line that fails
+    /// the frames that carry a stop, a drive that executes nothing), so it is not
+    /// optional: [`DriveSettings::check`] refuses 0 (off, the drives' factory value)
+    /// and anything outside [`COMM_TIMEOUT_MS`].
     ///
     /// 150 ms by default, so that a controller that resets while the base drives at
     /// 500 mm/s lets it run on at most 75 mm before the drives stop on their own, plus
@@ -121,7 +124,72 @@ pub struct DriveSettings {
     /// `loop_end_delay` says; the hold rounds outside the cycle are at most that far
     /// apart too. A flash erase at rest stalls the chip longer than this; the link
     /// resets the alarm 85h that its own stall caused (see `link`).
-    pub drive_comm_timeout_ms: Option<u16>,
+    pub drive_comm_timeout_ms: u16,
+}
+
+/// The drives' communication timeout the firmware accepts, ms. At most 180: a
+/// controller that resets while the base drives at 500 mm/s is silent through its
+/// boot (about 0.3 s), and only this timeout stops the wheels then; 180 ms keeps that
+/// run-on within 100 mm (about 0.5 mm per ms, 79 mm at 150 ms). At least 100: the
+/// longest quiet the control cycle leaves on the line (46 ms at 230400 baud; a failed
+/// transaction is quiet for `reply_timeout_ms` and 5 ms, at most 35 ms) stays under
+/// half of it, so normal operation never trips it.
+pub const COMM_TIMEOUT_MS: core::ops::RangeInclusive<u16> = 100..=180;
+/// Failed reads or writes in a row before the link stops blind: each one lets the
+/// base run on about 50 ms (one cycle) before the drives are told to stop.
+pub const FAILURES_BEFORE_LOSS: core::ops::RangeInclusive<u8> = 1..=3;
+/// The reply timeout the firmware accepts, ms: long enough for the drives' longest
+/// response delay (C3.5 and the factory's 3 ms transmission wait, 7 ms at 9600 baud);
+/// short enough that three failed writes in a row end within a few cycles.
+pub const REPLY_TIMEOUT_MS: core::ops::RangeInclusive<u32> = 10..=30;
+/// The slowest line the firmware accepts, baud: below it a cycle's reads and a
+/// command write no longer fit into a third of the drives' timeout, and a write that
+/// fails is not tried again before the next read is due (at 9600 baud a PC's stop
+/// through a line that failed long frames never got out; at 19200 the e-stop rolled
+/// 360 mm).
+pub const MIN_BAUD: u32 = 38_400;
+/// The longest fixed frame gap the firmware accepts, µs: Modbus's own fixed value.
+pub const MAX_MIN_SILENT_INTERVAL_US: u32 = 1_750;
+
+/// A drive setting the firmware refuses, because with it a stop through a failing
+/// line could come too late or never (docs/drives.md, "Settings the firmware
+/// refuses").
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum SettingError {
+    /// `drive_comm_timeout_ms` outside [`COMM_TIMEOUT_MS`] (0 is off).
+    CommTimeout(u16),
+    /// `failures_before_loss` outside [`FAILURES_BEFORE_LOSS`].
+    FailuresBeforeLoss(u8),
+    /// `reply_timeout_ms` outside [`REPLY_TIMEOUT_MS`].
+    ReplyTimeout(u32),
+    /// `line.baud` below [`MIN_BAUD`].
+    Baud(u32),
+    /// `line.min_silent_interval_us` above [`MAX_MIN_SILENT_INTERVAL_US`].
+    MinSilentInterval(u32),
+}
+
+impl SettingError {
+    /// What is wrong, for the log.
+    pub const fn reason(self) -> &'static str {
+        match self {
+            SettingError::CommTimeout(_) => {
+                "drive_comm_timeout_ms must be 100..=180: off, nothing stops a drive the line cannot reach; longer, a controller reset rolls over 100 mm"
+            }
+            SettingError::FailuresBeforeLoss(_) => {
+                "failures_before_loss must be 1..=3: each more lets a failing line drive on another cycle"
+            }
+            SettingError::ReplyTimeout(_) => {
+                "reply_timeout_ms must be 10..=30: shorter misses the drives' replies, longer delays the stop through a failing line"
+            }
+            SettingError::Baud(_) => {
+                "line.baud must be at least 38400: slower, a stop through a failing line comes too late"
+            }
+            SettingError::MinSilentInterval(_) => {
+                "line.min_silent_interval_us must be at most 1750 (Modbus's fixed gap)"
+            }
+        }
+    }
 }
 
 impl DriveSettings {
@@ -144,9 +212,41 @@ impl DriveSettings {
         reply_timeout_ms: 25,
         failures_before_loss: 3,
         excite_settle_ms: 50,
-        drive_comm_timeout_ms: Some(150),
+        drive_comm_timeout_ms: 150,
     };
+
+    /// Whether the firmware accepts these settings: `Err` names the first one with
+    /// which the base could not be stopped within 300 mm from 500 mm/s whatever the
+    /// line does (measured in `sim/tests/drive_link_safety.rs` at the edges of every
+    /// range at once). The drive link refuses to set up drives with such settings: it
+    /// holds them, stopped and de-excited, and the base stays in Starting.
+    pub const fn check(&self) -> Result<(), SettingError> {
+        let timeout = self.drive_comm_timeout_ms;
+        if timeout < *COMM_TIMEOUT_MS.start() || timeout > *COMM_TIMEOUT_MS.end() {
+            return Err(SettingError::CommTimeout(timeout));
+        }
+        let failures = self.failures_before_loss;
+        if failures < *FAILURES_BEFORE_LOSS.start() || failures > *FAILURES_BEFORE_LOSS.end() {
+            return Err(SettingError::FailuresBeforeLoss(failures));
+        }
+        let reply = self.reply_timeout_ms;
+        if reply < *REPLY_TIMEOUT_MS.start() || reply > *REPLY_TIMEOUT_MS.end() {
+            return Err(SettingError::ReplyTimeout(reply));
+        }
+        if self.line.baud < MIN_BAUD {
+            return Err(SettingError::Baud(self.line.baud));
+        }
+        if self.line.min_silent_interval_us > MAX_MIN_SILENT_INTERVAL_US {
+            return Err(SettingError::MinSilentInterval(
+                self.line.min_silent_interval_us,
+            ));
+        }
+        Ok(())
+    }
 }
+
+// The firmware's own settings pass their check, or it does not build.
+const _: () = assert!(DriveSettings::DEFAULT.check().is_ok());
 
 impl Default for DriveSettings {
     fn default() -> Self {
@@ -181,6 +281,66 @@ mod tests {
         };
         assert_eq!(line.char_time_us(), 1_146);
         assert_eq!(line.silent_interval_us(), 4_011);
+    }
+
+    /// Every setting at the edges of its range passes; one step beyond, and off, is
+    /// refused with the setting named.
+    #[test]
+    fn settings_that_could_keep_the_base_from_stopping_are_refused() {
+        let default = DriveSettings::DEFAULT;
+        type Change = fn(&mut DriveSettings);
+        let with = |change: Change| {
+            let mut settings = default;
+            change(&mut settings);
+            settings.check()
+        };
+        assert_eq!(default.check(), Ok(()));
+        let edges: [Change; 8] = [
+            |s| s.drive_comm_timeout_ms = 100,
+            |s| s.drive_comm_timeout_ms = 180,
+            |s| s.failures_before_loss = 1,
+            |s| s.reply_timeout_ms = 10,
+            |s| s.reply_timeout_ms = 30,
+            |s| s.line.baud = 38_400,
+            |s| s.line.baud = 230_400,
+            |s| s.line.min_silent_interval_us = 1_750,
+        ];
+        for edge in edges {
+            assert_eq!(with(edge), Ok(()));
+        }
+        let refused: [(Change, SettingError); 9] = [
+            (
+                |s| s.drive_comm_timeout_ms = 0,
+                SettingError::CommTimeout(0),
+            ),
+            (
+                |s| s.drive_comm_timeout_ms = 99,
+                SettingError::CommTimeout(99),
+            ),
+            (
+                |s| s.drive_comm_timeout_ms = 181,
+                SettingError::CommTimeout(181),
+            ),
+            (
+                |s| s.failures_before_loss = 0,
+                SettingError::FailuresBeforeLoss(0),
+            ),
+            (
+                |s| s.failures_before_loss = 4,
+                SettingError::FailuresBeforeLoss(4),
+            ),
+            (|s| s.reply_timeout_ms = 9, SettingError::ReplyTimeout(9)),
+            (|s| s.reply_timeout_ms = 31, SettingError::ReplyTimeout(31)),
+            (|s| s.line.baud = 19_200, SettingError::Baud(19_200)),
+            (
+                |s| s.line.min_silent_interval_us = 1_751,
+                SettingError::MinSilentInterval(1_751),
+            ),
+        ];
+        for (change, error) in refused {
+            assert_eq!(with(change), Err(error));
+            assert!(!error.reason().is_empty());
+        }
     }
 
     #[test]

@@ -15,7 +15,7 @@ server for the robot PC's software.
 usage: virtual-base-controller [--link PATH | --no-link]
          [--socketcand ADDR:PORT | --no-socketcand] [--socketcan IF]
          [--flash PATH] [--hci tcp:HOST:PORT] [--demo [--stay]]
-         [--swap-drive-addresses]
+         [--swap-drive-addresses] [--reverse-drive 1|2]
 
   --link PATH      symbolic link to the serial port (default
                    {DEFAULT_LINK});
@@ -40,6 +40,11 @@ usage: virtual-base-controller [--link PATH | --no-link]
   --swap-drive-addresses
                    the drives' address switches swapped (slave 1 on the
                    right wheel), for `basectl commission wheels` to find
+  --reverse-drive SLAVE
+                   the drive with address 1 or 2 has its direction parameter
+                   at the other value: it turns against its command (the
+                   controller stops the base; `basectl commission wheels`
+                   names it)
   --help           this text
 
 Connect (any number at once through socketcand, one at a time through SLCAN):
@@ -73,6 +78,7 @@ fn parse_options(mut args: impl Iterator<Item = String>) -> Result<Option<Option
         demo: Demo::Off,
         hci: None,
         swap_drive_addresses: false,
+        reversed_drive: None,
     };
     let mut stay = false;
     while let Some(arg) = args.next() {
@@ -95,6 +101,14 @@ fn parse_options(mut args: impl Iterator<Item = String>) -> Result<Option<Option
             "--demo" => options.demo = Demo::ThenQuit,
             "--stay" => stay = true,
             "--swap-drive-addresses" => options.swap_drive_addresses = true,
+            "--reverse-drive" => {
+                let slave = args.next().ok_or("--reverse-drive needs 1 or 2")?;
+                options.reversed_drive = match slave.as_str() {
+                    "1" => Some(1),
+                    "2" => Some(2),
+                    other => return Err(format!("--reverse-drive {other:?}: 1 or 2")),
+                };
+            }
             "--hci" => {
                 let spec = args.next().ok_or("--hci needs tcp:HOST:PORT")?;
                 options.hci = Some(HciSpec::parse(&spec)?);

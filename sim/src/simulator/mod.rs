@@ -59,6 +59,10 @@ pub struct Options {
     /// The drives' address switches swapped (`--swap-drive-addresses`): slave 1 on the
     /// right wheel, for the wheel commissioning check.
     pub swap_drive_addresses: bool,
+    /// The drive with this address has its direction parameter at the other value
+    /// (`--reverse-drive SLAVE`): it turns against its command, for the feedback
+    /// check and the wheel commissioning check to find.
+    pub reversed_drive: Option<u8>,
 }
 
 /// Whether the simulator drives a path by itself.
@@ -101,6 +105,11 @@ pub fn run(options: &Options) -> io::Result<()> {
         DrivesConfig::default()
     };
     let robot = VirtualRobot::with_drives(drives);
+    if let Some(slave) = options.reversed_drive {
+        robot
+            .drives
+            .set_reversed(slave, Some(crate::drives::Reversal::Motion));
+    }
     let flash = FileFlash::open(&options.flash_path, FLASH_SIZE as usize)?;
     let app_flash = FileFlash::open(
         &app_flash_path(&options.flash_path),

@@ -270,7 +270,6 @@ const HOLD_LEFT: [Then; 3] = [
 const HOLD_RIGHT_ZERO: Then = Send(2, WRITE, reg::DDO_OPERATION_TYPE);
 const COMMAND: Then = Send(GROUP, WRITE, 0);
 const BLIND_ZERO: Then = Send(0, WRITE, reg::DDO_OPERATION_TYPE);
-const BLIND_S_OFF: Then = Send(0, WRITE, reg::DRIVER_INPUT_COMMAND);
 const READ_FEEDBACK: Then = Send(GROUP, READ, 0);
 /// The alarm part of the feedback read: item 2 of the share read list.
 const READ_ALARMS: Then = Send(GROUP, READ, 4);
@@ -432,20 +431,46 @@ fn the_setup_writes_share_control_lists_comm_timeout_checks_the_alarm_and_leaves
     assert_eq!(command_speeds(bench.request()), (0, 0));
 }
 
+/// Settings the firmware refuses (here the drives' timeout off, and one beyond its
+/// range) never get the drives set up: the link holds them round after round, stopped
+/// and de-excited, and reports nothing that would make the base ready.
 #[test]
-fn without_a_comm_timeout_setting_the_drives_keep_their_own() {
-    let settings = DriveSettings {
-        drive_comm_timeout_ms: None,
-        ..SETTINGS
-    };
-    let (mut bench, _) = Bench::boot_at(0, settings);
-    for _ in 0..6 {
-        bench.step(1_000, Answer);
+fn with_refused_settings_the_drives_are_held_and_never_set_up() {
+    for timeout_ms in [0, 181] {
+        let settings = DriveSettings {
+            drive_comm_timeout_ms: timeout_ms,
+            ..SETTINGS
+        };
+        let (mut bench, _) = Bench::boot_at(0, settings);
+        let mut now = 0;
+        while now < 5_000 {
+            let line = if bench.out.is_some() { Answer } else { Timer };
+            let effects = bench.step(now, line);
+            assert!(effects.reports.is_empty(), "{timeout_ms} ms: {effects:?}");
+            if let Some(request) = &bench.out {
+                let register = u16::from_be_bytes([request.frame[2], request.frame[3]]);
+                assert!(
+                    [
+                        reg::DDO_OPERATION_TYPE,
+                        reg::DDO_TRIGGER,
+                        reg::DRIVER_INPUT_COMMAND
+                    ]
+                    .contains(&register),
+                    "{timeout_ms} ms: only holds, not {register:#06x} at {now} ms"
+                );
+            }
+            now += 5;
+        }
+        assert!(
+            matches!(
+                bench.link.state(),
+                State::Holding { .. } | State::HoldPause { .. }
+            ),
+            "{timeout_ms} ms: {:?}",
+            bench.link.state()
+        );
+        assert!(bench.link.brakes_confirmed(), "the holds' S-OFF answered");
     }
-    bench.run(&[
-        (1_000, Answer, Send(1, WRITE, reg::SHARE_LISTS), &[]),
-        (1_000, Answer, Send(1, READ, reg::PRESENT_ALARM), &[]),
-    ]);
 }
 
 /// A bench at boot + 1000 ms whose left drive's present-alarm read is out.
@@ -867,41 +892,6 @@ fn blind_stop_from(bench: &mut Bench, since: u64) {
     assert!(!bench.link.excited());
 }
 
-/// With the drives' timeout off, silence stops nothing: after the zero had its time
-/// S-OFF goes out by broadcast too, and only then the line falls silent.
-#[test]
-fn without_the_drives_timeout_the_blind_stop_adds_s_off_by_broadcast() {
-    let settings = DriveSettings {
-        drive_comm_timeout_ms: None,
-        ..SETTINGS
-    };
-    let (mut bench, _) = Bench::boot_at(0, settings);
-    for _ in 0..6 {
-        bench.step(0, Answer);
-    }
-    bench.step(1_000, Timer);
-    bench.set_up(1_000);
-    bench.step(1_002, Answer);
-    bench.run(&[
-        (1_027, Silent, WaitUntil(1_050), &[Input::ModbusError]),
-        (1_050, Timer, READ_FEEDBACK, &[]),
-        (1_075, Silent, WaitUntil(1_100), &[Input::ModbusError]),
-        (1_100, Timer, READ_FEEDBACK, &[]),
-        (1_125, Silent, BLIND_ZERO, &[Input::ModbusError]),
-        (1_130, Answer, BLIND_ZERO, &[]),
-        (1_135, Answer, BLIND_ZERO, &[]),
-        (1_140, Answer, WaitUntil(1_425), &[]),
-        (1_425, Timer, BLIND_S_OFF, &[]),
-    ]);
-    assert_eq!(written_items(bench.request()), [0]);
-    bench.run(&[
-        (1_430, Answer, BLIND_S_OFF, &[]),
-        (1_435, Answer, BLIND_S_OFF, &[]),
-        (1_440, Answer, WaitUntil(1_540), &[]),
-        (1_540, Timer, Send(1, READ, reg::SHARE_CONTROL), &[]),
-    ]);
-}
-
 #[test]
 fn a_probe_that_finds_a_drive_silent_reports_that_drive_and_holds_until_a_setup_request() {
     let mut bench = probing();
@@ -1024,11 +1014,7 @@ fn the_cycle_never_waits_longer_than_a_third_of_the_drives_comm_timeout() {
     ]);
     // A third of the drives' 150 ms.
     assert_eq!(cycle_period_ms(500, &SETTINGS), 50);
-    let off = DriveSettings {
-        drive_comm_timeout_ms: None,
-        ..SETTINGS
-    };
-    assert_eq!(cycle_period_ms(500, &off), 500);
+    assert_eq!(cycle_period_ms(30, &SETTINGS), 30);
 }
 
 #[test]
@@ -1116,8 +1102,8 @@ fn the_read_moves_to_half_a_cycle_before_the_controllers_position_frame() {
 
 /// Drives set up and excited at 1010 ms, then nothing answers any more: returns once
 /// the blind stop fell silent, with the time.
-fn excited_then_the_line_dies(settings: DriveSettings) -> (Bench, u64) {
-    let (mut bench, _) = Bench::boot_at(0, settings);
+fn excited_then_the_line_dies() -> (Bench, u64) {
+    let (mut bench, _) = Bench::boot_at(0, SETTINGS);
     for _ in 0..6 {
         bench.step(0, Answer);
     }
@@ -1151,37 +1137,16 @@ fn excited_then_the_line_dies(settings: DriveSettings) -> (Bench, u64) {
 }
 
 /// A drive that cannot be heard counts as excited, its wheel as turning, until its
-/// own communication timeout has surely tripped; with that timeout off, until it
-/// answers an S-OFF.
+/// own communication timeout has surely tripped.
 #[test]
 fn brakes_are_confirmed_by_an_answered_s_off_or_by_silence_beyond_the_drives_timeout() {
-    let (mut bench, silent_at) = excited_then_the_line_dies(SETTINGS);
+    let (mut bench, silent_at) = excited_then_the_line_dies();
     assert!(!bench.link.brakes_confirmed(), "silence only started");
     bench.step(silent_at + 250, Timer);
     assert!(
         bench.link.brakes_confirmed(),
         "every drive's 150 ms tripped"
     );
-
-    let settings = DriveSettings {
-        drive_comm_timeout_ms: None,
-        ..SETTINGS
-    };
-    let (mut bench, silent_at) = excited_then_the_line_dies(settings);
-    bench.step(silent_at + 100, Timer);
-    assert!(
-        !bench.link.brakes_confirmed(),
-        "a blind S-OFF proves nothing"
-    );
-    // Both probes unanswered, then the hold: its S-OFF answered by the left drive
-    // alone confirms only that one.
-    bench.step(silent_at + 110, Silent);
-    bench.step(silent_at + 120, Silent);
-    for write in 0..3 {
-        bench.step(silent_at + 130 + write, Answer);
-    }
-    bench.step(silent_at + 140, Silent);
-    assert_eq!(bench.link.brakes_confirmed, [true, false]);
 }
 
 /// A bench whose drives run at 600 r/min (acknowledged) at 1066 ms, nothing out.
