@@ -40,6 +40,9 @@ fn boot_text(boot_info: Option<Option<BootInfo>>) -> String {
         UpdateReset::Refused => parts.push(
             "update refused: the bootloader did not load the image activated last, the previous image runs",
         ),
+        UpdateReset::Held => parts.push(
+            "HELD: an image nobody confirmed runs and nothing would roll it back; motion locked until `basectl firmware confirm` keeps it or `basectl firmware rollback` tries the other slot",
+        ),
     }
     if parts.is_empty() {
         "normal".to_owned()
@@ -339,6 +342,7 @@ mod tests {
              the previous image runs"
         );
         assert!(line(0b1001).starts_with("first boot"));
+        assert!(line(0b1_0000).starts_with("HELD"));
         assert_eq!(
             line(0b1100),
             "boot_info holds bits this basectl does not know"

@@ -103,7 +103,7 @@ async fn main(_spawner: embassy_executor::Spawner) {
         let started = base_runtime::update::arm(&mut flash).await;
         base_runtime::update::report_start(&started);
         CHANNELS.update.lock_at_start(&started);
-        update_reset = update::boot_cause(&started.start, slot);
+        update_reset = update::boot_cause(&started, slot);
         update_flash = Some((flash, started));
     }
 

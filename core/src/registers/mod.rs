@@ -140,6 +140,11 @@ pub enum UpdateReset {
     /// trial. Read from otadata, so it is also reported after a power cycle, until the
     /// running image has set the refused entry aside.
     Refused,
+    /// An image nobody confirmed runs and nothing would roll it back: its trial failed
+    /// yet no other slot boots, or its arming write failed. Motion stays locked, with
+    /// no deadline, until a person keeps it (CONFIRM) or tries the other slot
+    /// (ROLLBACK).
+    Held,
 }
 
 impl BootInfo {
@@ -147,7 +152,8 @@ impl BootInfo {
     const ACTIVATION: u16 = 1 << 1;
     const FAILED_TRIAL: u16 = 1 << 2;
     const REFUSED: u16 = 1 << 3;
-    const UPDATE_RESETS: u16 = Self::ACTIVATION | Self::FAILED_TRIAL | Self::REFUSED;
+    const HELD: u16 = 1 << 4;
+    const UPDATE_RESETS: u16 = Self::ACTIVATION | Self::FAILED_TRIAL | Self::REFUSED | Self::HELD;
     /// Every bit the register may hold: its range.
     pub const ALL_BITS: u16 = Self::FIRST_BOOT | Self::UPDATE_RESETS;
 
@@ -159,6 +165,7 @@ impl BootInfo {
             UpdateReset::Activation => Self::ACTIVATION,
             UpdateReset::FailedTrial => Self::FAILED_TRIAL,
             UpdateReset::Refused => Self::REFUSED,
+            UpdateReset::Held => Self::HELD,
         };
         first_boot | reset
     }
@@ -171,6 +178,7 @@ impl BootInfo {
             Self::ACTIVATION => UpdateReset::Activation,
             Self::FAILED_TRIAL => UpdateReset::FailedTrial,
             Self::REFUSED => UpdateReset::Refused,
+            Self::HELD => UpdateReset::Held,
             _ => return None,
         };
         if bits & !Self::ALL_BITS != 0 {

@@ -50,6 +50,21 @@ pub struct Start {
     pub refused_activation: bool,
 }
 
+impl Start {
+    /// Whether the image runs **held**: nobody confirmed it and nothing would roll it
+    /// back. Its trial failed yet it started (no other slot boots), or its arming
+    /// write (`written` false) failed, so a failed trial would start it again. It runs
+    /// so that the robot stays reachable over CAN, with motion locked and no deadline,
+    /// until a person keeps it (CONFIRM) or tries the other slot (ROLLBACK).
+    pub const fn held(&self, written: bool) -> bool {
+        match self.role {
+            StartRole::LastResort => true,
+            StartRole::Trial => !written,
+            StartRole::Confirmed | StartRole::PendingVerify => false,
+        }
+    }
+}
+
 /// Decides what the image in `running` does with the otadata it finds.
 pub fn on_start(otadata: &OtaData, running: Slot) -> Start {
     let active = otadata.active_sector();
@@ -160,9 +175,16 @@ impl ResetRecord {
 /// left and what otadata says, and the record this run keeps (an image on trial names
 /// its slot, so that a reset that ends its trial without a confirm reads as a failed
 /// trial on the next boot; any other image keeps none).
-pub fn boot_cause(left: ResetRecord, start: &Start, running: Slot) -> (UpdateReset, ResetRecord) {
+pub fn boot_cause(
+    left: ResetRecord,
+    start: &Start,
+    written: bool,
+    running: Slot,
+) -> (UpdateReset, ResetRecord) {
     let role = start.role;
     let cause = match left {
+        // What matters most now: motion stays locked until a person decides.
+        _ if start.held(written) => UpdateReset::Held,
         // Whatever reset came before: the image activated last did not start.
         _ if start.refused_activation => UpdateReset::Refused,
         ResetRecord::Empty => UpdateReset::None,
@@ -281,7 +303,7 @@ mod tests {
                 on_trial(Slot::Ota1),
                 start(StartRole::LastResort),
                 Slot::Ota1,
-                UpdateReset::None,
+                UpdateReset::Held,
                 ResetRecord::Empty,
             ),
             (
@@ -293,8 +315,23 @@ mod tests {
                 on_trial(Slot::Ota1),
             ),
         ];
+        // A new image whose arming write failed runs held, whatever came before.
+        assert_eq!(
+            boot_cause(
+                ResetRecord::Activation,
+                &start(StartRole::Trial),
+                false,
+                Slot::Ota1
+            ),
+            (UpdateReset::Held, on_trial(Slot::Ota1)),
+            "arming failed"
+        );
         for (what, left, start, running, cause, keep) in cases {
-            assert_eq!(boot_cause(left, &start, running), (cause, keep), "{what}");
+            assert_eq!(
+                boot_cause(left, &start, true, running),
+                (cause, keep),
+                "{what}"
+            );
         }
     }
 
@@ -415,7 +452,7 @@ mod tests {
         // ota_1 was activated and refused; the bootloader fell back to ota_0.
         let d = data(Entry::new(1, OtaState::Valid), Entry::new(2, OtaState::New));
         let start = on_start(&d, Slot::Ota0);
-        let (cause, _) = boot_cause(ResetRecord::Activation, &start, Slot::Ota0);
+        let (cause, _) = boot_cause(ResetRecord::Activation, &start, true, Slot::Ota0);
         assert_eq!(cause, UpdateReset::Refused, "nothing runs on trial");
     }
 }

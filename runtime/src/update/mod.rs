@@ -89,9 +89,9 @@ impl UpdateLink {
     }
 
     /// Before the tasks start: motion is refused from the controller's first input on
-    /// when the image starts on trial.
+    /// when the image starts on trial or held.
     pub fn lock_at_start(&self, started: &Started) {
-        self.set_locked(started.role().on_trial());
+        self.set_locked(started.role().on_trial() || started.held());
     }
 
     /// Motion is refused: a session runs or an image is on trial.
@@ -284,6 +284,11 @@ impl Started {
     pub const fn role(&self) -> StartRole {
         self.start.role
     }
+
+    /// Runs held ([`Start::held`]): motion locked until a person decides.
+    pub const fn held(&self) -> bool {
+        self.start.held(self.written)
+    }
 }
 
 /// First thing at start, before anything else can fail: the image's role from
@@ -324,6 +329,9 @@ pub fn report_start(started: &Started) {
     }
     if !started.written {
         error!("the first otadata write at start failed");
+    }
+    if started.held() {
+        warn!("held: motion locked until CONFIRM keeps this image or ROLLBACK tries the other");
     }
 }
 
@@ -368,7 +376,11 @@ pub async fn run<F: NorFlash>(
         slot_len: partitions::SLOT_LEN,
         trial_deadline_ms: config.trial_deadline_ms,
     };
-    let mut updater = Updater::new(core_now(), started.role().on_trial(), &params);
+    let mut updater = if started.held() {
+        Updater::held()
+    } else {
+        Updater::new(core_now(), started.role().on_trial(), &params)
+    };
     link.set_locked(updater.locks_motion());
     loop {
         let event = match select(link.frames.receive(), Timer::after_millis(TICK_MS)).await {
@@ -473,5 +485,40 @@ async fn set_running_state<F: NorFlash>(
     match change(&otadata, flash.running) {
         Ok(write) => flash.write_otadata(write).await.is_ok(),
         Err(_) => false,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn started(role: StartRole, written: bool) -> Started {
+        Started {
+            start: Start {
+                role,
+                write: None,
+                refused_activation: false,
+            },
+            written,
+        }
+    }
+
+    #[test]
+    fn an_image_nobody_confirmed_without_a_fallback_starts_with_motion_locked() {
+        // (role, first write done) → motion locked from the first input
+        let cases = [
+            (StartRole::Confirmed, true, false),
+            (StartRole::Trial, true, true),
+            (StartRole::PendingVerify, true, true),
+            // Its trial failed and no other slot boots.
+            (StartRole::LastResort, true, true),
+            // Its arming failed: nothing would roll it back.
+            (StartRole::Trial, false, true),
+        ];
+        for (role, written, locked) in cases {
+            let link = UpdateLink::new();
+            link.lock_at_start(&started(role, written));
+            assert_eq!(link.locked(), locked, "{role:?}, written {written}");
+        }
     }
 }

@@ -264,7 +264,8 @@ async fn controller(
         let role = started.role();
         // As the chip's boot does: an update's reset before this boot is reported as
         // such (`boot_info`), not as a watchdog reset.
-        let (update_reset, keep) = trial::boot_cause(reset_record, &started.start, booted.slot);
+        let (update_reset, keep) =
+            trial::boot_cause(reset_record, &started.start, started.written, booted.slot);
         reset_record = keep;
         let behaviour = Behaviour::of(&booted.version);
         view.output.message(&format!(
