@@ -6,6 +6,7 @@
 //! timer whenever every task waits, so a test of minutes of driving runs in
 //! milliseconds and always the same way.
 
+pub mod air;
 pub mod app_flash;
 pub mod ble;
 pub mod can;
