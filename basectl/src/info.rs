@@ -37,6 +37,12 @@ fn boot_text(boot_info: Option<Option<BootInfo>>) -> String {
         UpdateReset::FailedTrial => {
             parts.push("rolled back: a new image's trial failed, the previous image runs")
         }
+        UpdateReset::Refused => parts.push(
+            "update refused: the bootloader did not load the image activated last, the previous image runs",
+        ),
+        UpdateReset::Held => parts.push(
+            "HELD: an image nobody confirmed runs and nothing would roll it back; motion locked until `basectl firmware confirm` keeps it or `basectl firmware rollback` tries the other slot",
+        ),
     }
     if parts.is_empty() {
         "normal".to_owned()
@@ -320,6 +326,26 @@ mod tests {
         assert_eq!(
             remote_text(None, 3),
             "not reported (register map 3, needs 4)"
+        );
+    }
+
+    #[test]
+    fn the_boot_line_says_what_an_update_did() {
+        let line = |bits| boot_text(Some(BootInfo::from_bits(bits)));
+        assert_eq!(line(0), "normal");
+        assert!(line(0b10).starts_with("started by an update"));
+        assert!(line(0b100).starts_with("rolled back"));
+        // A refused image: the previous one runs, nothing is on trial.
+        assert_eq!(
+            line(0b1000),
+            "update refused: the bootloader did not load the image activated last, \
+             the previous image runs"
+        );
+        assert!(line(0b1001).starts_with("first boot"));
+        assert!(line(0b1_0000).starts_with("HELD"));
+        assert_eq!(
+            line(0b1100),
+            "boot_info holds bits this basectl does not know"
         );
     }
 

@@ -1,7 +1,8 @@
 //! The A/B update's promise, over random sequences of updates, power cuts at any flash
-//! write, images that panic or never confirm, and both bootloaders: an image always
-//! boots, a new image runs its trial at most once unless it confirmed, and a confirmed
-//! image keeps booting until the next activation.
+//! write, images that panic or never confirm, images the bootloader refuses, and both
+//! bootloaders: an image always boots, a new image runs its trial at most once unless
+//! it confirmed, and what runs is always the image confirmed last: a confirmed image
+//! keeps booting until the next confirmed one.
 
 use base_core::update::boot::{Bootloader, boot};
 use base_core::update::otadata::{ERASED_ENTRY, Entry, OtaData, SectorWrite, Slot};
@@ -13,6 +14,9 @@ enum Behaviour {
     Healthy,
     PanicsAtBoot,
     NeverConfirms,
+    /// Written completely and activated, but the bootloader refuses to load it (built
+    /// for another chip or eFuse revision, a header it rejects).
+    Refused,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -54,6 +58,8 @@ struct Robot {
     confirmed: std::collections::HashSet<u32>,
     /// Counts flash writes; the write whose number equals the cut fails.
     writes_left_before_cut: Option<u8>,
+    /// The image whose confirm was written last: the one that must run.
+    last_confirmed: u32,
 }
 
 /// A write either completes or leaves the sector as a cut leaves it; `true` when it
@@ -116,12 +122,15 @@ impl Robot {
             }
             self.running = slot;
             let image = self.images[slot.index()];
-            let role = on_start(&self.otadata, slot);
-            if let StartRole::Trial { arm } = role
-                && !write(self, arm, cut)
+            let start = on_start(&self.otadata, slot);
+            // The image's first write (arming a trial, recording itself on blank
+            // otadata, setting aside a refused image's entry), cut like any other.
+            if let Some(first) = start.write
+                && !write(self, first, cut)
             {
                 continue;
             }
+            let role = start.role;
             if role.on_trial() {
                 let runs = self.unconfirmed_trial_runs.entry(image.id).or_default();
                 *runs += 1;
@@ -135,6 +144,7 @@ impl Robot {
                         let w = confirm(&self.otadata, slot).expect("a trial image has an entry");
                         if write(self, w, cut) {
                             self.confirmed.insert(image.id);
+                            self.last_confirmed = image.id;
                             return true;
                         }
                         continue;
@@ -145,6 +155,7 @@ impl Robot {
                         let _ = write(self, w, cut);
                         continue;
                     }
+                    Behaviour::Refused => unreachable!("the bootloader never starts it"),
                 }
             }
             return true;
@@ -171,7 +182,7 @@ impl Robot {
         }
         self.images[target.index()] = Image {
             id: self.next_id,
-            intact: true,
+            intact: behaviour != Behaviour::Refused,
             behaviour,
         };
         let activation = self
@@ -187,7 +198,8 @@ fn behaviour() -> impl Strategy<Value = Behaviour> {
     prop_oneof![
         Just(Behaviour::Healthy),
         Just(Behaviour::PanicsAtBoot),
-        Just(Behaviour::NeverConfirms)
+        Just(Behaviour::NeverConfirms),
+        Just(Behaviour::Refused)
     ]
 }
 
@@ -220,6 +232,7 @@ proptest! {
             unconfirmed_trial_runs: Default::default(),
             confirmed: [0].into_iter().collect(),
             writes_left_before_cut: None,
+            last_confirmed: 0,
         };
         prop_assert!(robot.boot_until_running());
         for step in steps {
@@ -239,12 +252,16 @@ proptest! {
             if matches!(step, Step::PowerCycle { .. }) && was_confirmed {
                 prop_assert_eq!(now.id, before, "a confirmed image was rolled back");
             }
-            // Whatever runs is confirmed, or the bootloader had nothing better.
-            let role = on_start(&robot.otadata, robot.running);
-            prop_assert!(
-                robot.confirmed.contains(&now.id) || matches!(role, StartRole::LastResort | StartRole::Unrecorded),
-                "image {} runs unconfirmed as {role:?}", now.id
+            // What runs is the image confirmed last: a new image that did not confirm,
+            // whatever stopped it, left the previous one running.
+            prop_assert_eq!(
+                now.id, robot.last_confirmed,
+                "image {} runs, but {} was confirmed last (after {:?}; otadata {:?})",
+                now.id, robot.last_confirmed, step, robot.otadata
             );
+            // It runs confirmed, with motion unlocked: never as a last resort.
+            let role = on_start(&robot.otadata, robot.running).role;
+            prop_assert_eq!(role, StartRole::Confirmed, "image {} runs", now.id);
         }
     }
 }
@@ -272,6 +289,7 @@ fn a_healthy_update_without_cuts_runs_the_new_image_confirmed() {
             unconfirmed_trial_runs: Default::default(),
             confirmed: [0].into_iter().collect(),
             writes_left_before_cut: None,
+            last_confirmed: 0,
         };
         assert!(robot.boot_until_running());
         assert!(robot.update(Behaviour::Healthy));
@@ -282,5 +300,57 @@ fn a_healthy_update_without_cuts_runs_the_new_image_confirmed() {
         assert!(robot.update(Behaviour::PanicsAtBoot));
         assert!(robot.boot_until_running());
         assert_eq!(robot.running, Slot::Ota1, "{bootloader:?}");
+    }
+}
+
+fn fresh_robot(bootloader: Bootloader) -> Robot {
+    let mut robot = Robot {
+        otadata: OtaData::erased(),
+        images: [
+            Image {
+                id: 0,
+                intact: true,
+                behaviour: Behaviour::Healthy,
+            },
+            Image {
+                id: u32::MAX,
+                intact: false,
+                behaviour: Behaviour::Healthy,
+            },
+        ],
+        bootloader,
+        running: Slot::Ota0,
+        next_id: 0,
+        unconfirmed_trial_runs: Default::default(),
+        confirmed: [0].into_iter().collect(),
+        writes_left_before_cut: None,
+        last_confirmed: 0,
+    };
+    assert!(robot.boot_until_running());
+    robot
+}
+
+#[test]
+fn a_refused_image_then_an_update_that_fails_its_trial_goes_back_to_the_confirmed_image() {
+    for bootloader in [Bootloader::Plain, Bootloader::Rollback] {
+        for failing in [Behaviour::PanicsAtBoot, Behaviour::NeverConfirms] {
+            let mut robot = fresh_robot(bootloader);
+            assert!(robot.update(Behaviour::Refused));
+            assert!(robot.boot_until_running());
+            assert_eq!(robot.images[robot.running.index()].id, 0, "{bootloader:?}");
+            assert!(robot.update(failing));
+            assert!(robot.boot_until_running());
+            assert_eq!(
+                (robot.running, robot.images[robot.running.index()].id),
+                (Slot::Ota0, 0),
+                "{bootloader:?}, {failing:?}: otadata {:?}",
+                robot.otadata
+            );
+            assert_eq!(
+                on_start(&robot.otadata, robot.running).role,
+                StartRole::Confirmed,
+                "{bootloader:?}, {failing:?}"
+            );
+        }
     }
 }

@@ -100,9 +100,11 @@ async fn main(_spawner: embassy_executor::Spawner) {
             base_core::update::partitions::FLASH_SIZE,
         );
         let mut flash = base_runtime::update::UpdateFlash::new(whole, slot);
-        let role = base_runtime::update::arm(&mut flash, &CHANNELS.update).await;
-        update_reset = update::boot_cause(role, slot);
-        update_flash = Some((flash, role));
+        let started = base_runtime::update::arm(&mut flash).await;
+        base_runtime::update::report_start(&started);
+        CHANNELS.update.lock_at_start(&started);
+        update_reset = update::boot_cause(&started, slot);
+        update_flash = Some((flash, started));
     }
 
     let (can_rx, can_tx) = can::start(board.twai, board.can_tx, board.can_rx);
@@ -178,7 +180,7 @@ async fn main(_spawner: embassy_executor::Spawner) {
     // The update task returns when the chip must restart (activated or rolled back):
     // the cause is recorded for the next boot first.
     let update = async {
-        let Some((mut flash, role)) = update_flash else {
+        let Some((mut flash, started)) = update_flash else {
             return core::future::pending().await;
         };
         let config = base_runtime::update::UpdateConfig {
@@ -189,7 +191,7 @@ async fn main(_spawner: embassy_executor::Spawner) {
         };
         let reset = base_runtime::update::run(
             &mut flash,
-            role,
+            started,
             &config,
             &CHANNELS.update,
             &CHANNELS.can_tx,

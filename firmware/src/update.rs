@@ -9,8 +9,8 @@ use base_core::registers::UpdateReset;
 use base_core::update::image::Chip;
 use base_core::update::otadata::Slot;
 use base_core::update::partitions;
-use base_core::update::trial::{self, ResetRecord, StartRole};
-use base_runtime::update::ResetRequest;
+use base_core::update::trial::{self, ResetRecord};
+use base_runtime::update::{ResetRequest, Started};
 use esp_bootloader_esp_idf::partitions::{PARTITION_TABLE_MAX_LEN, read_partition_table};
 use esp_storage::FlashStorage;
 
@@ -49,10 +49,10 @@ fn store(record: ResetRecord) {
     unsafe { (&raw mut RESET_RECORD).write_volatile(record.encode()) }
 }
 
-/// At boot, once the image's role is known (after its arming): whether an update's
+/// At boot, once the image's start is known (after its arming): whether an update's
 /// reset started this boot, and the record this run keeps for the next one.
-pub fn boot_cause(role: StartRole, running: Slot) -> UpdateReset {
-    let (cause, keep) = trial::boot_cause(load(), role, running);
+pub fn boot_cause(started: &Started, running: Slot) -> UpdateReset {
+    let (cause, keep) = trial::boot_cause(load(), &started.start, started.written, running);
     store(keep);
     cause
 }

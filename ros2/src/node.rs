@@ -702,6 +702,17 @@ pub fn add_boot_info(diagnostic: &mut DiagnosticStatus, boot_info: Option<BootIn
         UpdateReset::FailedTrial => diagnostic
             .message
             .push_str("; rolled back: a new image failed its trial"),
+        UpdateReset::Refused => diagnostic
+            .message
+            .push_str("; update refused: the bootloader did not load the new image"),
+        UpdateReset::Held => {
+            // Nobody confirmed the image that runs: the base stays locked until a
+            // person keeps it or tries the other slot.
+            diagnostic.level = diagnostic.level.max(DIAGNOSTIC_WARN);
+            diagnostic.message.push_str(
+                "; held: unconfirmed image, no rollback possible, motion locked until basectl firmware confirm or rollback",
+            )
+        }
     }
 }
 

@@ -118,15 +118,15 @@ impl Robot {
         let Some(running) = outcome.started else {
             return Ok(None);
         };
-        match on_start(&self.otadata(), running) {
-            StartRole::Trial { arm } => {
-                self.write_otadata(arm)?;
+        let start = on_start(&self.otadata(), running);
+        if let Some(first) = start.write {
+            self.write_otadata(first)?;
+        }
+        match start.role {
+            StartRole::Trial | StartRole::PendingVerify => {
                 self.write_otadata(confirm(&self.otadata(), running).unwrap())?;
             }
-            StartRole::PendingVerify => {
-                self.write_otadata(confirm(&self.otadata(), running).unwrap())?;
-            }
-            StartRole::Confirmed | StartRole::Unrecorded | StartRole::LastResort => {}
+            StartRole::Confirmed | StartRole::LastResort => {}
         }
         Ok(Some(running))
     }
@@ -268,7 +268,7 @@ fn sweep(bootloader: Bootloader) -> usize {
                 "{context}: the new image runs in the end"
             );
             assert!(
-                matches!(on_start(&robot.otadata(), settled), StartRole::Confirmed),
+                on_start(&robot.otadata(), settled).role == StartRole::Confirmed,
                 "{context}: the new image is confirmed"
             );
         }

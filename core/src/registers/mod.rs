@@ -135,14 +135,27 @@ pub enum UpdateReset {
     /// A new image's trial ended without its confirm (marked invalid): this boot starts
     /// the previous image again, a rollback.
     FailedTrial,
+    /// An update activated an image that the bootloader refused to load (another chip
+    /// or eFuse revision, a header it rejects): the previous image runs, nothing is on
+    /// trial. Read from otadata, so it is also reported after a power cycle, until the
+    /// running image has set the refused entry aside.
+    Refused,
+    /// An image nobody confirmed runs and nothing would roll it back: its trial failed
+    /// yet no other slot boots, or its arming write failed. Motion stays locked, with
+    /// no deadline, until a person keeps it (CONFIRM) or tries the other slot
+    /// (ROLLBACK).
+    Held,
 }
 
 impl BootInfo {
     const FIRST_BOOT: u16 = 1 << 0;
     const ACTIVATION: u16 = 1 << 1;
     const FAILED_TRIAL: u16 = 1 << 2;
+    const REFUSED: u16 = 1 << 3;
+    const HELD: u16 = 1 << 4;
+    const UPDATE_RESETS: u16 = Self::ACTIVATION | Self::FAILED_TRIAL | Self::REFUSED | Self::HELD;
     /// Every bit the register may hold: its range.
-    pub const ALL_BITS: u16 = Self::FIRST_BOOT | Self::ACTIVATION | Self::FAILED_TRIAL;
+    pub const ALL_BITS: u16 = Self::FIRST_BOOT | Self::UPDATE_RESETS;
 
     /// The register's value.
     pub const fn to_bits(self) -> u16 {
@@ -151,6 +164,8 @@ impl BootInfo {
             UpdateReset::None => 0,
             UpdateReset::Activation => Self::ACTIVATION,
             UpdateReset::FailedTrial => Self::FAILED_TRIAL,
+            UpdateReset::Refused => Self::REFUSED,
+            UpdateReset::Held => Self::HELD,
         };
         first_boot | reset
     }
@@ -158,10 +173,12 @@ impl BootInfo {
     /// Reads the register; `None` for bits no firmware sets (undefined bits, or both
     /// reset causes at once).
     pub const fn from_bits(bits: u16) -> Option<Self> {
-        let update_reset = match bits & (Self::ACTIVATION | Self::FAILED_TRIAL) {
+        let update_reset = match bits & Self::UPDATE_RESETS {
             0 => UpdateReset::None,
             Self::ACTIVATION => UpdateReset::Activation,
             Self::FAILED_TRIAL => UpdateReset::FailedTrial,
+            Self::REFUSED => UpdateReset::Refused,
+            Self::HELD => UpdateReset::Held,
             _ => return None,
         };
         if bits & !Self::ALL_BITS != 0 {

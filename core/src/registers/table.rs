@@ -452,7 +452,7 @@ pub static TABLE: [RegisterInfo; 48] = [
     row(Reg::FlashErasesLo, "flash_erases_lo", "erases", 0, (0, 65535), ReadOnly, "register-store page erases so far, low word"),
     row(Reg::StopDecel, "stop_decel", "(1/min)/s", 2000, (2000, 30000), ReadWrite, "the gentlest braking of any stop but the e-stop (lapse, cmd_timeout, dead-man release, link loss)"),
     row(Reg::SecMotorVel, "sec_motor_vel", "1/min", 150, (0, 4000), ReadWrite, "motor speed limit while someone is in the safety zone (0 = stand still)"),
-    row(Reg::BootInfo, "boot_info", "bits", 0, (0, BootInfo::ALL_BITS), ReadOnly, "bit0 first boot (blank store, defaults written), bit1 started by an update's activation, bit2 the last reset ended a failed trial (rolled back)"),
+    row(Reg::BootInfo, "boot_info", "bits", 0, (0, BootInfo::ALL_BITS), ReadOnly, "bit0 first boot (blank store, defaults written), bit1 started by an update's activation, bit2 the last reset ended a failed trial (rolled back), bit3 the bootloader refused the activated image and the previous one runs, bit4 held: an image nobody confirmed runs with no rollback possible, motion locked until CONFIRM or ROLLBACK"),
 ];
 
 /// The description of the register at `address`, or `None` if it is not assigned.

@@ -52,7 +52,7 @@ const EXTENSIONS: [(u8, &str, u16, u16, u16, bool); 21] = [
     (47, "flash_erases_lo", 0, 0, 65535, false),
     (48, "stop_decel", 2000, 2000, 30000, false),
     (49, "sec_motor_vel", 150, 0, 4000, false),
-    (50, "boot_info", 0, 0, 7, false),
+    (50, "boot_info", 0, 0, 31, false),
 ];
 
 fn persistent() -> impl Iterator<Item = &'static RegisterInfo> {
@@ -864,6 +864,8 @@ fn boot_info_bits_round_trip_and_undefined_bits_are_refused() {
             UpdateReset::None,
             UpdateReset::Activation,
             UpdateReset::FailedTrial,
+            UpdateReset::Refused,
+            UpdateReset::Held,
         ] {
             let info = BootInfo {
                 first_boot,
@@ -883,7 +885,9 @@ fn boot_info_bits_round_trip_and_undefined_bits_are_refused() {
     );
     // Both reset causes at once, or a bit above bit 2: no firmware sends it.
     assert_eq!(BootInfo::from_bits(0b110), None);
-    assert_eq!(BootInfo::from_bits(0b1000), None);
+    assert_eq!(BootInfo::from_bits(0b1010), None);
+    assert_eq!(BootInfo::from_bits(0b1_1000), None);
+    assert_eq!(BootInfo::from_bits(0b10_0000), None);
 }
 
 #[test]

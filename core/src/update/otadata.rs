@@ -11,10 +11,23 @@
 //! image in the wrong state) and gives up when one copy is corrupt, where the
 //! bootloader simply uses the other.
 
+use core::ops::Range;
+
 use crc::{Algorithm, Crc};
 
 /// Bytes of one entry: sequence number, a 20-byte label, state, CRC.
 pub const ENTRY_LEN: usize = 32;
+/// Where an entry's CRC starts: it is the last word.
+const CRC_AT: usize = 28;
+/// The program operations that write an entry into its erased sector, in this order,
+/// each read back before the next: the sequence number, label and state, then the
+/// CRC. The CRC is what makes an entry valid to the bootloader, so a cut before the
+/// last operation completed leaves an entry it ignores, whichever words of the first
+/// one were programmed (a NOR flash programs the words of one operation in no
+/// promised order). One operation for the whole entry could leave the sequence number
+/// and the CRC programmed and the state still erased: a valid entry in a state nobody
+/// wrote.
+pub const PROGRAM_ORDER: [Range<usize>; 2] = [0..CRC_AT, CRC_AT..ENTRY_LEN];
 /// Each entry has a flash sector of its own.
 pub const SECTOR_LEN: u32 = 4096;
 /// The app slots the sequence numbers count over (`ota_0`, `ota_1`).
@@ -51,8 +64,9 @@ pub enum OtaState {
     /// it themselves first thing on a trial boot ("armed"), so any reset before the
     /// confirm falls back to the previous slot even with a bootloader without rollback.
     Aborted,
-    /// `0xFFFF_FFFF` or any other value: the bootloader treats it as bootable, like
-    /// ESP-IDF images written without rollback support.
+    /// `0xFFFF_FFFF` or any other value: the bootloader treats it as bootable. Neither
+    /// this firmware nor the bootloader writes it; a torn write of another bootloader
+    /// or a tool can leave it, and an image that finds it starts on trial.
     Undefined(u32),
 }
 
@@ -125,7 +139,7 @@ impl Entry {
         Self {
             seq,
             state: OtaState::from_raw(word(24)),
-            crc_ok: word(28) == crc_of(seq),
+            crc_ok: word(CRC_AT) == crc_of(seq),
         }
     }
 
@@ -140,9 +154,23 @@ impl Entry {
         } else {
             !crc_of(self.seq)
         };
-        bytes[28..32].copy_from_slice(&crc.to_le_bytes());
+        bytes[CRC_AT..].copy_from_slice(&crc.to_le_bytes());
         bytes
     }
+}
+
+/// The smallest sequence number above `above` that names `slot`.
+fn next_seq(above: u32, slot: Slot) -> Result<u32, OtaDataError> {
+    let mut seq = above
+        .checked_add(1)
+        .ok_or(OtaDataError::SequenceExhausted)?;
+    if Slot::of_seq(seq) != slot {
+        seq = seq.checked_add(1).ok_or(OtaDataError::SequenceExhausted)?;
+    }
+    if seq == u32::MAX {
+        return Err(OtaDataError::SequenceExhausted);
+    }
+    Ok(seq)
 }
 
 fn crc_of(seq: u32) -> u32 {
@@ -205,7 +233,8 @@ pub struct SectorWrite {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum OtaDataError {
-    /// No entry names the slot that is running, so there is nothing to change.
+    /// No entry names the slot that is running, so there is nothing to change, and
+    /// no activation: it would leave no entry that boots the running image again.
     NoEntryForSlot,
     /// The sequence number cannot grow any more (after four billion updates).
     SequenceExhausted,
@@ -249,26 +278,27 @@ impl OtaData {
         }
     }
 
-    /// Activation of `target` while `running` runs: one write of `{next seq, New}` into
-    /// the sector the active entry is not in. Until that write completes, the active
-    /// entry still wins; after it, the new entry does.
+    /// Activation of `target` while the other slot runs: one write of `{seq, New}`,
+    /// with a sequence number above every entry's, into the sector that does not hold
+    /// the running image's entry. That entry is what boots the running image again
+    /// when the new one fails: it is never overwritten, also not when the entry the
+    /// bootloader follows is another one (an image it refused, whose entry still wins
+    /// on its sequence number). Until the write completes the old entries decide;
+    /// after it, the new entry does.
     pub fn activate(&self, target: Slot) -> Result<SectorWrite, OtaDataError> {
-        let (sector, base) = match self.active_sector() {
-            Some(active) => (1 - active, self.sectors[active].seq),
-            // Blank otadata: the bootloader starts ota_0; count from 0.
-            None => (0, 0),
-        };
-        // The smallest sequence number above the active one that names `target`.
-        let mut seq = base.checked_add(1).ok_or(OtaDataError::SequenceExhausted)?;
-        if Slot::of_seq(seq) != target {
-            seq = seq.checked_add(1).ok_or(OtaDataError::SequenceExhausted)?;
-        }
-        if seq == u32::MAX {
-            return Err(OtaDataError::SequenceExhausted);
-        }
+        let kept = self
+            .entry_of(target.other())
+            .ok_or(OtaDataError::NoEntryForSlot)?;
+        let newest = self
+            .sectors
+            .iter()
+            .filter(|entry| entry.seq != u32::MAX && entry.crc_ok)
+            .map(|entry| entry.seq)
+            .max()
+            .unwrap_or(0);
         Ok(SectorWrite {
-            sector,
-            entry: Entry::new(seq, OtaState::New),
+            sector: 1 - kept,
+            entry: Entry::new(next_seq(newest, target)?, OtaState::New),
         })
     }
 
@@ -280,6 +310,14 @@ impl OtaData {
             sector,
             entry: Entry::new(self.sectors[sector].seq, state),
         })
+    }
+
+    /// Both sectors erased or holding no valid entry: the bootloader starts `ota_0` (or
+    /// the first slot that loads) and records it.
+    pub fn is_blank(&self) -> bool {
+        self.sectors
+            .iter()
+            .all(|entry| entry.seq == u32::MAX || !entry.crc_ok)
     }
 
     /// The state after `write` completed.
@@ -395,17 +433,32 @@ mod tests {
                 entry: Entry::new(5, OtaState::New)
             }
         );
-        // Re-activating the running slot skips a number to keep the parity.
-        let again = data.activate(Slot::Ota1).unwrap();
-        assert_eq!(again.entry.seq, 6);
-        // From blank otadata the first activation of ota_1 is seq 2, in sector 0.
-        let first = OtaData::erased().activate(Slot::Ota1).unwrap();
+        // Past an older entry of the same slot, the number keeps the parity.
+        let older = OtaData {
+            sectors: [
+                Entry::new(4, OtaState::Valid),
+                Entry::new(3, OtaState::Valid),
+            ],
+        };
         assert_eq!(
-            first,
-            SectorWrite {
-                sector: 0,
-                entry: Entry::new(2, OtaState::New)
-            }
+            older.activate(Slot::Ota0),
+            Ok(SectorWrite {
+                sector: 1,
+                entry: Entry::new(5, OtaState::New)
+            })
+        );
+        // Without an entry for the running image (blank otadata, or only the other
+        // slot's), nothing would boot it again after a failed trial: refused.
+        assert_eq!(
+            OtaData::erased().activate(Slot::Ota1),
+            Err(OtaDataError::NoEntryForSlot)
+        );
+        let other_only = OtaData {
+            sectors: [Entry::new(2, OtaState::Valid), ERASED_ENTRY],
+        };
+        assert_eq!(
+            other_only.activate(Slot::Ota1),
+            Err(OtaDataError::NoEntryForSlot)
         );
     }
 
@@ -414,8 +467,9 @@ mod tests {
         let data = OtaData {
             sectors: [Entry::new(u32::MAX - 1, OtaState::Valid), ERASED_ENTRY],
         };
+        // u32::MAX - 1 names ota_1; the next number for ota_0 would be the erased value.
         assert_eq!(
-            data.activate(Slot::Ota1),
+            data.activate(Slot::Ota0),
             Err(OtaDataError::SequenceExhausted)
         );
     }
@@ -435,6 +489,27 @@ mod tests {
         assert_eq!(
             OtaData::erased().set_state(Slot::Ota0, OtaState::Valid),
             Err(OtaDataError::NoEntryForSlot)
+        );
+    }
+
+    #[test]
+    fn activation_after_a_refused_image_keeps_the_running_images_entry() {
+        // ota_1's image was activated ({2, New}) and refused by the bootloader, which
+        // fell back to ota_0: its entry in sector 0 is the one that boots it.
+        let data = OtaData {
+            sectors: [Entry::new(1, OtaState::Valid), Entry::new(2, OtaState::New)],
+        };
+        let write = data.activate(Slot::Ota1).unwrap();
+        assert_ne!(
+            write.sector, 0,
+            "the running image's entry would be overwritten"
+        );
+        assert_eq!(
+            write,
+            SectorWrite {
+                sector: 1,
+                entry: Entry::new(4, OtaState::New)
+            }
         );
     }
 }

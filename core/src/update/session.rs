@@ -202,10 +202,20 @@ struct Transfer {
 enum State {
     Idle,
     Open(Transfer),
-    Finished { session: u8, last_heard: Timestamp },
-    Activating { session: u8 },
-    OnTrial { deadline: Timestamp },
-    Confirming { deadline: Timestamp },
+    Finished {
+        session: u8,
+        last_heard: Timestamp,
+    },
+    Activating {
+        session: u8,
+    },
+    /// `deadline` `None`: the image runs held (see [`Updater::held`]).
+    OnTrial {
+        deadline: Option<Timestamp>,
+    },
+    Confirming {
+        deadline: Option<Timestamp>,
+    },
     Rejecting,
 }
 
@@ -222,13 +232,25 @@ impl Updater {
     pub fn new(now: Timestamp, on_trial: bool, params: &Params<'_>) -> Self {
         let state = if on_trial {
             State::OnTrial {
-                deadline: now.plus_millis(params.trial_deadline_ms),
+                deadline: Some(now.plus_millis(params.trial_deadline_ms)),
             }
         } else {
             State::Idle
         };
         Self {
             state,
+            window: [0xFF; WINDOW_LEN],
+            window_len: 0,
+        }
+    }
+
+    /// An image that runs held (`trial::Start::held`): nobody confirmed it and nothing
+    /// would roll it back. Motion stays locked with no deadline: rejecting itself would
+    /// only start it again. CONFIRM keeps it; ROLLBACK marks it invalid and resets, so
+    /// the bootloader tries the other slot.
+    pub fn held() -> Self {
+        Self {
+            state: State::OnTrial { deadline: None },
             window: [0xFF; WINDOW_LEN],
             window_len: 0,
         }
@@ -666,7 +688,9 @@ impl Updater {
                 self.state = State::Idle;
                 effects.refuse(0, UpdateError::TimedOut, 0);
             }
-            State::OnTrial { deadline } if now >= deadline => {
+            State::OnTrial {
+                deadline: Some(deadline),
+            } if now >= deadline => {
                 warn!("image on trial not confirmed in time: rejecting it");
                 self.state = State::Rejecting;
                 effects.flash = Some(FlashOp::Reject);

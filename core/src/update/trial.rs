@@ -1,52 +1,108 @@
-//! What a starting image does about its own otadata entry: a new image arms itself
-//! before anything else can fail, so that a panic, a hang (the watchdog) or a power cut
-//! during its trial boots the previous slot; it confirms only after its health checks.
-//! The [`ResetRecord`] it leaves for the next boot tells an update's reset from a fault.
+//! What a starting image does about otadata: a new image arms itself before anything
+//! else can fail, so that a panic, a hang (the watchdog) or a power cut during its
+//! trial boots the previous slot; it confirms only after its health checks. An image
+//! that finds the bootloader refused the image activated last sets that entry aside,
+//! and one whose own entry says its trial failed runs with motion locked until a
+//! person decides. The [`ResetRecord`] it leaves for the next boot tells an update's
+//! reset from a fault.
 
-use super::otadata::{OtaData, OtaDataError, OtaState, SectorWrite, Slot};
+use super::otadata::{Entry, OtaData, OtaDataError, OtaState, SectorWrite, Slot};
 use crate::registers::UpdateReset;
 
 /// Where a starting image stands.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum StartRole {
-    /// Its entry is confirmed (`Valid`, or written without states): run normally.
+    /// Its entry is confirmed (`Valid`), or otadata is blank (fresh from a USB flash,
+    /// the bootloader's own record of the slot not written yet): run normally.
     Confirmed,
-    /// No entry names this slot: flashed over USB with otadata erased. Runs normally;
-    /// the bootloader records it on its next start.
-    Unrecorded,
-    /// A new image on its first start: write `arm` first, then prove itself.
-    Trial { arm: SectorWrite },
+    /// A new image on its first start, or one whose entry has a state nobody wrote:
+    /// arm first, then prove itself.
+    Trial,
     /// Started by a rollback bootloader, which aborts it by itself on the next reset:
     /// prove itself, nothing to arm.
     PendingVerify,
-    /// Its entry says the trial failed, yet it was started: no other slot holds an image
-    /// that boots. It runs, so that the robot stays reachable over CAN, and reports it.
+    /// Its entry says the trial failed, or no entry names it while others exist, yet
+    /// it was started: no other slot holds an image that boots. It runs, so that the
+    /// robot stays reachable over CAN, with motion locked until a person keeps it or
+    /// starts another image.
     LastResort,
 }
 
 impl StartRole {
     /// Whether the image runs on trial: control sources are refused until it confirms.
     pub const fn on_trial(self) -> bool {
-        matches!(self, Self::Trial { .. } | Self::PendingVerify)
+        matches!(self, Self::Trial | Self::PendingVerify)
     }
 }
 
-/// Decides the role of the image in `running` from the otadata it finds.
-pub fn on_start(otadata: &OtaData, running: Slot) -> StartRole {
-    let Some(sector) = otadata.entry_of(running) else {
-        return StartRole::Unrecorded;
-    };
-    match otadata.sectors[sector].state {
-        OtaState::New => StartRole::Trial {
-            arm: SectorWrite {
-                sector,
-                entry: super::otadata::Entry::new(otadata.sectors[sector].seq, OtaState::Aborted),
-            },
+/// What a starting image finds in otadata and does about it, first thing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Start {
+    pub role: StartRole,
+    /// The one otadata write to make before anything else: the arming of a trial
+    /// (`Aborted`), the record of an image on blank otadata (`Valid`, as the
+    /// bootloader writes it), or the refused image's entry set aside (`Invalid`).
+    pub write: Option<SectorWrite>,
+    /// The entry the bootloader follows names the other slot: it refused to load that
+    /// image (the one activated last) and started this one instead.
+    pub refused_activation: bool,
+}
+
+impl Start {
+    /// Whether the image runs **held**: nobody confirmed it and nothing would roll it
+    /// back. Its trial failed yet it started (no other slot boots), or its arming
+    /// write (`written` false) failed, so a failed trial would start it again. It runs
+    /// so that the robot stays reachable over CAN, with motion locked and no deadline,
+    /// until a person keeps it (CONFIRM) or tries the other slot (ROLLBACK).
+    pub const fn held(&self, written: bool) -> bool {
+        match self.role {
+            StartRole::LastResort => true,
+            StartRole::Trial => !written,
+            StartRole::Confirmed | StartRole::PendingVerify => false,
+        }
+    }
+}
+
+/// Decides what the image in `running` does with the otadata it finds.
+pub fn on_start(otadata: &OtaData, running: Slot) -> Start {
+    let active = otadata.active_sector();
+    let refused = active.filter(|&sector| otadata.sectors[sector].slot() != running);
+    // The refused entry is set aside, so that nothing written into its slot later
+    // boots without an activation of its own. It never holds this image's entry.
+    let set_aside = refused.map(|sector| SectorWrite {
+        sector,
+        entry: Entry::new(otadata.sectors[sector].seq, OtaState::Invalid),
+    });
+    let (role, write) = match otadata.entry_of(running) {
+        None if otadata.is_blank() => (
+            StartRole::Confirmed,
+            Some(SectorWrite {
+                sector: 0,
+                entry: Entry::new(running.index() as u32 + 1, OtaState::Valid),
+            }),
+        ),
+        None => (StartRole::LastResort, set_aside),
+        Some(sector) => match otadata.sectors[sector].state {
+            // A state nobody meant (a torn write) counts as a new image: the cut falls
+            // back to the previous image instead of confirming this one.
+            OtaState::New | OtaState::Undefined(_) => (
+                StartRole::Trial,
+                Some(SectorWrite {
+                    sector,
+                    entry: Entry::new(otadata.sectors[sector].seq, OtaState::Aborted),
+                }),
+            ),
+            OtaState::PendingVerify => (StartRole::PendingVerify, None),
+            OtaState::Valid => (StartRole::Confirmed, set_aside),
+            OtaState::Invalid | OtaState::Aborted => (StartRole::LastResort, set_aside),
         },
-        OtaState::PendingVerify => StartRole::PendingVerify,
-        OtaState::Valid | OtaState::Undefined(_) => StartRole::Confirmed,
-        OtaState::Invalid | OtaState::Aborted => StartRole::LastResort,
+    };
+    Start {
+        role,
+        write,
+        refused_activation: refused.is_some(),
     }
 }
 
@@ -116,11 +172,21 @@ impl ResetRecord {
 }
 
 /// At boot, after [`on_start`]: how this boot came about, from the record the last run
-/// left, and the record this run keeps (an image on trial names its slot, so that a
-/// reset that ends its trial without a confirm reads as a failed trial on the next
-/// boot; any other image keeps none).
-pub fn boot_cause(left: ResetRecord, role: StartRole, running: Slot) -> (UpdateReset, ResetRecord) {
+/// left and what otadata says, and the record this run keeps (an image on trial names
+/// its slot, so that a reset that ends its trial without a confirm reads as a failed
+/// trial on the next boot; any other image keeps none).
+pub fn boot_cause(
+    left: ResetRecord,
+    start: &Start,
+    written: bool,
+    running: Slot,
+) -> (UpdateReset, ResetRecord) {
+    let role = start.role;
     let cause = match left {
+        // What matters most now: motion stays locked until a person decides.
+        _ if start.held(written) => UpdateReset::Held,
+        // Whatever reset came before: the image activated last did not start.
+        _ if start.refused_activation => UpdateReset::Refused,
         ResetRecord::Empty => UpdateReset::None,
         ResetRecord::Activation => UpdateReset::Activation,
         ResetRecord::Rejection => UpdateReset::FailedTrial,
@@ -163,19 +229,23 @@ mod tests {
 
     #[test]
     fn boot_cause_reports_update_resets_and_keeps_the_trial() {
-        let armed = StartRole::Trial {
-            arm: SectorWrite {
-                sector: 1,
-                entry: Entry::new(2, OtaState::Aborted),
-            },
+        let start = |role| Start {
+            role,
+            write: None,
+            refused_activation: false,
+        };
+        let refused = Start {
+            role: StartRole::Confirmed,
+            write: None,
+            refused_activation: true,
         };
         let on_trial = |slot| ResetRecord::OnTrial(slot);
         let cases = [
-            // what the last run left, the role, the slot, the cause, the record kept
+            // what the last run left, the start, the slot, the cause, the record kept
             (
                 "power-on",
                 ResetRecord::Empty,
-                StartRole::Confirmed,
+                start(StartRole::Confirmed),
                 Slot::Ota0,
                 UpdateReset::None,
                 ResetRecord::Empty,
@@ -183,7 +253,7 @@ mod tests {
             (
                 "activation, new image on trial",
                 ResetRecord::Activation,
-                armed,
+                start(StartRole::Trial),
                 Slot::Ota1,
                 UpdateReset::Activation,
                 on_trial(Slot::Ota1),
@@ -191,15 +261,23 @@ mod tests {
             (
                 "activation, the bootloader refused the new image",
                 ResetRecord::Activation,
-                StartRole::Confirmed,
+                refused,
                 Slot::Ota0,
-                UpdateReset::Activation,
+                UpdateReset::Refused,
+                ResetRecord::Empty,
+            ),
+            (
+                "a power cycle after the refusal, before the entry was set aside",
+                ResetRecord::Empty,
+                refused,
+                Slot::Ota0,
+                UpdateReset::Refused,
                 ResetRecord::Empty,
             ),
             (
                 "rejected by its deadline or the PC",
                 ResetRecord::Rejection,
-                StartRole::Confirmed,
+                start(StartRole::Confirmed),
                 Slot::Ota0,
                 UpdateReset::FailedTrial,
                 ResetRecord::Empty,
@@ -207,7 +285,7 @@ mod tests {
             (
                 "the trial image panicked or hung",
                 on_trial(Slot::Ota1),
-                StartRole::Confirmed,
+                start(StartRole::Confirmed),
                 Slot::Ota0,
                 UpdateReset::FailedTrial,
                 ResetRecord::Empty,
@@ -215,7 +293,7 @@ mod tests {
             (
                 "a confirmed image's later panic",
                 on_trial(Slot::Ota1),
-                StartRole::Confirmed,
+                start(StartRole::Confirmed),
                 Slot::Ota1,
                 UpdateReset::None,
                 ResetRecord::Empty,
@@ -223,22 +301,37 @@ mod tests {
             (
                 "no other slot boots",
                 on_trial(Slot::Ota1),
-                StartRole::LastResort,
+                start(StartRole::LastResort),
                 Slot::Ota1,
-                UpdateReset::None,
+                UpdateReset::Held,
                 ResetRecord::Empty,
             ),
             (
                 "a rollback bootloader's trial",
                 ResetRecord::Activation,
-                StartRole::PendingVerify,
+                start(StartRole::PendingVerify),
                 Slot::Ota1,
                 UpdateReset::Activation,
                 on_trial(Slot::Ota1),
             ),
         ];
-        for (what, left, role, running, cause, keep) in cases {
-            assert_eq!(boot_cause(left, role, running), (cause, keep), "{what}");
+        // A new image whose arming write failed runs held, whatever came before.
+        assert_eq!(
+            boot_cause(
+                ResetRecord::Activation,
+                &start(StartRole::Trial),
+                false,
+                Slot::Ota1
+            ),
+            (UpdateReset::Held, on_trial(Slot::Ota1)),
+            "arming failed"
+        );
+        for (what, left, start, running, cause, keep) in cases {
+            assert_eq!(
+                boot_cause(left, &start, true, running),
+                (cause, keep),
+                "{what}"
+            );
         }
     }
 
@@ -250,36 +343,85 @@ mod tests {
 
     #[test]
     fn each_entry_state_gives_its_role() {
+        let arm = Some(SectorWrite {
+            sector: 1,
+            entry: Entry::new(2, OtaState::Aborted),
+        });
+        // Started although ota_0's entry wins: ota_0's image did not load, and its
+        // entry is set aside.
+        let set_aside = Some(SectorWrite {
+            sector: 0,
+            entry: Entry::new(1, OtaState::Invalid),
+        });
         let cases = [
-            (
-                OtaState::New,
-                StartRole::Trial {
-                    arm: SectorWrite {
-                        sector: 1,
-                        entry: Entry::new(2, OtaState::Aborted),
-                    },
-                },
-            ),
-            (OtaState::PendingVerify, StartRole::PendingVerify),
-            (OtaState::Valid, StartRole::Confirmed),
-            (OtaState::Undefined(u32::MAX), StartRole::Confirmed),
-            (OtaState::Aborted, StartRole::LastResort),
-            (OtaState::Invalid, StartRole::LastResort),
+            (OtaState::New, StartRole::Trial, arm),
+            (OtaState::PendingVerify, StartRole::PendingVerify, None),
+            (OtaState::Valid, StartRole::Confirmed, None),
+            (OtaState::Undefined(u32::MAX), StartRole::Trial, arm),
+            (OtaState::Undefined(7), StartRole::Trial, arm),
+            (OtaState::Aborted, StartRole::LastResort, set_aside),
+            (OtaState::Invalid, StartRole::LastResort, set_aside),
         ];
-        for (state, role) in cases {
+        for (state, role, write) in cases {
             let d = data(Entry::new(1, OtaState::Valid), Entry::new(2, state));
-            assert_eq!(on_start(&d, Slot::Ota1), role, "{state:?}");
+            let start = on_start(&d, Slot::Ota1);
+            assert_eq!((start.role, start.write), (role, write), "{state:?}");
         }
     }
 
     #[test]
-    fn an_image_no_entry_names_is_unrecorded() {
+    fn an_image_on_blank_otadata_records_itself_as_the_bootloader_does() {
+        let start = on_start(&OtaData::erased(), Slot::Ota0);
+        assert_eq!(start.role, StartRole::Confirmed);
         assert_eq!(
-            on_start(&OtaData::erased(), Slot::Ota0),
-            StartRole::Unrecorded
+            start.write,
+            Some(SectorWrite {
+                sector: 0,
+                entry: Entry::new(1, OtaState::Valid)
+            })
         );
+        assert!(!start.refused_activation);
+    }
+
+    #[test]
+    fn an_image_no_entry_names_while_others_exist_runs_as_last_resort() {
+        // Only ota_1's entry, whose image did not load: the bootloader fell back.
         let d = data(Entry::new(2, OtaState::Valid), ERASED_ENTRY);
-        assert_eq!(on_start(&d, Slot::Ota0), StartRole::Unrecorded);
+        let start = on_start(&d, Slot::Ota0);
+        assert_eq!(start.role, StartRole::LastResort);
+        assert!(start.refused_activation);
+        assert_eq!(
+            start.write,
+            Some(SectorWrite {
+                sector: 0,
+                entry: Entry::new(2, OtaState::Invalid)
+            })
+        );
+    }
+
+    #[test]
+    fn after_a_refused_activation_the_refused_entry_is_set_aside() {
+        for refused in [OtaState::New, OtaState::PendingVerify] {
+            let d = data(Entry::new(1, OtaState::Valid), Entry::new(2, refused));
+            let start = on_start(&d, Slot::Ota0);
+            assert_eq!(
+                start,
+                Start {
+                    role: StartRole::Confirmed,
+                    write: Some(SectorWrite {
+                        sector: 1,
+                        entry: Entry::new(2, OtaState::Invalid)
+                    }),
+                    refused_activation: true,
+                },
+                "{refused:?}"
+            );
+            // Once set aside, the next boot is an ordinary one.
+            let after = d.with(start.write.unwrap());
+            let next = on_start(&after, Slot::Ota0);
+            assert_eq!((next.role, next.write), (StartRole::Confirmed, None));
+            assert!(!next.refused_activation);
+        }
     }
 
     #[test]
@@ -303,5 +445,14 @@ mod tests {
             reject(&d, Slot::Ota1).unwrap().entry,
             Entry::new(2, OtaState::Invalid)
         );
+    }
+
+    #[test]
+    fn a_boot_after_a_refused_activation_does_not_read_as_a_trial() {
+        // ota_1 was activated and refused; the bootloader fell back to ota_0.
+        let d = data(Entry::new(1, OtaState::Valid), Entry::new(2, OtaState::New));
+        let start = on_start(&d, Slot::Ota0);
+        let (cause, _) = boot_cause(ResetRecord::Activation, &start, true, Slot::Ota0);
+        assert_eq!(cause, UpdateReset::Refused, "nothing runs on trial");
     }
 }

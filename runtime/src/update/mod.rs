@@ -22,10 +22,10 @@ use base_core::can::update::{DataFrame, UpdateCommand, UpdateError, UpdateReply}
 use base_core::can::{FrameError, RawFrame, id};
 use base_core::time::Timestamp;
 use base_core::update::image::Chip;
-use base_core::update::otadata::{ENTRY_LEN, OtaData, SectorWrite, Slot};
+use base_core::update::otadata::{ENTRY_LEN, OtaData, PROGRAM_ORDER, SectorWrite, Slot};
 use base_core::update::partitions::{self, Partition};
 use base_core::update::session::{Event, FlashOp, MotionGate, Params, Updater};
-use base_core::update::trial::{self, ResetRecord, StartRole};
+use base_core::update::trial::{self, ResetRecord, Start, StartRole};
 
 use crate::can::FrameQueue;
 use crate::channels::RawMutex;
@@ -58,7 +58,8 @@ impl UpdateLink {
         Self {
             frames: Channel::new(),
             dropped: Mutex::new(Cell::new(0)),
-            // An image on trial is locked by [`arm`], before the tasks start.
+            // An image on trial is locked by [`Self::lock_at_start`], before the tasks
+            // start.
             locked: Mutex::new(Cell::new(false)),
             gate: Mutex::new(Cell::new(MotionGate {
                 at_standstill: false,
@@ -85,6 +86,12 @@ impl UpdateLink {
     /// Update frames dropped because the queue was full.
     pub fn dropped(&self) -> u32 {
         self.dropped.lock(Cell::get)
+    }
+
+    /// Before the tasks start: motion is refused from the controller's first input on
+    /// when the image starts on trial or held.
+    pub fn lock_at_start(&self, started: &Started) {
+        self.set_locked(started.role().on_trial() || started.held());
     }
 
     /// Motion is refused: a session runs or an image is on trial.
@@ -187,22 +194,40 @@ impl<F: NorFlash> UpdateFlash<F> {
         Ok(OtaData::decode(&first, &second))
     }
 
-    /// Rewrites one otadata sector: erase, program the entry, read back.
+    /// Rewrites one otadata sector: erase, then the entry's program operations in
+    /// [`PROGRAM_ORDER`], each read back before the next, so that the CRC, which makes
+    /// the entry valid, is programmed last.
     pub async fn write_otadata(&mut self, write: SectorWrite) -> Result<(), UpdateFlashError> {
         if write.sector > 1 {
             return Err(UpdateFlashError::OutOfBounds);
         }
         let at = partitions::OTADATA.offset + write.sector as u32 * (partitions::OTADATA.len / 2);
-        self.program(at, &write.entry.encode()).await
+        self.erase(at).await?;
+        let bytes = write.entry.encode();
+        for range in PROGRAM_ORDER {
+            self.program_erased(at + range.start as u32, &bytes[range])
+                .await?;
+        }
+        Ok(())
     }
 
     async fn program(&mut self, at: u32, data: &[u8]) -> Result<(), UpdateFlashError> {
+        self.erase(at).await?;
+        self.program_erased(at, data).await
+    }
+
+    async fn erase(&mut self, at: u32) -> Result<(), UpdateFlashError> {
         let sector = F::ERASE_SIZE as u32;
         self.flash
             .erase(at, at + sector)
             .await
             .map_err(|_| UpdateFlashError::Flash)?;
         yield_now().await;
+        Ok(())
+    }
+
+    /// Programs `data` at `at`, in erased flash, and reads it back.
+    async fn program_erased(&mut self, at: u32, data: &[u8]) -> Result<(), UpdateFlashError> {
         let aligned = data.len() - data.len() % F::WRITE_SIZE;
         for (index, page) in data[..aligned].chunks(PAGE).enumerate() {
             self.flash
@@ -245,28 +270,69 @@ pub struct UpdateConfig<'a> {
     pub trial_deadline_ms: u64,
 }
 
-/// First thing at start, before the other tasks run: the image's role from otadata,
-/// and for a new image its arming write, so that any reset from here on boots the
-/// previous slot; an image on trial locks motion from the controller's first input.
-/// A flash that cannot be read counts as a confirmed image (nothing to arm; updates
-/// still work).
-pub async fn arm<F: NorFlash>(flash: &mut UpdateFlash<F>, link: &UpdateLink) -> StartRole {
+/// How the image started: what it found in otadata ([`trial::on_start`]) and whether
+/// its first write is done.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Started {
+    pub start: Start,
+    /// `start.write` is done and read back (or there was none).
+    pub written: bool,
+}
+
+impl Started {
+    pub const fn role(&self) -> StartRole {
+        self.start.role
+    }
+
+    /// Runs held ([`Start::held`]): motion locked until a person decides.
+    pub const fn held(&self) -> bool {
+        self.start.held(self.written)
+    }
+}
+
+/// First thing at start, before anything else can fail: the image's role from
+/// otadata and its first write (a new image's arming, so that any reset from here on
+/// boots the previous slot). A flash that cannot be read counts as a confirmed image
+/// (nothing to arm; updates still work).
+pub async fn arm<F: NorFlash>(flash: &mut UpdateFlash<F>) -> Started {
     let Ok(otadata) = flash.read_otadata().await else {
         warn!("otadata unreadable: running as a confirmed image");
-        return StartRole::Confirmed;
+        return Started {
+            start: Start {
+                role: StartRole::Confirmed,
+                write: None,
+                refused_activation: false,
+            },
+            written: true,
+        };
     };
-    let role = trial::on_start(&otadata, flash.running);
-    link.set_locked(role.on_trial());
-    if let StartRole::Trial { arm } = role {
-        info!("new image on trial: arming its otadata entry");
-        if flash.write_otadata(arm).await.is_err() {
-            error!("arming the trial failed");
-        }
+    let start = trial::on_start(&otadata, flash.running);
+    let written = match start.write {
+        Some(write) => flash.write_otadata(write).await.is_ok(),
+        None => true,
+    };
+    Started { start, written }
+}
+
+/// Says at start what [`arm`] found, once the log works.
+pub fn report_start(started: &Started) {
+    let role = started.role();
+    if role.on_trial() {
+        info!("new image on trial");
+    }
+    if started.start.refused_activation {
+        warn!("the bootloader refused the image activated last: its entry is set aside");
     }
     if role == StartRole::LastResort {
         warn!("started an image whose trial failed: no other slot boots");
     }
-    role
+    if !started.written {
+        error!("the first otadata write at start failed");
+    }
+    if started.held() {
+        warn!("held: motion locked until CONFIRM keeps this image or ROLLBACK tries the other");
+    }
 }
 
 /// Why the update task asks for a reset.
@@ -294,10 +360,10 @@ fn core_now() -> Timestamp {
     Timestamp::from_millis(Instant::now().as_millis())
 }
 
-/// Runs the update session until a reset is needed. `role` comes from [`arm`].
+/// Runs the update session until a reset is needed. `started` comes from [`arm`].
 pub async fn run<F: NorFlash>(
     flash: &mut UpdateFlash<F>,
-    role: StartRole,
+    started: Started,
     config: &UpdateConfig<'_>,
     link: &UpdateLink,
     can_tx: &FrameQueue,
@@ -310,7 +376,11 @@ pub async fn run<F: NorFlash>(
         slot_len: partitions::SLOT_LEN,
         trial_deadline_ms: config.trial_deadline_ms,
     };
-    let mut updater = Updater::new(core_now(), role.on_trial(), &params);
+    let mut updater = if started.held() {
+        Updater::held()
+    } else {
+        Updater::new(core_now(), started.role().on_trial(), &params)
+    };
     link.set_locked(updater.locks_motion());
     loop {
         let event = match select(link.frames.receive(), Timer::after_millis(TICK_MS)).await {
@@ -421,5 +491,40 @@ async fn set_running_state<F: NorFlash>(
     match change(&otadata, flash.running) {
         Ok(write) => flash.write_otadata(write).await.is_ok(),
         Err(_) => false,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn started(role: StartRole, written: bool) -> Started {
+        Started {
+            start: Start {
+                role,
+                write: None,
+                refused_activation: false,
+            },
+            written,
+        }
+    }
+
+    #[test]
+    fn an_image_nobody_confirmed_without_a_fallback_starts_with_motion_locked() {
+        // (role, first write done) → motion locked from the first input
+        let cases = [
+            (StartRole::Confirmed, true, false),
+            (StartRole::Trial, true, true),
+            (StartRole::PendingVerify, true, true),
+            // Its trial failed and no other slot boots.
+            (StartRole::LastResort, true, true),
+            // Its arming failed: nothing would roll it back.
+            (StartRole::Trial, false, true),
+        ];
+        for (role, written, locked) in cases {
+            let link = UpdateLink::new();
+            link.lock_at_start(&started(role, written));
+            assert_eq!(link.locked(), locked, "{role:?}, written {written}");
+        }
     }
 }

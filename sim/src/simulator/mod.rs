@@ -259,10 +259,14 @@ async fn controller(
         let bluetooth = robot.rtc_ram.boot();
         let channels = Channels::new();
         let mut update_flash = base_runtime::update::UpdateFlash::new(app.clone(), booted.slot);
-        let role = base_runtime::update::arm(&mut update_flash, &channels.update).await;
+        let started = base_runtime::update::arm(&mut update_flash).await;
+        base_runtime::update::report_start(&started);
+        channels.update.lock_at_start(&started);
+        let role = started.role();
         // As the chip's boot does: an update's reset before this boot is reported as
         // such (`boot_info`), not as a watchdog reset.
-        let (update_reset, keep) = trial::boot_cause(reset_record, role, booted.slot);
+        let (update_reset, keep) =
+            trial::boot_cause(reset_record, &started.start, started.written, booted.slot);
         reset_record = keep;
         let behaviour = Behaviour::of(&booted.version);
         view.output.message(&format!(
@@ -319,7 +323,7 @@ async fn controller(
         };
         let update = base_runtime::update::run(
             &mut update_flash,
-            role,
+            started,
             &config,
             &channels.update,
             &channels.can_tx,

@@ -620,6 +620,38 @@ fn rollback_rejects_the_trial_image_and_resets() {
 }
 
 #[test]
+fn a_held_image_stays_locked_without_a_deadline_until_a_person_decides() {
+    let mut held = Updater::held();
+    assert!(held.locks_motion());
+    assert_eq!(held.phase(), Phase::OnTrial);
+    // Rejecting itself would only start it again: no deadline.
+    for ms in [60_000, 3_600_000] {
+        assert_eq!(held.step(at(ms), Event::Tick, &params()).flash, None);
+        assert!(held.locks_motion());
+    }
+    // A failed confirm leaves it held; a good one keeps it and lifts the lock.
+    held.step(at(1), Event::Command(C::Confirm, AT_REST), &params());
+    let effects = held.step(at(2), Event::FlashDone(false), &params());
+    assert!(
+        effects
+            .replies
+            .iter()
+            .any(refused(UpdateError::FlashFailed))
+    );
+    assert!(held.locks_motion());
+    assert_eq!(held.step(at(90_000), Event::Tick, &params()).flash, None);
+    let effects = held.step(at(90_001), Event::Command(C::Confirm, AT_REST), &params());
+    assert_eq!(effects.flash, Some(FlashOp::Confirm));
+    held.step(at(90_002), Event::FlashDone(true), &params());
+    assert!(!held.locks_motion());
+    // Or ROLLBACK: the bootloader tries the other slot.
+    let mut other = Updater::held();
+    let effects = other.step(at(1), Event::Command(C::Rollback, AT_REST), &params());
+    assert_eq!(effects.flash, Some(FlashOp::Reject));
+    assert!(other.step(at(2), Event::FlashDone(true), &params()).reset);
+}
+
+#[test]
 fn query_reports_the_phase_and_the_running_version() {
     let mut updater = Updater::new(at(0), false, &params());
     let effects = updater.step(at(1), Event::Command(C::Query, AT_REST), &params());
