@@ -404,7 +404,7 @@ impl Controller {
             }
             Input::Gamepad { pad, state } => {
                 // The other pad's buttons neither arm, hold nor release anything.
-                if self.pads.admit_report(pad) {
+                if self.pads.admit_report(pad, &state) {
                     self.remote_step(now, remote::Event::Report(state), None, &mut out);
                 }
             }
@@ -419,6 +419,22 @@ impl Controller {
                 }
                 if handover.gained {
                     self.remote_step(now, remote::Event::Connected, None, &mut out);
+                    if handover.dead_man_held {
+                        // Pressed while the pad waited, it is not reported again; the
+                        // dead-man alone (sticks centred, its other buttons dropped as
+                        // before) is the new connection's first report: held, not
+                        // armed, it takes control from CAN and stops the base.
+                        let dead_man_alone = GamepadState {
+                            buttons: remote::DEAD_MAN,
+                            ..GamepadState::default()
+                        };
+                        self.remote_step(
+                            now,
+                            remote::Event::Report(dead_man_alone),
+                            None,
+                            &mut out,
+                        );
+                    }
                 }
                 self.registers.set_remote_info(self.pads.info());
             }
@@ -1478,6 +1494,76 @@ mod tests {
             out.excite,
             Some(true),
             "a release after the lift arms the pad"
+        );
+    }
+
+    /// Found by the whole-robot simulation tester (rule 1): the waiting pad's report with
+    /// its dead-man held was dropped, so when the pad in control switched off the
+    /// waiting pad took control with its dead-man unknown, and CAN drove on under the
+    /// held button. Its held dead-man counts from the hand-over: it takes control from
+    /// CAN and stops the base, and drives only after a release.
+    #[test]
+    fn a_dead_man_held_on_the_waiting_pad_takes_control_from_can_at_the_hand_over() {
+        use crate::can::ControlSource;
+        use crate::gamepad::Buttons;
+        let link = |pad, connected| Input::RemoteLink {
+            pad,
+            bonded: true,
+            connected,
+        };
+        let classic = |left_y: f32, buttons| Input::Gamepad {
+            pad: Pad::Classic,
+            state: GamepadState {
+                left_y,
+                buttons,
+                ..GamepadState::default()
+            },
+        };
+        let mut controller = driving_forward();
+        controller.handle(at(10), link(Pad::Ble, true));
+        controller.handle(at(20), link(Pad::Classic, true));
+        // Waiting: dropped, CAN drives on.
+        let out = controller.handle(at(30), classic(1.0, Buttons::RIGHT_BUMPER));
+        assert_eq!(
+            out.wheels, None,
+            "the waiting pad's dead-man changed the wheels"
+        );
+        // The BLE pad leaves: the PlayStation pad takes control with its dead-man held.
+        let out = controller.handle(at(40), link(Pad::Ble, false));
+        assert_eq!(controller.pads.in_control(), Some(Pad::Classic));
+        assert_eq!(
+            controller.status(at(40)).control,
+            ControlSource::Remote,
+            "CAN kept control under the new pad's held dead-man"
+        );
+        assert_eq!(out.wheels.map(|command| command.rpm), Some(MotorRpm::ZERO));
+        // CAN is ignored while the dead-man is held.
+        controller.handle(at(50), can(Command::Enable { refresh: true }));
+        let out = controller.handle(
+            at(50),
+            can(Command::Velocity {
+                linear_mm_s: 500,
+                rotation_mrad_s: 0,
+            }),
+        );
+        assert!(
+            !out.wheels
+                .is_some_and(|command| command.rpm != MotorRpm::ZERO),
+            "CAN drove under the held dead-man: {out:?}"
+        );
+        // Held on, it does not drive: it was never seen released since it took control.
+        let out = controller.handle(at(60), classic(0.9, Buttons::RIGHT_BUMPER));
+        assert!(
+            !out.wheels
+                .is_some_and(|command| command.rpm != MotorRpm::ZERO),
+            "the handed-over dead-man drove without a release: {out:?}"
+        );
+        // Released, then held again: it drives.
+        controller.handle(at(70), classic(0.0, Buttons::default()));
+        let out = controller.handle(at(80), classic(1.0, Buttons::RIGHT_BUMPER));
+        assert!(
+            out.wheels.is_some_and(|command| command.rpm.left > 0),
+            "a release after the hand-over arms the pad: {out:?}"
         );
     }
 

@@ -650,6 +650,9 @@ mod model {
         /// The pad in control: the first one connected, until its link goes down; then
         /// the other one, if connected, as a fresh connection.
         in_control: Option<Pad>,
+        /// Each pad's latest report while it waited, connected, held the dead-man: at a
+        /// hand-over the new connection starts with it held (docs/remote.md).
+        waiting_held: [bool; 2],
         pad: Session,
         /// A firmware update locks motion: no source counts, nothing is stored or armed;
         /// its lift arms only a dead-man seen up.
@@ -903,12 +906,19 @@ mod model {
                     }
                     _ => {}
                 },
-                // Only the pad in control's reports count.
+                // Only the pad in control's reports count; of a connected waiting
+                // pad's, its dead-man is kept.
                 Input::Gamepad { pad, state } if self.in_control == Some(pad) => {
                     self.gamepad(state, now, before, registers)
                 }
+                Input::Gamepad { pad, state } if self.links[pad as usize] => {
+                    self.waiting_held[pad as usize] = dead_man(&state);
+                }
                 Input::RemoteLink { pad, connected, .. } => {
                     self.links[pad as usize] = connected;
+                    if !connected {
+                        self.waiting_held[pad as usize] = false;
+                    }
                     let other = if pad == Pad::Ble {
                         Pad::Classic
                     } else {
@@ -924,6 +934,16 @@ mod model {
                         if self.links[other as usize] {
                             self.in_control = Some(other);
                             self.connect(now, registers);
+                            // A dead-man held while the pad waited counts as held from
+                            // the hand-over, alone (sticks centred): it takes control
+                            // from CAN, and drives only after a release.
+                            if std::mem::take(&mut self.waiting_held[other as usize]) {
+                                let dead_man_alone = GamepadState {
+                                    buttons: Buttons::RIGHT_BUMPER,
+                                    ..GamepadState::default()
+                                };
+                                self.gamepad(dead_man_alone, now, before, registers);
+                            }
                         }
                     }
                 }
@@ -1840,7 +1860,8 @@ type Situation = (&'static str, fn(&Step) -> bool);
 /// pass vacuously. Each must occur in at least a fifth of the sequences.
 #[test]
 fn event_sequences_reach_every_situation_checked() {
-    let situations: [Situation; 21] = [
+    const SITUATIONS: usize = 22;
+    let situations: [Situation; SITUATIONS] = [
         ("CAN drives", |step| {
             moving_command(step).is_some() && step.after.status.control == ControlSource::Can
         }),
@@ -1907,6 +1928,11 @@ fn event_sequences_reach_every_situation_checked() {
             matches!(step.input, Input::RemoteLink { pad, connected: false, .. }
                 if step.model.in_control().is_some_and(|owner| owner != *pad))
         }),
+        ("a dead-man held on the waiting pad handed over", |step| {
+            matches!(step.input, Input::RemoteLink { pad, connected: false, .. }
+                if step.model.in_control().is_some_and(|owner| owner != *pad))
+                && step.after.status.flags.remote_in_control
+        }),
         ("the lock lifted with a dead-man held", |step| {
             *step.input == Input::UpdateLock(false) && step.before.status.flags.remote_in_control
         }),
@@ -1917,13 +1943,13 @@ fn event_sequences_reach_every_situation_checked() {
     let mut runner = TestRunner::deterministic();
     let strategy = sequence();
     let sequences = 200;
-    let mut counts = [0u32; 21];
+    let mut counts = [0u32; SITUATIONS];
     for _ in 0..sequences {
         let events = strategy
             .new_tree(&mut runner)
             .expect("the strategy generates")
             .current();
-        let mut seen = [false; 21];
+        let mut seen = [false; SITUATIONS];
         run(&events, |step| {
             for (seen, (_, occurs)) in seen.iter_mut().zip(&situations) {
                 *seen |= occurs(step);

@@ -11,6 +11,13 @@
 //! dropped (counted), so its buttons neither arm nor hold nor release anything, and a
 //! switch-off (L2 + Home, AFK) goes to the pad in control alone.
 //!
+//! One thing of a waiting pad is kept: whether its latest report held the dead-man. A
+//! BLE pad reports only when something on it changes, so a dead-man pressed while it
+//! waited is not reported again when the pad takes over; unknown, it would let CAN
+//! drive on under the hand that holds it. Handed over, it counts as held from the first
+//! moment: it takes control from CAN and stops the base, and must still be released
+//! before the pad drives.
+//!
 //! ```text
 //!   link up of P, nobody in control ──────────▶ P in control (Connected)
 //!   link up of P, the other in control ───────▶ P waits (its reports dropped)
@@ -18,6 +25,8 @@
 //!   link down of a waiting pad ───────────────▶ nothing for the remote
 //! ```
 
+use super::DEAD_MAN;
+use crate::gamepad::GamepadState;
 use crate::registers::{RemoteInfo, RemoteKind};
 
 /// Which remote task a link or report comes from.
@@ -54,6 +63,8 @@ struct PadLink {
     /// The kind and battery the task reported while connected (the Classic task does;
     /// the BLE task reports none).
     info: Option<RemoteInfo>,
+    /// The latest report while the pad waited held its dead-man.
+    waiting_dead_man_held: bool,
 }
 
 /// What a link change means for the remote: the pad in control went away, another
@@ -65,6 +76,9 @@ pub struct Handover {
     pub lost: bool,
     /// A pad takes control now: the remote is connected afresh.
     pub gained: bool,
+    /// The pad taking control held its dead-man in its latest report while it waited:
+    /// the remote must hear it held from the start.
+    pub dead_man_held: bool,
 }
 
 /// See the module documentation.
@@ -84,6 +98,7 @@ impl PadArbiter {
                 bonded: false,
                 connected: false,
                 info: None,
+                waiting_dead_man_held: false,
             }; 2],
             in_control: None,
             dropped_reports: 0,
@@ -97,6 +112,7 @@ impl PadArbiter {
         link.connected = connected;
         if !connected {
             link.info = None;
+            link.waiting_dead_man_held = false;
         }
         let mut handover = Handover::default();
         match self.in_control {
@@ -107,9 +123,12 @@ impl PadArbiter {
             Some(owner) if owner == pad && !connected => {
                 handover.lost = true;
                 let other = pad.other();
-                if self.links[other.index()].connected {
+                let other_link = &mut self.links[other.index()];
+                if other_link.connected {
                     self.in_control = Some(other);
                     handover.gained = true;
+                    handover.dead_man_held = other_link.waiting_dead_man_held;
+                    other_link.waiting_dead_man_held = false;
                 } else {
                     self.in_control = None;
                 }
@@ -120,11 +139,16 @@ impl PadArbiter {
     }
 
     /// Whether a report of `pad` reaches the remote: only the pad in control's does.
-    /// A report that does not is counted.
-    pub fn admit_report(&mut self, pad: Pad) -> bool {
+    /// A report that does not is counted, and a connected waiting pad's dead-man is
+    /// kept for a hand-over.
+    pub fn admit_report(&mut self, pad: Pad, state: &GamepadState) -> bool {
         let admitted = self.in_control == Some(pad);
         if !admitted {
             self.dropped_reports = self.dropped_reports.wrapping_add(1);
+            let link = &mut self.links[pad.index()];
+            if link.connected {
+                link.waiting_dead_man_held = state.buttons.contains(DEAD_MAN);
+            }
         }
         admitted
     }
@@ -193,6 +217,7 @@ mod tests {
     }
 
     fn heard(handover: Handover) -> Heard {
+        assert!(!handover.dead_man_held, "no report held a dead-man");
         match (handover.lost, handover.gained) {
             (false, false) => Heard::Nothing,
             (false, true) => Heard::Connected,
@@ -233,7 +258,11 @@ mod tests {
             assert_eq!(heard(handover), expected, "row {row}");
             assert_eq!(arbiter.in_control(), in_control, "row {row}");
             assert_eq!(arbiter.connected(), in_control.is_some(), "row {row}");
-            let got = (arbiter.admit_report(Ble), arbiter.admit_report(Classic));
+            let released = GamepadState::default();
+            let got = (
+                arbiter.admit_report(Ble, &released),
+                arbiter.admit_report(Classic, &released),
+            );
             assert_eq!(got, admitted, "row {row}");
         }
     }
@@ -243,12 +272,53 @@ mod tests {
         let mut arbiter = PadArbiter::new();
         arbiter.link(Pad::Classic, true, true);
         arbiter.link(Pad::Ble, true, true);
+        let released = GamepadState::default();
         for _ in 0..3 {
-            assert!(!arbiter.admit_report(Pad::Ble));
-            assert!(arbiter.admit_report(Pad::Classic));
+            assert!(!arbiter.admit_report(Pad::Ble, &released));
+            assert!(arbiter.admit_report(Pad::Classic, &released));
         }
         assert_eq!(arbiter.dropped_reports(), 3);
         assert!(arbiter.both_connected());
+    }
+
+    #[test]
+    fn the_waiting_pad_s_latest_dead_man_is_handed_over_and_forgotten_when_it_leaves() {
+        let held = GamepadState {
+            buttons: DEAD_MAN,
+            ..GamepadState::default()
+        };
+        let released = GamepadState::default();
+        let mut arbiter = PadArbiter::new();
+        arbiter.link(Pad::Ble, true, true);
+        arbiter.link(Pad::Classic, true, true);
+        // (report of the waiting PlayStation pad) → the hand-over carries a held dead-man
+        let cases = [
+            (&[held][..], true),
+            (&[held, released][..], false),
+            (&[released, held][..], true),
+            (&[][..], false),
+        ];
+        for (reports, expected) in cases {
+            for report in reports {
+                assert!(!arbiter.admit_report(Pad::Classic, report));
+            }
+            let handover = arbiter.link(Pad::Ble, true, false);
+            assert!(handover.lost && handover.gained, "{reports:?}");
+            assert_eq!(handover.dead_man_held, expected, "{reports:?}");
+            // Back to the start: the BLE pad in control, the PlayStation pad waiting.
+            arbiter.link(Pad::Classic, true, false);
+            arbiter.link(Pad::Ble, true, true);
+            arbiter.link(Pad::Classic, true, true);
+        }
+        // A waiting pad that left takes nothing along when it comes back.
+        assert!(!arbiter.admit_report(Pad::Classic, &held));
+        arbiter.link(Pad::Classic, true, false);
+        arbiter.link(Pad::Classic, true, true);
+        assert!(!arbiter.link(Pad::Ble, true, false).dead_man_held);
+        // Nor does a report of a pad whose link is down (the BLE pad's, now).
+        assert!(!arbiter.admit_report(Pad::Ble, &held));
+        arbiter.link(Pad::Ble, true, true);
+        assert!(!arbiter.link(Pad::Classic, true, false).dead_man_held);
     }
 
     #[test]

@@ -80,9 +80,9 @@ pub struct Mix {
     /// way and the other every few ms). Open: the direction check reports a healthy
     /// drive turning against its command (`WrongDirection`, 0x43).
     pub reversals: bool,
-    /// Both pads connected at once. Open: a report of the waiting pad is dropped, so
-    /// when the pad in control leaves, its dead-man held since is unknown to the
-    /// controller and CAN drives while it is held.
+    /// Both pads connected at once: the waiting pad's reports are dropped, and one
+    /// takes over when the pad in control leaves (once a finding: a dead-man held on
+    /// the waiting pad was unknown at the hand-over, and CAN drove under it).
     pub two_pads_at_once: bool,
     /// `disable_time` 0 ("brake as soon as both wheels stand"). Open: a drive is
     /// de-excited by a standstill measured before its last command started it, while
@@ -102,7 +102,7 @@ impl Mix {
         floods: false,
         speed_lies: false,
         reversals: false,
-        two_pads_at_once: false,
+        two_pads_at_once: true,
         brake_at_once: false,
     };
 
