@@ -14,7 +14,7 @@ use crate::feedback::{FeedbackPeriods, FeedbackSchedule};
 use crate::gamepad::GamepadState;
 use crate::kinematics::{self, KinematicsParams, MotorRpm, SafetyLimits, Twist, WheelCommand};
 use crate::odometry::{EncoderCounts, Odometry, OdometryParams};
-use crate::plausibility::{self, Commanded, FeedbackCheck};
+use crate::plausibility::{self, Commanded, FeedbackCheck, SpeedRange};
 use crate::power::{self, PowerControl, SwitchLevel};
 use crate::registers::{
     BootInfo, MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, RESTORE_DEFAULTS_KEY, Reg,
@@ -234,6 +234,10 @@ pub struct Controller {
     /// summed, (r/min)/s (left, right): where its speed bent between two samples,
     /// which the feedback check allows for.
     commanded_bends: [f64; 2],
+    /// Every target the drives were told since the last drive feedback (left, right),
+    /// `None` if none: a target in force for a few ms between two samples still
+    /// counts as commanded for the feedback check's direction test.
+    told_targets: Option<[SpeedRange; 2]>,
     rejections: Rejections,
     faults: ShellFaults,
     /// Which of the connected pads controls the remote; the links for the status frame.
@@ -275,6 +279,7 @@ impl Controller {
             speed: SpeedEstimate::standing(now),
             commanded_speed: SpeedEstimate::standing(now),
             commanded_bends: [0.0; 2],
+            told_targets: None,
             rejections: Rejections::default(),
             faults: ShellFaults::default(),
             pads: PadArbiter::new(),
@@ -451,6 +456,7 @@ impl Controller {
                     self.speed = SpeedEstimate::standing(now);
                     self.commanded_speed = SpeedEstimate::standing(now);
                     self.commanded_bends = [0.0; 2];
+                    self.told_targets = None;
                 }
                 self.supervise(now, supervisor::Event::DrivesReady, &mut out);
             }
@@ -772,9 +778,15 @@ impl Controller {
         }
         self.speed = SpeedEstimate::measured(now, rpm);
         self.advance_commanded_speed(now);
+        let target = self.in_force.rpm;
+        let in_force = [SpeedRange::of(target.left), SpeedRange::of(target.right)];
+        let targets = self.told_targets.take().map_or(in_force, |[left, right]| {
+            [left.with(in_force[0]), right.with(in_force[1])]
+        });
         let commanded = Commanded {
             expected: self.commanded_speed.rpm(),
-            target: self.in_force.rpm,
+            target,
+            targets,
             bends_rpm_per_s: core::mem::take(&mut self.commanded_bends),
         };
         let verdict =
@@ -873,6 +885,13 @@ impl Controller {
             let after = self.commanded_speed.slope(&command);
             self.note_commanded_bends([(after[0] - before[0]).abs(), (after[1] - before[1]).abs()]);
             self.in_force = command;
+            let told = [
+                SpeedRange::of(command.rpm.left),
+                SpeedRange::of(command.rpm.right),
+            ];
+            self.told_targets = Some(self.told_targets.map_or(told, |[left, right]| {
+                [left.with(told[0]), right.with(told[1])]
+            }));
             out.wheels = Some(command);
         }
         if effects.excite.is_some() {

@@ -77,8 +77,10 @@ pub struct Mix {
     pub speed_lies: bool,
     /// Velocity streams whose sign flips every frame, and a second program streaming
     /// velocity while the first does (its frames interleave: the wheels are told one
-    /// way and the other every few ms). Open: the direction check reports a healthy
-    /// drive turning against its command (`WrongDirection`, 0x43).
+    /// way and the other every few ms). Fixed: the direction check once reported a
+    /// healthy drive turning against its command (`WrongDirection`, 0x43). Still out
+    /// of the fixed budget: with it in, seed 20 breaks rule 1 in a pad case with no
+    /// reversal in it (`tests/chaos/open/ble-pad-frame-744-seed-20-rule-1.jsonl`).
     pub reversals: bool,
     /// Both pads connected at once. Open: a report of the waiting pad is dropped, so
     /// when the pad in control leaves, its dead-man held since is unknown to the
