@@ -857,17 +857,29 @@ impl Controller {
         // faster than the zone allows reaches its limits within 300 ms (the estop_decel
         // rule), whatever the source's own acceleration.
         let zone_brake = zone && slows_down(start, target);
+        // A fault's stop de-excites the drives `STOPPED_AFTER_MS` after it began,
+        // which holds only if every wheel brakes with `estop_decel`. Shared out by the
+        // measured speeds, a speed register frozen low (the fault itself, perhaps)
+        // would give its wheel a gentle ramp: each wheel brakes with the full rate.
+        let fault_stop = self.supervisor.mode() == Mode::Fault && target == MotorRpm::ZERO;
         let weak_brake_in_force =
             self.in_force.left_accel.max(self.in_force.right_accel) < estop_decel;
+        let a_weak_brake_in_force =
+            self.in_force.left_accel.min(self.in_force.right_accel) < estop_decel;
         if effects.setpoint.is_some()
             || target != self.in_force.rpm
             || (zone_brake && weak_brake_in_force)
+            || (fault_stop && a_weak_brake_in_force)
         {
             let mut accel = self.setpoint.accel_rpm_per_s;
             if zone_brake {
                 accel = accel.max(estop_decel);
             }
             let mut command = kinematics::ramp(start, target, accel);
+            if fault_stop {
+                command.left_accel = command.left_accel.max(estop_decel);
+                command.right_accel = command.right_accel.max(estop_decel);
+            }
             if zone_brake {
                 // The ramps share the acceleration to keep the curvature, which would
                 // let the wheel with the smaller change brake gentler: in the zone,
@@ -1641,6 +1653,44 @@ mod tests {
                 assert!(accel >= 4_500, "{from} -> {to} r/min at {accel} (r/min)/s");
             }
         }
+    }
+
+    /// Found by the whole-robot tester (`speed-lie-seed-1-rule-4`): the right drive's
+    /// speed register frozen at a wrong, low value. A fault's stop shared
+    /// `estop_decel` out by the measured speeds, so the wheel that truly ran at 336
+    /// r/min got a gentle ramp, and the fault de-excited it 300 ms later while it
+    /// still turned. A fault stop brakes every wheel with `estop_decel`: the speed
+    /// reading may be the fault.
+    #[test]
+    fn a_fault_stop_brakes_every_wheel_with_estop_decel_whatever_the_speeds_read() {
+        let mut controller = driving_forward();
+        controller.handle(at(400), can(Command::Enable { refresh: true }));
+        controller.handle(
+            at(480),
+            Input::DriveFeedback {
+                counts: EncoderCounts { left: 0, right: 0 },
+                rpm: MotorRpm {
+                    left: 336,
+                    right: -20,
+                },
+            },
+        );
+        let out = controller.handle(
+            at(500),
+            Input::DriveAlarm {
+                wheel: Wheel::Left,
+                code: 0x30,
+            },
+        );
+        let command = out.wheels.expect("the fault stops the wheels");
+        assert_eq!(command.rpm, MotorRpm::ZERO);
+        let estop_decel = u32::from(controller.registers().get(Reg::EstopDecel));
+        assert!(
+            command.left_accel >= estop_decel && command.right_accel >= estop_decel,
+            "left at {}, right at {} (r/min)/s; estop_decel {estop_decel}",
+            command.left_accel,
+            command.right_accel
+        );
     }
 
     #[test]

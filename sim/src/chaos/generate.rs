@@ -71,8 +71,8 @@ pub struct Mix {
     /// Register-read and QUERY floods. Open: reply traffic delays and drops the
     /// periodic frames (issue 30, item 4).
     pub floods: bool,
-    /// A drive's speed register frozen at a wrong value. Open: the fault's stop shares
-    /// `estop_decel` out by the lying speed, so that wheel brakes gently and is
+    /// A drive's speed register frozen at a wrong value. Fixed: the fault's stop once
+    /// shared `estop_decel` out by the lying speed, so that wheel braked gently and was
     /// de-excited 300 ms later while still turning.
     pub speed_lies: bool,
     /// Velocity streams whose sign flips every frame, and a second program streaming
@@ -102,7 +102,7 @@ impl Mix {
     };
     pub const WITHOUT_OPEN_DEFECTS: Mix = Mix {
         floods: false,
-        speed_lies: false,
+        speed_lies: true,
         reversals: false,
         two_pads_at_once: false,
         brake_at_once: false,
