@@ -1612,7 +1612,14 @@ mod tests {
             controller.status(at(1_040)).last_rejection,
             RegisterError::NotAtRest.code()
         );
-        // Ramped down (no feedback contradicts it): accepted.
+        // Ramped down and measured standing since the start: accepted.
+        controller.handle(
+            at(1_090),
+            Input::DriveFeedback {
+                counts: EncoderCounts { left: 0, right: 0 },
+                rpm: MotorRpm::ZERO,
+            },
+        );
         controller.handle(at(1_100), write(Reg::MaxMotorVel, 100));
         assert_eq!(controller.registers().get(Reg::MaxMotorVel), 100);
     }

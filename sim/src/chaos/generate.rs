@@ -86,9 +86,9 @@ pub struct Mix {
     /// when the pad in control leaves, its dead-man held since is unknown to the
     /// controller and CAN drives while it is held.
     pub two_pads_at_once: bool,
-    /// `disable_time` 0 ("brake as soon as both wheels stand"). Open: a drive is
+    /// `disable_time` 0 ("brake as soon as both wheels stand"). Fixed: a drive was once
     /// de-excited by a standstill measured before its last command started it, while
-    /// its shaft turns at 15 r/min.
+    /// its shaft turned at 15 r/min.
     pub brake_at_once: bool,
 }
 
@@ -105,7 +105,7 @@ impl Mix {
         speed_lies: true,
         reversals: false,
         two_pads_at_once: false,
-        brake_at_once: false,
+        brake_at_once: true,
     };
 
     /// The option of the example that gives this mix.
