@@ -14,7 +14,7 @@ use crate::feedback::{FeedbackPeriods, FeedbackSchedule};
 use crate::gamepad::GamepadState;
 use crate::kinematics::{self, KinematicsParams, MotorRpm, SafetyLimits, Twist, WheelCommand};
 use crate::odometry::{EncoderCounts, Odometry, OdometryParams};
-use crate::plausibility::{self, Commanded, FeedbackCheck};
+use crate::plausibility::{self, Commanded, FeedbackCheck, SpeedRange};
 use crate::power::{self, PowerControl, SwitchLevel};
 use crate::registers::{
     BootInfo, MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, RESTORE_DEFAULTS_KEY, Reg,
@@ -234,6 +234,10 @@ pub struct Controller {
     /// summed, (r/min)/s (left, right): where its speed bent between two samples,
     /// which the feedback check allows for.
     commanded_bends: [f64; 2],
+    /// Every target the drives were told since the last drive feedback (left, right),
+    /// `None` if none: a target in force for a few ms between two samples still
+    /// counts as commanded for the feedback check's direction test.
+    told_targets: Option<[SpeedRange; 2]>,
     rejections: Rejections,
     faults: ShellFaults,
     /// Which of the connected pads controls the remote; the links for the status frame.
@@ -275,6 +279,7 @@ impl Controller {
             speed: SpeedEstimate::standing(now),
             commanded_speed: SpeedEstimate::standing(now),
             commanded_bends: [0.0; 2],
+            told_targets: None,
             rejections: Rejections::default(),
             faults: ShellFaults::default(),
             pads: PadArbiter::new(),
@@ -467,6 +472,7 @@ impl Controller {
                     self.speed = SpeedEstimate::standing(now);
                     self.commanded_speed = SpeedEstimate::standing(now);
                     self.commanded_bends = [0.0; 2];
+                    self.told_targets = None;
                 }
                 self.supervise(now, supervisor::Event::DrivesReady, &mut out);
             }
@@ -788,9 +794,15 @@ impl Controller {
         }
         self.speed = SpeedEstimate::measured(now, rpm);
         self.advance_commanded_speed(now);
+        let target = self.in_force.rpm;
+        let in_force = [SpeedRange::of(target.left), SpeedRange::of(target.right)];
+        let targets = self.told_targets.take().map_or(in_force, |[left, right]| {
+            [left.with(in_force[0]), right.with(in_force[1])]
+        });
         let commanded = Commanded {
             expected: self.commanded_speed.rpm(),
-            target: self.in_force.rpm,
+            target,
+            targets,
             bends_rpm_per_s: core::mem::take(&mut self.commanded_bends),
         };
         let verdict =
@@ -861,17 +873,29 @@ impl Controller {
         // faster than the zone allows reaches its limits within 300 ms (the estop_decel
         // rule), whatever the source's own acceleration.
         let zone_brake = zone && slows_down(start, target);
+        // A fault's stop de-excites the drives `STOPPED_AFTER_MS` after it began,
+        // which holds only if every wheel brakes with `estop_decel`. Shared out by the
+        // measured speeds, a speed register frozen low (the fault itself, perhaps)
+        // would give its wheel a gentle ramp: each wheel brakes with the full rate.
+        let fault_stop = self.supervisor.mode() == Mode::Fault && target == MotorRpm::ZERO;
         let weak_brake_in_force =
             self.in_force.left_accel.max(self.in_force.right_accel) < estop_decel;
+        let a_weak_brake_in_force =
+            self.in_force.left_accel.min(self.in_force.right_accel) < estop_decel;
         if effects.setpoint.is_some()
             || target != self.in_force.rpm
             || (zone_brake && weak_brake_in_force)
+            || (fault_stop && a_weak_brake_in_force)
         {
             let mut accel = self.setpoint.accel_rpm_per_s;
             if zone_brake {
                 accel = accel.max(estop_decel);
             }
             let mut command = kinematics::ramp(start, target, accel);
+            if fault_stop {
+                command.left_accel = command.left_accel.max(estop_decel);
+                command.right_accel = command.right_accel.max(estop_decel);
+            }
             if zone_brake {
                 // The ramps share the acceleration to keep the curvature, which would
                 // let the wheel with the smaller change brake gentler: in the zone,
@@ -889,6 +913,13 @@ impl Controller {
             let after = self.commanded_speed.slope(&command);
             self.note_commanded_bends([(after[0] - before[0]).abs(), (after[1] - before[1]).abs()]);
             self.in_force = command;
+            let told = [
+                SpeedRange::of(command.rpm.left),
+                SpeedRange::of(command.rpm.right),
+            ];
+            self.told_targets = Some(self.told_targets.map_or(told, |[left, right]| {
+                [left.with(told[0]), right.with(told[1])]
+            }));
             out.wheels = Some(command);
         }
         if effects.excite.is_some() {
@@ -1667,7 +1698,14 @@ mod tests {
             controller.status(at(1_040)).last_rejection,
             RegisterError::NotAtRest.code()
         );
-        // Ramped down (no feedback contradicts it): accepted.
+        // Ramped down and measured standing since the start: accepted.
+        controller.handle(
+            at(1_090),
+            Input::DriveFeedback {
+                counts: EncoderCounts { left: 0, right: 0 },
+                rpm: MotorRpm::ZERO,
+            },
+        );
         controller.handle(at(1_100), write(Reg::MaxMotorVel, 100));
         assert_eq!(controller.registers().get(Reg::MaxMotorVel), 100);
     }
@@ -1708,6 +1746,44 @@ mod tests {
                 assert!(accel >= 4_500, "{from} -> {to} r/min at {accel} (r/min)/s");
             }
         }
+    }
+
+    /// Found by the whole-robot tester (`speed-lie-seed-1-rule-4`): the right drive's
+    /// speed register frozen at a wrong, low value. A fault's stop shared
+    /// `estop_decel` out by the measured speeds, so the wheel that truly ran at 336
+    /// r/min got a gentle ramp, and the fault de-excited it 300 ms later while it
+    /// still turned. A fault stop brakes every wheel with `estop_decel`: the speed
+    /// reading may be the fault.
+    #[test]
+    fn a_fault_stop_brakes_every_wheel_with_estop_decel_whatever_the_speeds_read() {
+        let mut controller = driving_forward();
+        controller.handle(at(400), can(Command::Enable { refresh: true }));
+        controller.handle(
+            at(480),
+            Input::DriveFeedback {
+                counts: EncoderCounts { left: 0, right: 0 },
+                rpm: MotorRpm {
+                    left: 336,
+                    right: -20,
+                },
+            },
+        );
+        let out = controller.handle(
+            at(500),
+            Input::DriveAlarm {
+                wheel: Wheel::Left,
+                code: 0x30,
+            },
+        );
+        let command = out.wheels.expect("the fault stops the wheels");
+        assert_eq!(command.rpm, MotorRpm::ZERO);
+        let estop_decel = u32::from(controller.registers().get(Reg::EstopDecel));
+        assert!(
+            command.left_accel >= estop_decel && command.right_accel >= estop_decel,
+            "left at {}, right at {} (r/min)/s; estop_decel {estop_decel}",
+            command.left_accel,
+            command.right_accel
+        );
     }
 
     #[test]

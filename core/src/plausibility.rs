@@ -21,9 +21,13 @@
 //! the controller's own model of the ramps it sent ([`Commanded::expected`]), never
 //! corrected by a measurement, so a wheel that keeps turning the wrong way cannot
 //! drag it along. A wheel only counts as turning against its command when its counter,
-//! averaged over a window, runs opposite to the target and to every speed the model
-//! asked for over that window and the one before, each by at least
-//! [`MIN_COMPARED_RPM`], in two windows in a row. A reversal passes through zero on
+//! averaged over a window, runs opposite to every target the wheel was told and to
+//! every speed the model asked for over that window and the one before, each by at
+//! least [`MIN_COMPARED_RPM`], in two windows in a row. The model integrates each
+//! command from the moment the controller sent it; a command whose sign flips every
+//! few tens of ms (two programs driving at once) makes it drift away from a healthy
+//! drive that gets each command a few ms late, so a wheel told both ways within the
+//! two windows is never judged against its command. A reversal passes through zero on
 //! its ramp, and a drive follows it late (the command waits for the line, a failed
 //! write is tried again, the drive's speed filter); a wheel that lags a reversal is
 //! opposite only to the model's newest speeds, never to those of the window before.
@@ -92,8 +96,11 @@ pub struct Commanded {
     /// drives were set up, each from the moment it was sent and at its rate: the
     /// commanded ramps alone, never corrected by a measurement.
     pub expected: MotorRpm,
-    /// The speed each drive was last told to reach.
+    /// The speed each drive was last told to reach, in force now.
     pub target: MotorRpm,
+    /// Every target each drive was told since the previous sample, `target` included:
+    /// left, right.
+    pub targets: [SpeedRange; 2],
     /// How much that model's acceleration changed since the previous sample, summed
     /// over every change (a ramp that starts, ends or turns round), in (r/min)/s: left,
     /// right. Each change bends the speed between two samples, which the speeds at the
@@ -145,6 +152,9 @@ struct WheelWindow {
     /// The commanded speeds (the model's) this window and the previous one saw.
     expected: SpeedRange,
     previous_expected: SpeedRange,
+    /// The targets the wheel was told in this window and in the previous one.
+    targets: SpeedRange,
+    previous_targets: SpeedRange,
     /// Windows in a row whose counter and reported speed disagreed.
     bad_windows: u8,
     /// Windows in a row whose counter ran against the command.
@@ -155,20 +165,20 @@ struct WheelWindow {
 /// The lowest and highest of some speeds, r/min.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-struct SpeedRange {
+pub struct SpeedRange {
     low: i32,
     high: i32,
 }
 
 impl SpeedRange {
-    fn of(rpm: i32) -> Self {
+    pub const fn of(rpm: i32) -> Self {
         Self {
             low: rpm,
             high: rpm,
         }
     }
 
-    fn with(self, other: Self) -> Self {
+    pub fn with(self, other: Self) -> Self {
         Self {
             low: self.low.min(other.low),
             high: self.high.max(other.high),
@@ -193,13 +203,15 @@ fn bend_miss_rpm_ms(bends_rpm_per_s: f64, elapsed_ms: u64) -> f64 {
 }
 
 impl WheelWindow {
-    fn start(counts: i32, rpm: i32, expected_rpm: i32) -> Self {
+    fn start(counts: i32, rpm: i32, expected_rpm: i32, targets: SpeedRange) -> Self {
         Self {
             start_counts: counts,
             last_counts: counts,
             last_rpm: rpm,
             expected: SpeedRange::of(expected_rpm),
             previous_expected: SpeedRange::of(expected_rpm),
+            targets,
+            previous_targets: targets,
             ..Self::default()
         }
     }
@@ -212,12 +224,14 @@ impl WheelWindow {
         counts: i32,
         rpm: i32,
         expected_rpm: i32,
+        targets: SpeedRange,
         bends_rpm_per_s: f64,
     ) -> bool {
         let mean_rpm = (f64::from(self.last_rpm) + f64::from(rpm)) / 2.0;
         self.predicted_rpm_ms += mean_rpm * elapsed_ms as f64;
         self.bend_miss_rpm_ms += bend_miss_rpm_ms(bends_rpm_per_s, elapsed_ms);
         self.expected = self.expected.with(SpeedRange::of(expected_rpm));
+        self.targets = self.targets.with(targets);
         let standing = counts.wrapping_sub(self.last_counts).unsigned_abs() <= STANDING_COUNTS;
         self.last_counts = counts;
         self.last_rpm = rpm;
@@ -225,7 +239,7 @@ impl WheelWindow {
     }
 
     /// Judges the window that spans `span_ms` and starts the next one at the last
-    /// sample (commanded `expected_rpm`); `target_rpm` is the command in force now.
+    /// sample (commanded `expected_rpm`, the target `target_rpm` in force now).
     /// Returns a finding once it latches: one per wheel until the check restarts.
     fn judge(
         &mut self,
@@ -244,17 +258,19 @@ impl WheelWindow {
         // Against everything the model asked for over two windows: a wheel that
         // follows a reversal late runs opposite to the model's latest speeds only.
         let commanded = self.expected.with(self.previous_expected);
+        let told = self.targets.with(self.previous_targets);
         self.start_counts = self.last_counts;
         self.predicted_rpm_ms = 0.0;
         self.previous_bend_miss_rpm_ms = self.bend_miss_rpm_ms;
         self.bend_miss_rpm_ms = 0.0;
         self.previous_expected = self.expected;
         self.expected = SpeedRange::of(expected_rpm);
+        self.previous_targets = self.targets;
+        self.targets = SpeedRange::of(target_rpm);
         let larger = counted_rpm.abs().max(predicted_rpm.abs());
         let disagree = larger >= MIN_COMPARED_RPM
             && (counted_rpm - predicted_rpm).abs() > TOLERANCE * larger + bend_miss_rpm;
-        let wrong_way = commanded.all_opposite(counted_rpm)
-            && SpeedRange::of(target_rpm).all_opposite(counted_rpm);
+        let wrong_way = commanded.all_opposite(counted_rpm) && told.all_opposite(counted_rpm);
         let in_a_row = |windows: u8, bad: bool| if bad { windows.saturating_add(1) } else { 0 };
         self.bad_windows = in_a_row(self.bad_windows, disagree);
         self.wrong_way_windows = in_a_row(self.wrong_way_windows, wrong_way);
@@ -317,12 +333,13 @@ impl FeedbackCheck {
         counts_per_rev: f64,
     ) -> Verdict {
         let expected = commanded.expected;
+        let [left_targets, right_targets] = commanded.targets;
         let Some(window) = &mut self.window else {
             self.window = Some(Window {
                 started: now,
                 last_sample: now,
-                left: WheelWindow::start(counts.left, rpm.left, expected.left),
-                right: WheelWindow::start(counts.right, rpm.right, expected.right),
+                left: WheelWindow::start(counts.left, rpm.left, expected.left, left_targets),
+                right: WheelWindow::start(counts.right, rpm.right, expected.right, right_targets),
             });
             return Verdict {
                 position_standing: true,
@@ -332,15 +349,20 @@ impl FeedbackCheck {
         let elapsed_ms = now.millis_since(window.last_sample);
         window.last_sample = now;
         let [left_bends, right_bends] = commanded.bends_rpm_per_s;
-        let left_standing =
-            window
-                .left
-                .add(elapsed_ms, counts.left, rpm.left, expected.left, left_bends);
+        let left_standing = window.left.add(
+            elapsed_ms,
+            counts.left,
+            rpm.left,
+            expected.left,
+            left_targets,
+            left_bends,
+        );
         let right_standing = window.right.add(
             elapsed_ms,
             counts.right,
             rpm.right,
             expected.right,
+            right_targets,
             right_bends,
         );
         let mut verdict = Verdict {
@@ -440,6 +462,14 @@ mod tests {
                 Report::FrozenSpeed(reads) => (true_counts[0], reads),
             };
             let (expected, target) = commanded(t);
+            // Every target told since the previous sample, each ms's.
+            let told = |wheel_target: fn(f64) -> i32| {
+                (t.saturating_sub(period_ms)..=t)
+                    .skip(usize::from(t > 0))
+                    .map(|ms| SpeedRange::of(wheel_target(commanded(ms).1)))
+                    .fold(SpeedRange::of(wheel_target(target)), SpeedRange::with)
+            };
+            let told = told(|rpm| rpm.round() as i32);
             // The model's bends since the previous sample: its acceleration's changes,
             // from its speed each ms.
             let slope = |ms: u64| (commanded(ms + 1).0 - commanded(ms).0) * 1000.0;
@@ -463,6 +493,7 @@ mod tests {
                 Commanded {
                     expected: both(expected),
                     target: both(target),
+                    targets: [told; 2],
                     bends_rpm_per_s: [bends; 2],
                 },
                 COUNTS_PER_REV,
@@ -606,6 +637,32 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    /// Two programs streaming at once: the wheel told -675 r/min for 7 ms and +100
+    /// r/min for 13 ms, over and over, at 700 (r/min)/s. The model of the commanded
+    /// ramps integrates each command from the moment it was sent and drifts away from
+    /// an honest drive that gets each a few ms late: here it runs 500 r/min above the
+    /// shaft, on the other side of zero. A wheel told both ways is not judged against
+    /// its command. (The shrunk whole-robot case: 0x43 on the healthy left drive.)
+    #[test]
+    fn an_honest_drive_told_both_ways_every_20_ms_is_not_called_backwards() {
+        const MS: u64 = 1_500;
+        let target = |t: u64| if (t + 10) % 20 < 7 { -675.0 } else { 100.0 };
+        let follow = |from: f64| {
+            let mut speed = vec![from; MS as usize + 1];
+            for t in 1..=MS as usize {
+                speed[t] = ramp(1, 0, speed[t - 1], target(t as u64 - 1), 700.0);
+            }
+            speed
+        };
+        let (model, shaft) = (follow(250.0), follow(-250.0));
+        let shaft = |t: u64| shaft[t as usize];
+        let commanded = |t: u64| (model[t as usize], target(t));
+        for period_ms in [10, 20, 37, 50] {
+            let found = run_commanded(MS, period_ms, &shaft, Report::Honest, &commanded);
+            assert_eq!(found[0], None, "sampled every {period_ms} ms");
         }
     }
 

@@ -724,6 +724,12 @@ impl Supervisor {
             twist
         };
         let requested = twist != Twist::ZERO;
+        if requested {
+            // The wheels may turn from now on: a standstill measured before this says
+            // nothing about them, only the next measurement does (with `disable_time`
+            // 0 the brakes would close on the old one).
+            self.inputs.at_rest = false;
+        }
         if self.state == State::Standby {
             if !requested {
                 return;
@@ -1175,5 +1181,30 @@ mod tests {
             Some(false)
         );
         assert_eq!(supervisor.mode(), Mode::Standby);
+    }
+
+    /// Found by the whole-robot tester (`brake-at-once-seed-30-rule-4`): with
+    /// `disable_time` 0, a zero that followed a start within one feedback cycle
+    /// de-excited the drives at once on a standstill measured before the start, while
+    /// the shaft turned at 15 r/min. Only a standstill measured after the last motion
+    /// command lets the brakes close.
+    #[test]
+    fn a_standstill_measured_before_a_start_does_not_close_the_brakes_after_it() {
+        let params = Params {
+            disable_time_ms: 0,
+            ..PARAMS
+        };
+        let mut supervisor = ready();
+        supervisor.step(at(0), Event::AtRest(true), &params);
+        supervisor.step(at(0), Event::CanEnable { refresh: true }, &params);
+        supervisor.step(at(5), Event::CanVelocity(FORWARD), &params);
+        let effects = supervisor.step(at(11), Event::CanVelocity(Twist::ZERO), &params);
+        assert_eq!(effects.excite, None, "de-excited 6 ms after the start");
+        assert_eq!(supervisor.step(at(30), Event::Tick, &params).excite, None);
+        // Measured standing after the zero: the brakes close at once.
+        assert_eq!(
+            supervisor.step(at(60), Event::AtRest(true), &params).excite,
+            Some(false)
+        );
     }
 }
