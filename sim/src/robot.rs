@@ -150,10 +150,11 @@ impl VirtualRobot {
         };
         let firmware = async {
             Timer::after(self.boot_time).await;
-            let role = base_runtime::update::arm(&mut update_flash, &channels.update).await;
+            let started = base_runtime::update::arm(&mut update_flash).await;
+            channels.update.lock_at_start(&started);
             let update = base_runtime::update::run(
                 &mut update_flash,
-                role,
+                started,
                 &config,
                 &channels.update,
                 &channels.can_tx,

@@ -384,8 +384,10 @@ impl World {
             let bluetooth = self.robot.rtc_ram.boot();
             let channels = Channels::new();
             let mut update_flash = UpdateFlash::new(app.clone(), booted.slot);
-            let role = base_runtime::update::arm(&mut update_flash, &channels.update).await;
-            let (update_reset, keep) = trial::boot_cause(reset_record, role, booted.slot);
+            let started = base_runtime::update::arm(&mut update_flash).await;
+            channels.update.lock_at_start(&started);
+            let (update_reset, keep) =
+                trial::boot_cause(reset_record, &started.start, started.written, booted.slot);
             reset_record = keep;
             let behaviour = Behaviour::of(&booted.version);
             if behaviour == Behaviour::PanicsAtBoot {
@@ -446,7 +448,7 @@ impl World {
             );
             let update = base_runtime::update::run(
                 &mut update_flash,
-                role,
+                started,
                 &config,
                 &channels.update,
                 &channels.can_tx,
