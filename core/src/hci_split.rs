@@ -29,6 +29,10 @@
 //!   controller is fresh ([`Route::Both`] for that answer; the Classic host then runs
 //!   its own setup without Reset and Set Event Mask).
 //! - A Hardware Error goes to both.
+//! - **Oversized packets**: a packet longer than the room a host reads it into (an ACL
+//!   packet beyond the 255 bytes the hosts asked for with Host Buffer Size, up to the
+//!   1021 bytes of a 3-DH5 packet) is read to its end and dropped, counted
+//!   ([`Splitter::admit`]): never an error for either host, which would stop it.
 
 use heapless::Deque;
 
@@ -60,6 +64,8 @@ pub struct Counters {
     pub links_overflow: u32,
     /// Command answers no host waits for (after a reset, say).
     pub unowned_answers: u32,
+    /// Packets longer than the host's room for them: read to their end and dropped.
+    pub oversized_packets: u32,
 }
 
 // HCI opcodes the splitter looks at.
@@ -180,12 +186,25 @@ impl<const LINKS: usize, const PENDING: usize> Splitter<LINKS, PENDING> {
                 malformed_events: 0,
                 links_overflow: 0,
                 unowned_answers: 0,
+                oversized_packets: 0,
             },
         }
     }
 
     pub fn counters(&self) -> Counters {
         self.counters
+    }
+
+    /// Whether a packet of `len` bytes (header and body, as its header announces it)
+    /// may be handed to a host that reads it into `room` bytes. One that does not fit
+    /// is counted; the caller reads it to its end (the next packet starts after it)
+    /// and drops it.
+    pub fn admit(&mut self, len: usize, room: usize) -> bool {
+        let fits = len <= room;
+        if !fits {
+            self.counters.oversized_packets = self.counters.oversized_packets.saturating_add(1);
+        }
+        fits
     }
 
     fn is_classic(&self, handle: u16) -> bool {
@@ -524,6 +543,23 @@ mod tests {
             split.completed_packets_for(&[3, 0x40, 0x00, 1, 0], Sender::Le, &mut out),
             None
         );
+    }
+
+    #[test]
+    fn a_packet_longer_than_the_room_for_it_is_refused_and_counted() {
+        let mut split = Split::new();
+        // (announced length, room, admitted)
+        let table = [
+            (263, 263, true),
+            (0, 263, true),
+            (264, 263, false),
+            (1025, 263, false),
+        ];
+        for (len, room, admitted) in table {
+            assert_eq!(split.admit(len, room), admitted, "{len} bytes into {room}");
+        }
+        assert_eq!(split.counters().oversized_packets, 2);
+        assert_eq!(split.counters().malformed_events, 0);
     }
 
     #[test]

@@ -792,7 +792,6 @@ fn malformed_packets_from_pads_are_refused_and_both_owners_drive_afterwards() {
 /// 0x10). Harmless if the ESP32's controller keeps to Host Buffer Size, which nobody
 /// has checked; if it does not, any Classic peer in range can switch the remote off.
 #[test]
-#[ignore = "defect in runtime/src/classic/split.rs: one oversized ACL packet from the controller stops both remotes"]
 fn an_oversized_acl_packet_from_the_controller_does_not_stop_the_remotes() {
     let _one = one_robot();
     let robot = AirRobot::new(SEED);

@@ -72,7 +72,38 @@ impl SplitState {
 /// One packet as the controller sent it: kind, header and body.
 struct RawPacket<'d> {
     kind: PacketKind,
+    /// Header and body; empty for a packet longer than the read buffer (read to its
+    /// end and thrown away, so that the next packet starts where it should).
     bytes: &'d [u8],
+    /// Its length as its header announces it.
+    announced: usize,
+}
+
+/// Reads the `len` bytes of a packet too long for `buf` and throws them away.
+fn skip<R: embedded_io::Read>(
+    reader: &mut R,
+    buf: &mut [u8],
+    mut len: usize,
+) -> Result<(), ReadHciError<R::Error>> {
+    while len > 0 {
+        let chunk = len.min(buf.len());
+        reader.read_exact(&mut buf[..chunk])?;
+        len -= chunk;
+    }
+    Ok(())
+}
+
+async fn skip_async<R: embedded_io_async::Read>(
+    reader: &mut R,
+    buf: &mut [u8],
+    mut len: usize,
+) -> Result<(), ReadHciError<R::Error>> {
+    while len > 0 {
+        let chunk = len.min(buf.len());
+        reader.read_exact(&mut buf[..chunk]).await?;
+        len -= chunk;
+    }
+    Ok(())
 }
 
 /// The header length of each packet kind and where its body length is.
@@ -108,12 +139,18 @@ impl<'d> PacketToHost<'d> for RawPacket<'d> {
         reader.read_exact(&mut buf[..head])?;
         let len = head + body_len(kind, &buf[..head]);
         if buf.len() < len {
-            return Err(ReadHciError::BufferTooSmall);
+            skip(reader, buf, len - head)?;
+            return Ok(RawPacket {
+                kind,
+                bytes: &[],
+                announced: len,
+            });
         }
         reader.read_exact(&mut buf[head..len])?;
         Ok(RawPacket {
             kind,
             bytes: &buf[..len],
+            announced: len,
         })
     }
 
@@ -129,12 +166,18 @@ impl<'d> PacketToHost<'d> for RawPacket<'d> {
         reader.read_exact(&mut buf[..head]).await?;
         let len = head + body_len(kind, &buf[..head]);
         if buf.len() < len {
-            return Err(ReadHciError::BufferTooSmall);
+            skip_async(reader, buf, len - head).await?;
+            return Ok(RawPacket {
+                kind,
+                bytes: &[],
+                announced: len,
+            });
         }
         reader.read_exact(&mut buf[head..len]).await?;
         Ok(RawPacket {
             kind,
             bytes: &buf[..len],
+            announced: len,
         })
     }
 }
@@ -210,6 +253,21 @@ where
         loop {
             let mut buffer = [0u8; PACKET_MAX];
             let packet: RawPacket<'_> = self.inner.read(&mut buffer).await?;
+            // A packet longer than the splitter's buffer, or than the BLE host's (an
+            // ACL packet beyond the hosts' Host Buffer Size, from a controller that
+            // does not cut them): read to its end and dropped, counted. An error
+            // here would stop both hosts.
+            if !self
+                .state
+                .with(|split| split.admit(packet.announced, PACKET_MAX))
+            {
+                warn!(
+                    "remote: dropped an HCI packet of {=usize} bytes from the controller, splitter {}",
+                    packet.announced,
+                    self.state.counters()
+                );
+                continue;
+            }
             let bytes = packet.bytes;
             let route = match packet.kind {
                 PacketKind::Event => {
@@ -250,6 +308,12 @@ where
                 _ => Route::Le,
             };
             match route {
+                Route::Le if !self.state.with(|split| split.admit(bytes.len(), rx.len())) => {
+                    warn!(
+                        "remote: dropped an HCI packet of {=usize} bytes, longer than the BLE host reads",
+                        bytes.len()
+                    );
+                }
                 Route::Le => return reparse(packet.kind, bytes, rx),
                 Route::Classic => {
                     let copied = copy(bytes);
