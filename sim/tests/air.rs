@@ -817,6 +817,40 @@ fn an_oversized_acl_packet_from_the_controller_does_not_stop_the_remotes() {
     });
 }
 
+/// The robot's own Bluetooth controller goes dark (power, a crash, a transport that
+/// stops reading) while a PlayStation pad drives with R1 held: the pad's reports stop
+/// reaching the Classic task, whose report watchdog reports the link down, and the
+/// base brakes as for a released dead-man, well within 200 ms. Nothing depends on a
+/// host noticing that its transport died.
+#[test]
+fn the_robots_radio_going_dark_while_a_playstation_pad_drives_stops_the_base_within_200_ms() {
+    let _one = one_robot();
+    let robot = AirRobot::new(SEED);
+    let ds4 = robot
+        .air
+        .playstation_pad("ds4", PadKind::DualShock4, PS_ADDRESS)
+        .expect("a pad");
+    robot.run(async |pc| {
+        status(pc, 5_000, "the controller is up", |_| true).await;
+        write_register(pc, Reg::ContrAccHigh, RELEASE_BRAKING);
+        pair_playstation(&robot, pc, &ds4).await;
+        drive_forward(&robot, pc, &ds4).await;
+        let dark_at = Instant::now();
+        robot.air.robot_off();
+        let stopped_after = zero_on_the_wire(&robot, 2_000).await - dark_at;
+        assert!(
+            stopped_after <= Duration::from_millis(200),
+            "zero on the wire {} ms after the robot's radio went dark",
+            stopped_after.as_millis()
+        );
+        assert_eq!(last_decel(&robot), i32::from(RELEASE_BRAKING));
+        status(pc, 2_000, "the lost link is reported", |s| {
+            !s.flags.remote_connected && !s.flags.remote_in_control
+        })
+        .await;
+    });
+}
+
 /// What the pads saw in one run, each event with its time since the run began.
 fn pairing_run(seed: u64) -> Vec<(u64, String, PadEvent)> {
     let robot = AirRobot::new(seed);
