@@ -10,7 +10,7 @@
 //! # The line
 //! A byte takes one character time on the wire. A drive takes a request as complete
 //! once the line has been idle for C3.5 after its last byte, and starts answering
-//! C3.5 + the transmission waiting time after that last byte (Tb2, spec §2). Reply bytes
+//! C3.5 + the transmission waiting time after that last byte (Tb2, docs/drives.md). Reply bytes
 //! become readable one by one as their stop bits arrive. The line is half duplex: bytes
 //! that overlap another transmission are lost to the master, and a request that
 //! overlaps a reply reaches the drives garbled.
@@ -26,7 +26,7 @@
 //!   Only local ID 1 answers with an exception, as `GID fc|80h code CRC`.
 //! - Only DDO operation type 16 (continuous operation) moves the motor; a trigger with
 //!   another type stops it. The acceleration and deceleration rates are in (r/min)/s
-//!   (spec §5, option 1). The trigger reads back as 0 once applied.
+//!   (docs/drives.md, the configuration trigger). The trigger reads back as 0 once applied.
 //! - An alarm de-excites the motor (the brake stops it) and cancels the running command;
 //!   after the reset a new trigger is needed. Power-off clears alarms with the rest of RAM.
 //! - Writes of 0 or less to the acceleration or deceleration rate are out of range
@@ -50,7 +50,7 @@ use embedded_io_async::{ErrorType, Read, Write};
 
 use crate::runtime::char_time;
 
-/// The items the virtual drives know, by NET-ID (register address = 2 × NET-ID, §4).
+/// The items the virtual drives know, by NET-ID (register address = 2 × NET-ID).
 pub mod net_id {
     pub const DDO_OPERATION_TYPE: u16 = 45;
     pub const DDO_POSITION: u16 = 46;
@@ -141,7 +141,7 @@ pub struct DrivesConfig {
     /// Time from power-on until a drive answers (the manual asks for ≥ 1 s).
     pub boot_time: Duration,
     /// Whether the last share member appends the 2-byte frame CRC after its check word
-    /// (real drives are reported to differ, spec §3.3).
+    /// (real drives are reported to differ).
     pub share_trailer: bool,
     /// How fast the holding brake stops a de-excited motor, (r/min)/s.
     pub brake_decel_rpm_per_s: f64,
@@ -158,7 +158,7 @@ pub struct DrivesConfig {
 
 impl Default for DrivesConfig {
     /// The drives as shipped: 115200 8E1, 3.0 ms transmission waiting time, 1 s boot,
-    /// trailer sent, slave 1 left, slave 2 right and mirrored (spec §6).
+    /// trailer sent, slave 1 left, slave 2 right and mirrored (docs/drives.md).
     fn default() -> Self {
         Self {
             baud: 115_200,

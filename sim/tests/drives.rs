@@ -77,7 +77,7 @@ async fn write(port: &mut DrivesPort, slave: u8, start: u16, values: &[u32]) {
     assert_eq!(parse_write_echo(&reply, slave, start, count), Ok(()));
 }
 
-/// §6.1 after the boot time: share group, share lists, S-ON on both drives.
+/// The start-up sequence (docs/drives.md) after the boot time: share group, share lists, S-ON on both drives.
 async fn set_up(port: &mut DrivesPort) {
     Timer::after(DrivesConfig::default().boot_time).await;
     for slave in [LEFT, RIGHT] {
@@ -87,7 +87,7 @@ async fn set_up(port: &mut DrivesPort) {
     }
 }
 
-/// One §6.3 FC 17h cycle: commands both wheels and returns the raw reply.
+/// One FC 17h cycle (docs/drives.md): commands both wheels and returns the raw reply.
 async fn cycle_raw(port: &mut DrivesPort, left: [u32; 5], right: [u32; 5]) -> Vec<u8> {
     let request = modbus::share_read_write(GID, 0, ITEMS as u16, 0, &[&left, &right]);
     transact(port, &request).await
@@ -463,7 +463,7 @@ fn alarm_stops_the_motor_until_reset_and_a_new_command() {
             "commands do not run during an alarm"
         );
 
-        // §6.4: write 1 (the 0 → 1 edge resets), then 0.
+        // The alarm reset: write 1 (the 0 → 1 edge resets), then 0.
         let reset = transact(&mut port, &modbus::write_items(LEFT, 0x0180, &[1])).await;
         assert_eq!(parse_write_echo(&reset, LEFT, 0x0180, 2), Ok(()));
         assert_eq!(read_alarm(&mut port, LEFT).await, Ok(0));

@@ -56,7 +56,7 @@ impl LineSettings {
 }
 
 /// How the drives read the DDO acceleration and deceleration fields (NET-ID 48/49).
-/// The unit is a drive parameter (§5 of the note).
+/// The unit is a drive parameter (docs/drives.md).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum AccelUnit {
