@@ -28,8 +28,10 @@
 //! - Accepting, the host asks to become central; once central it sets the link
 //!   supervision timeout of [`Params`] (only the central may).
 //! - After a failure (page timeout, authentication failure, a step that times out)
-//!   it backs off 1, 2, 4 … 32 s; while backing off, pages are rejected. A connection
-//!   that reached the pad's channels starts over at 1 s.
+//!   it backs off 1, 2, 4 … 32 s before its own next inquiry or page. The bonded
+//!   address's pages are rejected for 1 s after each failure only, so an impostor at
+//!   that address cannot keep the owner out once it stops. A connection that reached
+//!   the pad's channels starts over at 1 s.
 //! - Malformed HCI events, ACL packets and L2CAP commands are refused and counted in
 //!   [`Counters`]; none ends in a panic.
 
@@ -74,6 +76,10 @@ pub const SETUP_TIMEOUT_MS: u64 = 2_000;
 /// The first back-off after a failure (ms); it doubles up to [`MAX_BACK_OFF_MS`].
 pub const FIRST_BACK_OFF_MS: u64 = 1_000;
 pub const MAX_BACK_OFF_MS: u64 = 32_000;
+/// How long the bonded address's pages are refused after a failure (ms), however long
+/// the host's own back-off has grown: an impostor at that address gets one try a
+/// second, and the owner's pad is accepted at most this long after the impostor stops.
+pub const PAGE_BACK_OFF_MS: u64 = 1_000;
 
 /// The commands that prepare the controller, in order; each waits for its answer.
 const SETUP: [Command; 8] = [
@@ -275,6 +281,8 @@ pub struct ClassicHost {
     /// Failures in a row, for the back-off, and when the next attempt may start.
     failures: u32,
     retry_at: Timestamp,
+    /// When the bonded address's pages are accepted again after a failure.
+    accept_pages_at: Timestamp,
     commands: Deque<Command, 8>,
     /// How many commands the controller takes now.
     command_credits: u8,
@@ -297,6 +305,7 @@ impl ClassicHost {
             state: State::Starting(Setup::Next(0)),
             failures: 0,
             retry_at: Timestamp::BOOT,
+            accept_pages_at: Timestamp::BOOT,
             commands: Deque::new(),
             command_credits: 1,
             acl_out: AclSender::new(),
@@ -414,6 +423,7 @@ impl ClassicHost {
             .min(MAX_BACK_OFF_MS);
         self.failures = self.failures.saturating_add(1);
         self.retry_at = now.plus_millis(back_off);
+        self.accept_pages_at = now.plus_millis(back_off.min(PAGE_BACK_OFF_MS));
     }
 
     fn disconnect(&mut self, now: Timestamp, link: Link, reason: u8) {
@@ -589,6 +599,7 @@ impl ClassicHost {
                     info!("Classic controller ready, page scan on");
                     self.failures = 0;
                     self.retry_at = now;
+                    self.accept_pages_at = now;
                     State::Idle
                 } else {
                     State::Starting(Setup::Next(step + 1))
@@ -624,7 +635,7 @@ impl ClassicHost {
             ) => {
                 let bonded = params.bond.is_some_and(|bond| bond.addr == addr);
                 let free = matches!(state, State::Idle | State::Inquiring { .. });
-                let accept = free && link_type == 0x01 && bonded && now >= self.retry_at;
+                let accept = free && link_type == 0x01 && bonded && now >= self.accept_pages_at;
                 if accept {
                     if let State::Inquiring { .. } = state {
                         // The bonded pad came back while the window is open.

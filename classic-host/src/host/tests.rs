@@ -505,7 +505,8 @@ fn an_impostor_without_the_key_is_dropped_never_paired_and_backed_off() {
         commands(&h.hci(1_040, ev::connection_request(PAD))),
         [Command::AcceptConnectionRequest(PAD)]
     );
-    // A second failure doubles the back-off.
+    // A second failure doubles the back-off of the host's own attempts, not the
+    // refusal of the bonded address's pages: 1 s again.
     h.hci(1_050, ev::connection_complete(0, PAD));
     h.hci(
         1_060,
@@ -516,14 +517,42 @@ fn an_impostor_without_the_key_is_dropped_never_paired_and_backed_off() {
         ev::disconnection_complete(status::CONNECTION_TIMEOUT),
     );
     assert_eq!(
-        commands(&h.hci(3_059, ev::connection_request(PAD))),
+        commands(&h.hci(2_059, ev::connection_request(PAD))),
         [rejected]
     );
+    assert_eq!(h.host.retry_at.as_millis(), 3_060);
     assert_eq!(
-        commands(&h.hci(3_060, ev::connection_request(PAD))),
+        commands(&h.hci(2_060, ev::connection_request(PAD))),
         [Command::AcceptConnectionRequest(PAD)]
     );
     assert_eq!(h.host.counters().failed_connections, 2);
+}
+
+/// An impostor at the bonded address that fails again and again must not lock the
+/// owner out: however long the back-off of the host's own attempts has grown, the
+/// bonded address's pages are accepted again 1 s after the last failure.
+#[test]
+fn after_many_failed_pages_the_owner_is_accepted_1_s_after_the_last_failure() {
+    let mut h = Harness::ready(BONDED);
+    let mut at = 0;
+    for _ in 0..8 {
+        // Each page accepted, its authentication failed, the link gone.
+        assert_eq!(
+            commands(&h.hci(at, ev::connection_request(PAD))),
+            [Command::AcceptConnectionRequest(PAD)]
+        );
+        h.hci(at + 10, ev::connection_complete(0, PAD));
+        h.hci(
+            at + 20,
+            ev::authentication_complete(status::AUTHENTICATION_FAILURE),
+        );
+        h.hci(
+            at + 30,
+            ev::disconnection_complete(status::CONNECTION_TIMEOUT),
+        );
+        at += 30 + PAGE_BACK_OFF_MS;
+    }
+    assert_eq!(h.host.counters().failed_connections, 8);
 }
 
 #[test]
