@@ -21,8 +21,9 @@ BATTERY = 0x0EB
 POSITION = 0x0EC
 HEADING = 0x0ED
 STATUS = 0x0EE
+POSE_TIME = 0x0EF
 
-FEEDBACK_IDS = (WEIGHT, BATTERY, POSITION, HEADING)
+FEEDBACK_IDS = (WEIGHT, BATTERY, POSITION, HEADING, POSE_TIME)
 
 # Registers used by the suite (docs/registers.md).
 REG_LOOP_END_DELAY = 15
@@ -98,6 +99,11 @@ def parse_position(data):
 
 def parse_heading(data):
     return struct.unpack("<i", bytes(data[:4]))[0]
+
+
+def parse_pose_time(data):
+    """Milliseconds of the controller's clock (wrapping at 2**32)."""
+    return struct.unpack("<I", bytes(data[:4]))[0]
 
 
 def parse_battery(data):

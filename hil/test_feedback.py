@@ -20,6 +20,21 @@ def test_position_and_heading_come_every_loop_end_delay(base):
         assert max(gaps) * 1000 < 3 * period_ms
 
 
+def test_each_pose_follows_its_time_on_the_controllers_clock(base):
+    """0x0EF just before every 0x0EC; its times a cycle apart on the controller's clock."""
+    period_ms = base.read_register(p.REG_LOOP_END_DELAY).value
+    frames = base.collect(3.0)
+    times = []
+    for previous, frame in zip(frames, frames[1:]):
+        if frame[1] == p.POSITION:
+            assert previous[1] == p.POSE_TIME, f"0x{previous[1]:03X} before a position"
+            times.append(p.parse_pose_time(previous[2]))
+    gaps = [(b - a) % 2**32 for a, b in zip(times, times[1:])]
+    assert len(gaps) > 3.0 / (period_ms / 1000) * 0.8
+    assert all(0 < gap < 3 * period_ms for gap in gaps), gaps
+    assert abs(statistics.mean(gaps) - period_ms) < period_ms * 0.1
+
+
 def test_the_status_frame_comes_every_status_time(base):
     period_ms = base.read_register(p.REG_STATUS_TIME).value
     gaps = periods(base.collect(4.5), p.STATUS)

@@ -187,7 +187,9 @@ impl<'bus> Base<'bus> {
                 percent,
                 voltage_mv,
             } => self.battery = Some((percent, voltage_mv)),
-            Report::RegisterValue { .. } | Report::RegisterReadError { .. } => {}
+            Report::PoseTime { .. }
+            | Report::RegisterValue { .. }
+            | Report::RegisterReadError { .. } => {}
         }
     }
 

@@ -35,7 +35,7 @@ impl Format {
 
 /// The CSV header.
 pub const CSV_HEADER: &str = "time,x_mm,y_mm,heading_mrad,battery_mv,battery_percent,weight_g,\
-mode,control,rejected_count,modbus_errors";
+mode,control,rejected_count,modbus_errors,pose_time_ms";
 
 /// One frame in candump's log format.
 pub fn candump_line(frame: &RawFrame, time: Duration) -> String {
@@ -55,7 +55,7 @@ pub fn candump_line(frame: &RawFrame, time: Duration) -> String {
 /// The newest value of each column.
 #[derive(Default)]
 pub struct Row {
-    values: [Option<String>; 10],
+    values: [Option<String>; 11],
 }
 
 impl Row {
@@ -68,6 +68,7 @@ impl Row {
                 set(1, y_mm.to_string());
             }
             Report::Heading { heading_mrad } => set(2, heading_mrad.to_string()),
+            Report::PoseTime { controller_ms } => set(10, controller_ms.to_string()),
             Report::Battery {
                 percent,
                 voltage_mv,
@@ -176,20 +177,27 @@ mod tests {
     fn csv_rows_carry_the_newest_value_of_each_column() {
         let mut row = Row::default();
         assert!(row.absorb(&Report::Position { x_mm: 5, y_mm: -3 }));
-        assert_eq!(row.line(Duration::from_secs(2)), "2.000000,5,-3,,,,,,,,");
+        assert_eq!(row.line(Duration::from_secs(2)), "2.000000,5,-3,,,,,,,,,");
         assert!(row.absorb(&Report::Battery {
             percent: 80,
             voltage_mv: 24_000
         }));
         assert_eq!(
             row.line(Duration::from_secs(3)),
-            "3.000000,5,-3,,24000,80,,,,,"
+            "3.000000,5,-3,,24000,80,,,,,,"
+        );
+        assert!(row.absorb(&Report::PoseTime {
+            controller_ms: 4_000
+        }));
+        assert_eq!(
+            row.line(Duration::from_secs(4)),
+            "4.000000,5,-3,,24000,80,,,,,,4000"
         );
         assert!(!row.absorb(&Report::RegisterValue {
             value: 1,
             echo: None
         }));
-        assert_eq!(CSV_HEADER.split(',').count(), 11);
+        assert_eq!(CSV_HEADER.split(',').count(), 12);
     }
 
     #[test]

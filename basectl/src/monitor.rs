@@ -36,7 +36,7 @@ const LIVE_PERIOD: Duration = Duration::from_millis(100);
 #[derive(Default)]
 struct Latest {
     /// Kind → (when, line), in a fixed order.
-    lines: [(Option<Instant>, String); 7],
+    lines: [(Option<Instant>, String); 8],
     frames: u64,
 }
 
@@ -50,6 +50,7 @@ impl Latest {
             Report::Weight { .. } => 4,
             Report::RegisterValue { .. } => 5,
             Report::RegisterReadError { .. } => 6,
+            Report::PoseTime { .. } => 7,
         };
         self.lines[slot] = (Some(Instant::now()), describe(report));
         self.frames += 1;
@@ -132,6 +133,9 @@ pub fn describe(report: &Report) -> String {
     match *report {
         Report::Position { x_mm, y_mm } => format!("position  x {x_mm} mm  y {y_mm} mm"),
         Report::Heading { heading_mrad } => format!("heading   {heading_mrad} mrad"),
+        Report::PoseTime { controller_ms } => {
+            format!("pose time {controller_ms} ms on the controller's clock")
+        }
         Report::Battery {
             percent,
             voltage_mv,
@@ -230,6 +234,9 @@ pub fn report_json(report: &Report) -> serde_json::Value {
         }
         Report::Heading { heading_mrad } => {
             json!({"report": "heading", "heading_mrad": heading_mrad})
+        }
+        Report::PoseTime { controller_ms } => {
+            json!({"report": "pose_time", "controller_ms": controller_ms})
         }
         Report::Battery {
             percent,

@@ -998,6 +998,16 @@ impl Controller {
                 }
                 _ => self.odometry.pose(),
             };
+            // The pose's moment on this clock (ext), ahead of the pose: a PC divides
+            // pose differences by these, not by arrival times a busy bus or PC stretches.
+            push_frame(
+                out,
+                Report::PoseTime {
+                    // Wraps after 49.7 days; a PC takes differences.
+                    controller_ms: now.as_millis() as u32,
+                }
+                .encode(),
+            );
             push_frame(
                 out,
                 Report::Position {

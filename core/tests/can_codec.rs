@@ -277,6 +277,17 @@ fn heading_minus_1571_mrad() {
 }
 
 #[test]
+fn pose_time_100000_ms() {
+    assert_report_golden(
+        0x0EF,
+        &[0xA0, 0x86, 0x01, 0x00],
+        Report::PoseTime {
+            controller_ms: 100_000,
+        },
+    );
+}
+
+#[test]
 fn battery_87_percent_25300_mv() {
     assert_report_golden(
         0x0EB,
@@ -461,7 +472,7 @@ fn unknown_ids_are_ignored_whatever_they_carry() {
         0x009,
         0x0C9,
         0x0E9,
-        0x0EF,
+        0x0F0,
         0x2E5,
         0x7FF,
         0x800,
@@ -485,6 +496,7 @@ fn reports_are_not_commands_and_commands_are_not_reports() {
         id::POSITION,
         id::HEADING,
         id::STATUS,
+        id::POSE_TIME,
     ] {
         assert_eq!(Command::decode(id, &[0x01, 0, 0, 0, 0, 0, 0, 0]), Ok(None));
     }
@@ -577,7 +589,9 @@ fn unknown_sub_commands_are_refused() {
 
 #[test]
 fn reports_need_their_exact_length() {
-    let wrong: [(u16, &[u8]); 12] = [
+    let wrong: [(u16, &[u8]); 14] = [
+        (0x0EF, &[0; 3]),
+        (0x0EF, &[0; 5]),
         (0x0EC, &[0; 7]),
         (0x0EC, &[]),
         (0x0ED, &[0; 3]),

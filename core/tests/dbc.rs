@@ -312,6 +312,7 @@ fn report_signals(report: &Report) -> Vec<(&'static str, Expect)> {
             vec![("PositionX", value(x_mm)), ("PositionY", value(y_mm))]
         }
         Report::Heading { heading_mrad } => vec![("Heading", value(heading_mrad))],
+        Report::PoseTime { controller_ms } => vec![("PoseTime", value(controller_ms))],
         Report::Battery {
             percent,
             voltage_mv,
@@ -560,6 +561,9 @@ fn reports() -> Vec<Report> {
     }
     for heading_mrad in [0, -1571, 12566, i32::MIN, i32::MAX] {
         reports.push(Report::Heading { heading_mrad });
+    }
+    for controller_ms in [0, 100_000, 0x8000_0000, u32::MAX] {
+        reports.push(Report::PoseTime { controller_ms });
     }
     for (percent, voltage_mv) in [(0, 0), (87, 25300), (100, 0x8001), (100, u16::MAX)] {
         reports.push(Report::Battery {
@@ -1030,6 +1034,7 @@ fn signals_of_one_layout_share_no_bit_and_stay_inside_the_dlc() {
 fn cycle_times_are_the_defaults_of_the_period_registers() {
     let dbc = parse_dbc();
     let periodic = [
+        (id::POSE_TIME, Reg::LoopEndDelay),
         (id::POSITION, Reg::LoopEndDelay),
         (id::HEADING, Reg::LoopEndDelay),
         (id::BATTERY, Reg::VoltTime),

@@ -198,12 +198,19 @@ pub enum ResetOutcome {
 }
 
 /// The report side: 0x0EC (x, y) then 0x0ED (heading) make one pose. The twist is the
-/// pose change over whole cycles of the base (register `loop_end_delay`), not over
-/// the frames' arrival times, which a loaded PC or bus stretches and squeezes.
+/// pose change over the time between the poses on the controller's clock (0x0EF, sent
+/// just before them), not over the frames' arrival times, which a loaded PC or bus
+/// stretches and squeezes. A controller without 0x0EF (older firmware), or a pose whose
+/// 0x0EF was lost: over whole cycles of the base (register `loop_end_delay`) nearest to
+/// the arrival times, which a pose the controller itself sent late still gets wrong.
 #[derive(Debug, Default)]
 pub struct OdometrySide {
+    /// The controller's time of the pose that the next 0x0EC and 0x0ED make.
+    pose_time: Option<u32>,
     position: Option<(i32, i32)>,
-    previous: Option<(Instant, RosPose)>,
+    previous: Option<PreviousPose>,
+    /// Whether the controller has sent its pose times (0x0EF).
+    speaks_pose_time: bool,
     /// The twist last published: kept across a reset, where the pose jumps.
     last_twist: (f64, f64),
     /// The base's feedback period, once its register was read.
@@ -211,9 +218,30 @@ pub struct OdometrySide {
     reset: Option<ResetPhase>,
 }
 
+/// The last pose published, with its arrival and its time on the controller's clock.
+#[derive(Debug, Clone, Copy)]
+struct PreviousPose {
+    arrival: Instant,
+    controller_ms: Option<u32>,
+    pose: RosPose,
+}
+
 impl OdometrySide {
+    /// 0x0EF (ext): the controller's time of the pose in the 0x0EC and 0x0ED that follow.
+    pub fn on_pose_time(&mut self, controller_ms: u32) {
+        self.pose_time = Some(controller_ms);
+        self.position = None;
+        self.speaks_pose_time = true;
+    }
+
     pub fn on_position(&mut self, x_mm: i32, y_mm: i32) {
         self.position = Some((x_mm, y_mm));
+    }
+
+    /// Whether the twist comes from the controller's own clock (0x0EF seen), or from
+    /// arrival times (a controller that predates 0x0EF).
+    pub fn uses_controller_clock(&self) -> bool {
+        self.speaks_pose_time
     }
 
     /// 0x0ED completes the pose the last 0x0EC started. `None` without a position
@@ -224,6 +252,8 @@ impl OdometrySide {
         now: Instant,
         heading_mrad: i32,
     ) -> (Option<OdometrySample>, Option<ResetOutcome>) {
+        // A time belongs to the one pose that follows it, never to a later one.
+        let controller_ms = self.pose_time.take();
         let Some((x_mm, y_mm)) = self.position.take() else {
             return (None, None);
         };
@@ -240,14 +270,31 @@ impl OdometrySide {
         }
         let pose = convert::pose_from_wire(x_mm, y_mm, heading_mrad);
         let twist = match self.previous {
-            Some((then, previous)) => {
-                convert::twist_between(previous, pose, self.elapsed(now - then))
-            }
+            Some(previous) => match (previous.controller_ms, controller_ms) {
+                // Differences modulo 2^32: the controller's counter wraps after 49.7
+                // days. A gap of 2^31 ms or more is time running backwards (the
+                // controller rebooted); like the same moment twice, it gives no rate.
+                (Some(then), Some(at)) => match at.wrapping_sub(then) {
+                    gap @ 1..0x8000_0000 => {
+                        convert::twist_between(previous.pose, pose, f64::from(gap) / 1000.0)
+                    }
+                    _ => self.last_twist,
+                },
+                _ => convert::twist_between(
+                    previous.pose,
+                    pose,
+                    self.elapsed(now - previous.arrival),
+                ),
+            },
             // The first pose: at rest as far as anyone knows; after a reset, moving
             // as before it.
             None => self.last_twist,
         };
-        self.previous = Some((now, pose));
+        self.previous = Some(PreviousPose {
+            arrival: now,
+            controller_ms,
+            pose,
+        });
         self.last_twist = twist;
         let sample = OdometrySample {
             pose,
@@ -474,6 +521,80 @@ mod tests {
                 .any(|sample| (sample.linear_x - 0.3).abs() > 0.03),
             "arrival jitter shows without the cycle"
         );
+    }
+
+    /// 0.3 m/s straight ahead, a pose every 50 ms of the controller's clock, except the
+    /// 6th, which the controller sent 10 ms late (it carries its pose to the moment it
+    /// sends), and the 12th, whose frames were then held up 30 ms on the way. Returns
+    /// the twists.
+    fn late_sends_and_late_frames(odometry: &mut OdometrySide, with_pose_time: bool) -> Vec<f64> {
+        let start = Instant::now();
+        (0..20u32)
+            .filter_map(|cycle| {
+                let sent_ms = 50 * cycle + if cycle == 6 { 10 } else { 0 };
+                let arrival_ms = sent_ms + if cycle == 12 { 30 } else { 1 };
+                if with_pose_time {
+                    odometry.on_pose_time(100_000 + sent_ms);
+                }
+                // 0.3 m/s is 0.3 mm per ms.
+                odometry.on_position((sent_ms * 3 / 10) as i32, 0);
+                let arrival = start + Duration::from_millis(u64::from(arrival_ms));
+                odometry.on_heading(arrival, 0).0
+            })
+            .map(|sample| sample.linear_x)
+            .collect()
+    }
+
+    #[test]
+    fn on_the_controllers_clock_the_twist_is_exact_through_late_sends_and_late_frames() {
+        let mut odometry = knowing_the_cycle();
+        let twists = late_sends_and_late_frames(&mut odometry, true);
+        for twist in &twists[1..] {
+            assert!((twist - 0.3).abs() < 1e-9, "{twists:?}");
+        }
+        assert!(odometry.uses_controller_clock());
+    }
+
+    #[test]
+    fn without_the_controllers_clock_late_sends_and_late_frames_show_in_the_twist() {
+        // A controller that predates 0x0EF: whole cycles of arrival times, as before.
+        let mut odometry = knowing_the_cycle();
+        let twists = late_sends_and_late_frames(&mut odometry, false);
+        let worst = twists[1..]
+            .iter()
+            .map(|twist| (twist - 0.3).abs())
+            .fold(0.0, f64::max);
+        assert!(worst > 0.05, "{twists:?}");
+        assert!(!odometry.uses_controller_clock());
+    }
+
+    #[test]
+    fn a_lost_pose_time_falls_back_to_the_cycle_and_a_reboot_gives_no_rate() {
+        let start = Instant::now();
+        let at = |ms: u64| start + Duration::from_millis(ms);
+        let mut odometry = knowing_the_cycle();
+        odometry.on_pose_time(1_000);
+        odometry.on_position(0, 0);
+        odometry.on_heading(at(0), 0);
+        // The next 0x0EF is lost: the pose's time is the cycle nearest its arrival.
+        odometry.on_position(15, 0);
+        let twist = odometry.on_heading(at(52), 0).0.unwrap().linear_x;
+        assert!((twist - 0.3).abs() < 1e-9, "{twist}");
+        // A time from an earlier pose never dates a later one.
+        odometry.on_pose_time(1_100);
+        odometry.on_heading(at(99), 0);
+        odometry.on_position(30, 0);
+        let twist = odometry.on_heading(at(101), 0).0.unwrap().linear_x;
+        assert!((twist - 0.3).abs() < 1e-9, "{twist}");
+        // Time running backwards (the controller rebooted, its pose from zero): the
+        // twist before it is held, no spike.
+        odometry.on_pose_time(1_150);
+        odometry.on_position(45, 0);
+        odometry.on_heading(at(150), 0);
+        odometry.on_pose_time(300);
+        odometry.on_position(0, 0);
+        let twist = odometry.on_heading(at(200), 0).0.unwrap().linear_x;
+        assert!((twist - 0.3).abs() < 1e-9, "{twist}");
     }
 
     #[test]

@@ -503,6 +503,7 @@ impl<'a> State<'a> {
         self.last_frame = now;
         self.next_silence_report = now + SILENCE;
         match report {
+            Report::PoseTime { controller_ms } => self.odometry.on_pose_time(controller_ms),
             Report::Position { x_mm, y_mm } => self.odometry.on_position(x_mm, y_mm),
             Report::Heading { heading_mrad } => {
                 let (sample, reset) = self.odometry.on_heading(now, heading_mrad);
@@ -628,6 +629,16 @@ impl<'a> State<'a> {
     fn publish_status(&self, ros: &Ros, status: &Status) {
         let mut diagnostic = diagnose(status, &self.settings.hardware_id, self.counts());
         add_boot_info(&mut diagnostic, self.boot_info);
+        // Which clock the twist is taken on: a controller that predates the pose time
+        // frame (0x0EF) leaves only the frames' arrival times.
+        let twist_clock = match self.odometry.uses_controller_clock() {
+            true => "controller",
+            false => "arrival",
+        };
+        diagnostic.values.push(KeyValue {
+            key: "twist_clock".to_owned(),
+            value: twist_clock.to_owned(),
+        });
         self.publish_diagnostic(ros, diagnostic);
     }
 

@@ -45,6 +45,8 @@ pub mod id {
     pub const HEADING: u16 = 0x0ED;
     /// BC → PC: status (ext).
     pub const STATUS: u16 = 0x0EE;
+    /// BC → PC: the controller's time of the pose in the 0x0EC and 0x0ED that follow (ext).
+    pub const POSE_TIME: u16 = 0x0EF;
 
     /// Every ID the base controller listens to, e.g. for the receive acceptance filter.
     pub const COMMANDS: [u16; 8] = [
@@ -70,12 +72,20 @@ pub mod id {
     pub const UPDATE: [u16; 2] = [UPDATE_COMMAND, UPDATE_DATA];
 
     /// Every ID the base controller sends, e.g. for the PC-side receive filter.
-    pub const REPORTS: [u16; 6] = [REGISTER_READ, WEIGHT, BATTERY, POSITION, HEADING, STATUS];
+    pub const REPORTS: [u16; 7] = [
+        REGISTER_READ,
+        WEIGHT,
+        BATTERY,
+        POSITION,
+        HEADING,
+        STATUS,
+        POSE_TIME,
+    ];
 
     /// The periodic feedback frames: sent on their own schedule whatever else the bus
     /// carries. Everything else the base controller sends (register replies, update
     /// replies) answers a request.
-    pub const FEEDBACK: [u16; 5] = [POSITION, HEADING, BATTERY, WEIGHT, STATUS];
+    pub const FEEDBACK: [u16; 6] = [POSE_TIME, POSITION, HEADING, BATTERY, WEIGHT, STATUS];
 
     /// Whether the base controller sends `frame_id` as periodic feedback rather than as
     /// a reply (see [`FEEDBACK`]).
@@ -252,6 +262,7 @@ mod tests {
     #[test]
     fn the_periodic_frames_are_feedback_and_every_reply_is_not() {
         for feedback in [
+            id::POSE_TIME,
             id::POSITION,
             id::HEADING,
             id::BATTERY,

@@ -21,6 +21,10 @@ pub enum Report {
     Position { x_mm: i32, y_mm: i32 },
     /// 0x0ED: positive clockwise, cumulative (not wrapped).
     Heading { heading_mrad: i32 },
+    /// 0x0EF (ext): the moment, on the controller's clock (milliseconds since boot,
+    /// wrapping after 49.7 days), at which the pose in the 0x0EC and 0x0ED that follow
+    /// this frame holds. Sent just before them in every cycle.
+    PoseTime { controller_ms: u32 },
     /// 0x0EB.
     Battery { percent: u8, voltage_mv: u16 },
     /// 0x0EA: the producer clamps negative weights to 0.
@@ -68,6 +72,14 @@ impl Report {
                 };
                 Report::Heading {
                     heading_mrad: i32::from_le_bytes([h0, h1, h2, h3]),
+                }
+            }
+            id::POSE_TIME => {
+                let &[t0, t1, t2, t3] = data else {
+                    return Err(FrameError::WrongLength);
+                };
+                Report::PoseTime {
+                    controller_ms: u32::from_le_bytes([t0, t1, t2, t3]),
                 }
             }
             id::BATTERY => {
@@ -135,6 +147,9 @@ impl Report {
             }
             Report::Heading { heading_mrad } => {
                 RawFrame::from_array(id::HEADING, heading_mrad.to_le_bytes())
+            }
+            Report::PoseTime { controller_ms } => {
+                RawFrame::from_array(id::POSE_TIME, controller_ms.to_le_bytes())
             }
             Report::Battery {
                 percent,
