@@ -16,6 +16,11 @@ use yaml_rust2::{Yaml, YamlLoader};
 
 use crate::node::{self, Settings};
 
+/// The accepted `cmd_vel_timeout`, s.
+const CMD_VEL_TIMEOUT_S: std::ops::RangeInclusive<f64> = 0.05..=2.0;
+/// The accepted `command_rate`, Hz.
+const COMMAND_RATE_HZ: std::ops::RangeInclusive<f64> = 1.0..=100.0;
+
 /// A ROS 2 node for the base controller: /cmd_vel in; /odom, /tf, /battery_state and
 /// /diagnostics out. No ROS installation needed; talks to the base over socketcand,
 /// SLCAN or SocketCAN.
@@ -295,18 +300,27 @@ impl Cli {
         ]
     }
 
-    /// The node's settings; `Err` names a bad value.
+    /// The node's settings; `Err` names a bad value (NaN is outside every range).
     pub fn settings(&self) -> Result<Settings, String> {
-        if !(self.cmd_vel_timeout.is_finite() && self.cmd_vel_timeout > 0.0) {
+        // Shorter than a few command periods stops the base between two messages of a
+        // steady 20 Hz publisher; longer than 2 s lets a dead publisher's last twist
+        // drive on for longer than anyone would stand beside a moving base.
+        if !CMD_VEL_TIMEOUT_S.contains(&self.cmd_vel_timeout) {
             return Err(format!(
-                "--cmd-vel-timeout {} is not a positive number of seconds",
-                self.cmd_vel_timeout
+                "--cmd-vel-timeout {} s: between {} and {} s",
+                self.cmd_vel_timeout,
+                CMD_VEL_TIMEOUT_S.start(),
+                CMD_VEL_TIMEOUT_S.end()
             ));
         }
-        if !(self.command_rate.is_finite() && self.command_rate >= 1.0) {
+        // More than 100 Hz only adds bus load (the base's cycle is 50 ms); a rate of
+        // 1e20 made the send period zero, and the node sent flat out.
+        if !COMMAND_RATE_HZ.contains(&self.command_rate) {
             return Err(format!(
-                "--command-rate {} Hz: at least 1 Hz",
-                self.command_rate
+                "--command-rate {} Hz: between {} and {} Hz",
+                self.command_rate,
+                COMMAND_RATE_HZ.start(),
+                COMMAND_RATE_HZ.end()
             ));
         }
         let six = |values: &[f64], what: &str| -> Result<[f64; 6], String> {
@@ -441,6 +455,34 @@ mod tests {
                 .parameters
                 .contains(&("publish_tf".to_owned(), ParameterValue::Boolean(false)))
         );
+    }
+
+    #[test]
+    fn a_timeout_or_rate_out_of_its_range_is_refused_with_the_range() {
+        let settings = |option: &str, value: &str| {
+            parse(&["base-ros2", &format!("{option}={value}")])
+                .unwrap()
+                .settings()
+        };
+        // 1e20 s panicked in Duration::from_secs_f64.
+        for timeout in ["1e20", "2.01", "0.049", "0", "-1", "NaN", "inf"] {
+            let error = settings("--cmd-vel-timeout", timeout).err();
+            assert!(
+                error.is_some_and(|error| error.contains("between 0.05 and 2 s")),
+                "{timeout}"
+            );
+        }
+        for timeout in ["0.05", "0.5", "2"] {
+            assert!(settings("--cmd-vel-timeout", timeout).is_ok(), "{timeout}");
+        }
+        for rate in ["1e20", "100.5", "0.5", "NaN"] {
+            let error = settings("--command-rate", rate).err();
+            assert!(
+                error.is_some_and(|error| error.contains("between 1 and 100 Hz")),
+                "{rate}"
+            );
+        }
+        assert!(settings("--command-rate", "100").is_ok());
     }
 
     #[test]
