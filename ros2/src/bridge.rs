@@ -197,6 +197,15 @@ pub enum ResetOutcome {
     NoAnswer,
 }
 
+/// Whether a TwistStamped stamped `stamp_ns` (ns since the epoch) is older than
+/// `timeout` at `now_ns`. A zero stamp (the publisher left it unset) is never stale,
+/// nor is one from the future (the publisher's clock is ahead): only a command known
+/// to be old is dropped.
+pub fn stamp_is_stale(stamp_ns: i64, now_ns: i64, timeout: Duration) -> bool {
+    let timeout_ns = i64::try_from(timeout.as_nanos()).unwrap_or(i64::MAX);
+    stamp_ns != 0 && now_ns.saturating_sub(stamp_ns) > timeout_ns
+}
+
 /// The report side: 0x0EC (x, y) then 0x0ED (heading) make one pose. The twist is the
 /// pose change over the time between the poses on the controller's clock (0x0EF, sent
 /// just before them), not over the frames' arrival times, which a loaded PC or bus
@@ -543,6 +552,18 @@ mod tests {
             })
             .map(|sample| sample.linear_x)
             .collect()
+    }
+
+    #[test]
+    fn a_stamped_command_older_than_the_timeout_is_stale_an_unset_or_future_one_is_not() {
+        let timeout = Duration::from_millis(500);
+        let now = 1_800_000_000_000_000_000;
+        assert!(stamp_is_stale(now - 501_000_000, now, timeout));
+        assert!(!stamp_is_stale(now - 500_000_000, now, timeout));
+        assert!(!stamp_is_stale(now - 20_000_000, now, timeout));
+        assert!(!stamp_is_stale(now + 3_000_000_000, now, timeout));
+        assert!(!stamp_is_stale(0, now, timeout));
+        assert!(stamp_is_stale(i64::MIN + 1, now, timeout));
     }
 
     #[test]

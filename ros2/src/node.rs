@@ -22,7 +22,7 @@ use ros2_client::{
 };
 
 use crate::bridge::{
-    CYCLE_REGISTER, CommandSide, Counts, OdometrySample, OdometrySide, ResetOutcome,
+    CYCLE_REGISTER, CommandSide, Counts, OdometrySample, OdometrySide, ResetOutcome, stamp_is_stale,
 };
 use crate::msgs::{self, *};
 
@@ -88,17 +88,17 @@ enum CmdVel {
 }
 
 impl CmdVel {
-    /// The next waiting command as (linear.x, angular.z); `Err` for one that could
-    /// not be decoded.
-    fn take(&self) -> Option<Result<Twist, String>> {
+    /// The next waiting command, with its stamp if it is a TwistStamped; `Err` for
+    /// one that could not be decoded.
+    fn take(&self) -> Option<Result<(Twist, Option<Time>), String>> {
         match self {
             CmdVel::Plain(subscription) => match subscription.take() {
-                Ok(Some((twist, _))) => Some(Ok(twist)),
+                Ok(Some((twist, _))) => Some(Ok((twist, None))),
                 Ok(None) => None,
                 Err(error) => Some(Err(format!("{error:?}"))),
             },
             CmdVel::Stamped(subscription) => match subscription.take() {
-                Ok(Some((stamped, _))) => Some(Ok(stamped.twist)),
+                Ok(Some((stamped, _))) => Some(Ok((stamped.twist, Some(stamped.header.stamp)))),
                 Ok(None) => None,
                 Err(error) => Some(Err(format!("{error:?}"))),
             },
@@ -322,6 +322,8 @@ struct State<'a> {
     next_heartbeat: Instant,
     next_silence_report: Instant,
     malformed_cmd_vel: u64,
+    /// TwistStamped commands older than the timeout, dropped.
+    stale_cmd_vel: u64,
     malformed_frames: u64,
     /// The tag of the node's last register read (the reply echoes it).
     last_tag: u16,
@@ -345,6 +347,7 @@ impl<'a> State<'a> {
             next_heartbeat: now,
             next_silence_report: now + SILENCE,
             malformed_cmd_vel: 0,
+            stale_cmd_vel: 0,
             malformed_frames: 0,
             last_tag: 0,
             next_cycle_read: now,
@@ -404,7 +407,30 @@ impl<'a> State<'a> {
             let now = Instant::now();
             while let Some(taken) = ros.cmd_vel.take() {
                 match taken {
-                    Ok(twist) => {
+                    Ok((_, Some(stamp)))
+                        if stamp_is_stale(
+                            stamp.to_nanos(),
+                            Time::now().to_nanos(),
+                            self.settings.cmd_vel_timeout,
+                        ) =>
+                    {
+                        self.stale_cmd_vel += 1;
+                        // The first, then every 100th: a publisher whose clock is
+                        // behind sends nothing but these.
+                        if self.stale_cmd_vel % 100 == 1 {
+                            ros.log(
+                                LogLevel::Warn,
+                                &format!(
+                                    "a /cmd_vel stamped {:.3} s ago dropped: older than \
+                                     cmd_vel_timeout ({} so far; is the publisher's clock \
+                                     behind?)",
+                                    (Time::now().to_nanos() - stamp.to_nanos()) as f64 / 1e9,
+                                    self.stale_cmd_vel
+                                ),
+                            );
+                        }
+                    }
+                    Ok((twist, _)) => {
                         match self
                             .commands
                             .on_cmd_vel(now, twist.linear.x, twist.angular.z)
@@ -670,6 +696,7 @@ impl<'a> State<'a> {
         BridgeCounts {
             commands: self.commands.counts,
             malformed_cmd_vel: self.malformed_cmd_vel,
+            stale_cmd_vel: self.stale_cmd_vel,
             malformed_frames: self.malformed_frames,
         }
     }
@@ -683,6 +710,7 @@ const DIAGNOSTIC_STALE: u8 = 3;
 pub struct BridgeCounts {
     pub commands: Counts,
     pub malformed_cmd_vel: u64,
+    pub stale_cmd_vel: u64,
     pub malformed_frames: u64,
 }
 
@@ -819,6 +847,7 @@ pub fn diagnose(status: &Status, hardware_id: &str, counts: BridgeCounts) -> Dia
             value("cmd_vel_clamped", counts.commands.clamped.to_string()),
             value("cmd_vel_timeouts", counts.commands.timeouts.to_string()),
             value("cmd_vel_undecodable", counts.malformed_cmd_vel.to_string()),
+            value("cmd_vel_stale", counts.stale_cmd_vel.to_string()),
             value("frames_malformed", counts.malformed_frames.to_string()),
         ],
     }

@@ -23,7 +23,7 @@ from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
 from ros_types import (
-    BatteryState, DiagnosticArray, Header, Odometry, TFMessage, Twist, TwistStamped,
+    BatteryState, DiagnosticArray, Header, Odometry, TFMessage, Time, Twist, TwistStamped,
     Vector3, yaw)
 
 # ROS 2's default QoS: reliable, volatile, keep the last 10.
@@ -69,13 +69,18 @@ class Peer:
                 if name == "diagnostics":
                     self.diagnostics.append(sample)
 
-    def drive(self, linear_x, angular_z, seconds, rate_hz=20.0):
-        """Publishes one Twist `rate_hz` times a second for `seconds`."""
+    def drive(self, linear_x, angular_z, seconds, rate_hz=20.0, stamp_age=None):
+        """Publishes one Twist `rate_hz` times a second for `seconds`; stamped
+        `stamp_age` seconds in the past if given (else the stamp is left unset)."""
         end = time.monotonic() + seconds
         while time.monotonic() < end:
             twist = Twist(linear=Vector3(x=linear_x), angular=Vector3(z=angular_z))
             if self.stamped:
-                twist = TwistStamped(header=Header(frame_id="base_link"), twist=twist)
+                header = Header(frame_id="base_link")
+                if stamp_age is not None:
+                    ns = time.time_ns() - int(stamp_age * 1e9)
+                    header.stamp = Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+                twist = TwistStamped(header=header, twist=twist)
             self.cmd_vel.write(twist)
             self.wait(1.0 / rate_hz)
 
@@ -203,6 +208,18 @@ def stamped():
     w = odom.twist.twist.angular.z
     check(w < -0.1, f"a TwistStamped clockwise turn (angular.z -0.2) is a negative yaw rate: "
                     f"{w:.3f} rad/s")
+    # Stamped 2 s ago, older than cmd_vel_timeout (0.5 s): dropped, so the base stops
+    # within the timeout and its ramp, and stays.
+    peer.drive(0.3, 0.0, 1.5, stamp_age=2.0)
+    x = peer.odom().pose.pose.position.x
+    peer.drive(0.3, 0.0, 1.0, stamp_age=2.0)
+    moved = peer.odom().pose.pose.position.x - x
+    check(abs(moved) < 0.005, f"TwistStamped 2 s old do not drive: {moved * 1000:.1f} mm")
+    # A fresh stamp drives again.
+    x = peer.odom().pose.pose.position.x
+    peer.drive(0.3, 0.0, 1.0, stamp_age=0.0)
+    moved = peer.odom().pose.pose.position.x - x
+    check(moved > 0.1, f"a freshly stamped TwistStamped drives: {moved:.3f} m")
     print("DONE", flush=True)
 
 
