@@ -30,7 +30,9 @@ pub const REPLY_QUEUE: usize = 32;
 /// a queue of their own, in order. Senders never wait: a reply that finds its queue
 /// full is dropped and counted, and a feedback frame replaces an older one of its ID
 /// that is still waiting (the bus was off or full of other nodes' frames for a whole
-/// period), which counts as dropped too.
+/// period), which counts as dropped too. The newer frame goes behind the others that
+/// fell due, so frames that belong together leave in the order they were sent: a pose
+/// time (0x0EF) never goes out after the pose of the next cycle.
 pub struct FrameQueue {
     queued: Mutex<RawMutex, RefCell<Queued>>,
     /// Set by every send; the TX task waits on it when both classes are empty.
@@ -38,7 +40,8 @@ pub struct FrameQueue {
 }
 
 struct Queued {
-    /// At most one frame per feedback ID, in the order they fell due.
+    /// At most one frame per feedback ID, in the order they fell due (a replaced
+    /// frame's successor counts as falling due when it is sent).
     feedback: Deque<RawFrame, { id::FEEDBACK.len() }>,
     replies: Deque<RawFrame, REPLY_QUEUE>,
     dropped: u32,
@@ -47,20 +50,28 @@ struct Queued {
 impl Queued {
     fn push(&mut self, frame: RawFrame) {
         let pushed = if id::is_feedback(frame.id()) {
-            match self
+            // The newest value replaces a waiting older one (the PC should get the
+            // newest), but at the back: had it kept the older one's place, a cycle
+            // whose first frame already left would go out as the next cycle's frames
+            // followed by its own, pairing the pose time with the wrong pose.
+            let replaced = self
                 .feedback
-                .iter_mut()
-                .find(|waiting| waiting.id() == frame.id())
-            {
-                Some(older) => {
-                    // The newest value in the older one's place: the frame that falls
-                    // due next is the one the PC should get.
-                    *older = frame;
-                    false
+                .iter()
+                .any(|waiting| waiting.id() == frame.id());
+            if replaced {
+                let mut kept = Deque::new();
+                for waiting in self
+                    .feedback
+                    .iter()
+                    .filter(|waiting| waiting.id() != frame.id())
+                {
+                    // Fewer than before: there is room.
+                    let _ = kept.push_back(*waiting);
                 }
-                // One slot per feedback ID: there is always room.
-                None => self.feedback.push_back(frame).is_ok(),
+                self.feedback = kept;
             }
+            // One slot per feedback ID: there is always room.
+            self.feedback.push_back(frame).is_ok() && !replaced
         } else {
             self.replies.push_back(frame).is_ok()
         };
@@ -229,7 +240,30 @@ mod tests {
     }
 
     #[test]
-    fn a_feedback_frame_not_yet_sent_is_replaced_in_place_by_the_next_of_its_id() {
+    fn a_cycle_whose_pose_time_already_left_is_replaced_whole_and_in_order() {
+        let queue = FrameQueue::new();
+        queue.send(feedback(id::POSE_TIME, 1));
+        queue.send(feedback(id::POSITION, 1));
+        queue.send(feedback(id::HEADING, 1));
+        // The bus took only the pose time before the next cycle fell due.
+        assert_eq!(queue.take(), Some(feedback(id::POSE_TIME, 1)));
+        queue.send(feedback(id::POSE_TIME, 2));
+        queue.send(feedback(id::POSITION, 2));
+        queue.send(feedback(id::HEADING, 2));
+        assert_eq!(queue.dropped(), 2);
+        assert_eq!(
+            drain(&queue),
+            [
+                feedback(id::POSE_TIME, 2),
+                feedback(id::POSITION, 2),
+                feedback(id::HEADING, 2)
+            ],
+            "cycle 2's pose time before cycle 2's pose"
+        );
+    }
+
+    #[test]
+    fn a_feedback_frame_not_yet_sent_is_replaced_by_the_next_of_its_id() {
         let queue = FrameQueue::new();
         queue.send(feedback(id::POSITION, 1));
         queue.send(feedback(id::HEADING, 1));
