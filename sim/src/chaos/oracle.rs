@@ -914,7 +914,7 @@ impl Oracle {
         }
         if matches!(
             id,
-            wire::WEIGHT | wire::BATTERY | wire::POSITION | wire::HEADING
+            wire::WEIGHT | wire::BATTERY | wire::POSITION | wire::HEADING | wire::POSE_TIME
         ) && self.estop_pressed
             && self.estop_since_press(at) > 10_000 + bounds::FRAME_QUEUE_US
         {
