@@ -22,8 +22,9 @@ POSITION = 0x0EC
 HEADING = 0x0ED
 STATUS = 0x0EE
 POSE_TIME = 0x0EF
+MEASURED_SPEED = 0x0F0
 
-FEEDBACK_IDS = (WEIGHT, BATTERY, POSITION, HEADING, POSE_TIME)
+FEEDBACK_IDS = (WEIGHT, BATTERY, POSITION, HEADING, POSE_TIME, MEASURED_SPEED)
 
 # Registers used by the suite (docs/registers.md).
 REG_LOOP_END_DELAY = 15
@@ -104,6 +105,12 @@ def parse_heading(data):
 def parse_pose_time(data):
     """Milliseconds of the controller's clock (wrapping at 2**32)."""
     return struct.unpack("<I", bytes(data[:4]))[0]
+
+
+def parse_measured_speed(data):
+    """mm/s forward, mrad/s clockwise, and each wheel's rad/s (forward positive)."""
+    linear, rotation, left, right = struct.unpack("<hhhh", bytes(data[:8]))
+    return linear, rotation, left / 100, right / 100
 
 
 def parse_battery(data):

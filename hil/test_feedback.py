@@ -20,15 +20,19 @@ def test_position_and_heading_come_every_loop_end_delay(base):
         assert max(gaps) * 1000 < 3 * period_ms
 
 
-def test_each_pose_follows_its_time_on_the_controllers_clock(base):
-    """0x0EF just before every 0x0EC; its times a cycle apart on the controller's clock."""
+def test_each_pose_follows_its_time_and_speed_on_the_controllers_clock(base):
+    """0x0EF and 0x0F0 just before every 0x0EC; the times a cycle apart on the
+    controller's clock; the measured speed of a base at rest is zero."""
     period_ms = base.read_register(p.REG_LOOP_END_DELAY).value
     frames = base.collect(3.0)
     times = []
-    for previous, frame in zip(frames, frames[1:]):
+    for before, previous, frame in zip(frames, frames[1:], frames[2:]):
         if frame[1] == p.POSITION:
-            assert previous[1] == p.POSE_TIME, f"0x{previous[1]:03X} before a position"
-            times.append(p.parse_pose_time(previous[2]))
+            order = (before[1], previous[1])
+            assert order == (p.POSE_TIME, p.MEASURED_SPEED), \
+                f"0x{order[0]:03X}, 0x{order[1]:03X} before a position"
+            times.append(p.parse_pose_time(before[2]))
+            assert p.parse_measured_speed(previous[2]) == (0, 0, 0, 0)
     gaps = [(b - a) % 2**32 for a, b in zip(times, times[1:])]
     assert len(gaps) > 3.0 / (period_ms / 1000) * 0.8
     assert all(0 < gap < 3 * period_ms for gap in gaps), gaps

@@ -188,6 +188,7 @@ impl<'bus> Base<'bus> {
                 voltage_mv,
             } => self.battery = Some((percent, voltage_mv)),
             Report::PoseTime { .. }
+            | Report::MeasuredSpeed { .. }
             | Report::RegisterValue { .. }
             | Report::RegisterReadError { .. } => {}
         }

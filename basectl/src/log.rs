@@ -35,7 +35,8 @@ impl Format {
 
 /// The CSV header.
 pub const CSV_HEADER: &str = "time,x_mm,y_mm,heading_mrad,battery_mv,battery_percent,weight_g,\
-mode,control,rejected_count,modbus_errors,pose_time_ms";
+mode,control,rejected_count,modbus_errors,pose_time_ms,measured_mm_s,measured_mrad_s,\
+left_wheel_rad_s,right_wheel_rad_s";
 
 /// One frame in candump's log format.
 pub fn candump_line(frame: &RawFrame, time: Duration) -> String {
@@ -55,7 +56,7 @@ pub fn candump_line(frame: &RawFrame, time: Duration) -> String {
 /// The newest value of each column.
 #[derive(Default)]
 pub struct Row {
-    values: [Option<String>; 11],
+    values: [Option<String>; 15],
 }
 
 impl Row {
@@ -69,6 +70,17 @@ impl Row {
             }
             Report::Heading { heading_mrad } => set(2, heading_mrad.to_string()),
             Report::PoseTime { controller_ms } => set(10, controller_ms.to_string()),
+            Report::MeasuredSpeed {
+                linear_mm_s,
+                rotation_mrad_s,
+                left_wheel_crad_s,
+                right_wheel_crad_s,
+            } => {
+                set(11, linear_mm_s.to_string());
+                set(12, rotation_mrad_s.to_string());
+                set(13, format!("{:.2}", f64::from(left_wheel_crad_s) / 100.0));
+                set(14, format!("{:.2}", f64::from(right_wheel_crad_s) / 100.0));
+            }
             Report::Battery {
                 percent,
                 voltage_mv,
@@ -177,27 +189,40 @@ mod tests {
     fn csv_rows_carry_the_newest_value_of_each_column() {
         let mut row = Row::default();
         assert!(row.absorb(&Report::Position { x_mm: 5, y_mm: -3 }));
-        assert_eq!(row.line(Duration::from_secs(2)), "2.000000,5,-3,,,,,,,,,");
+        assert_eq!(
+            row.line(Duration::from_secs(2)),
+            "2.000000,5,-3,,,,,,,,,,,,,"
+        );
         assert!(row.absorb(&Report::Battery {
             percent: 80,
             voltage_mv: 24_000
         }));
         assert_eq!(
             row.line(Duration::from_secs(3)),
-            "3.000000,5,-3,,24000,80,,,,,,"
+            "3.000000,5,-3,,24000,80,,,,,,,,,,"
         );
         assert!(row.absorb(&Report::PoseTime {
             controller_ms: 4_000
         }));
         assert_eq!(
             row.line(Duration::from_secs(4)),
-            "4.000000,5,-3,,24000,80,,,,,,4000"
+            "4.000000,5,-3,,24000,80,,,,,,4000,,,,"
+        );
+        assert!(row.absorb(&Report::MeasuredSpeed {
+            linear_mm_s: 300,
+            rotation_mrad_s: -500,
+            left_wheel_crad_s: 250,
+            right_wheel_crad_s: -5,
+        }));
+        assert_eq!(
+            row.line(Duration::from_secs(5)),
+            "5.000000,5,-3,,24000,80,,,,,,4000,300,-500,2.50,-0.05"
         );
         assert!(!row.absorb(&Report::RegisterValue {
             value: 1,
             echo: None
         }));
-        assert_eq!(CSV_HEADER.split(',').count(), 12);
+        assert_eq!(CSV_HEADER.split(',').count(), 16);
     }
 
     #[test]

@@ -36,7 +36,7 @@ const LIVE_PERIOD: Duration = Duration::from_millis(100);
 #[derive(Default)]
 struct Latest {
     /// Kind → (when, line), in a fixed order.
-    lines: [(Option<Instant>, String); 8],
+    lines: [(Option<Instant>, String); 9],
     frames: u64,
 }
 
@@ -51,6 +51,7 @@ impl Latest {
             Report::RegisterValue { .. } => 5,
             Report::RegisterReadError { .. } => 6,
             Report::PoseTime { .. } => 7,
+            Report::MeasuredSpeed { .. } => 8,
         };
         self.lines[slot] = (Some(Instant::now()), describe(report));
         self.frames += 1;
@@ -136,6 +137,17 @@ pub fn describe(report: &Report) -> String {
         Report::PoseTime { controller_ms } => {
             format!("pose time {controller_ms} ms on the controller's clock")
         }
+        Report::MeasuredSpeed {
+            linear_mm_s,
+            rotation_mrad_s,
+            left_wheel_crad_s,
+            right_wheel_crad_s,
+        } => format!(
+            "measured  {linear_mm_s} mm/s  {rotation_mrad_s} mrad/s clockwise  \
+             wheels {:.2} / {:.2} rad/s",
+            f64::from(left_wheel_crad_s) / 100.0,
+            f64::from(right_wheel_crad_s) / 100.0
+        ),
         Report::Battery {
             percent,
             voltage_mv,
@@ -238,6 +250,18 @@ pub fn report_json(report: &Report) -> serde_json::Value {
         Report::PoseTime { controller_ms } => {
             json!({"report": "pose_time", "controller_ms": controller_ms})
         }
+        Report::MeasuredSpeed {
+            linear_mm_s,
+            rotation_mrad_s,
+            left_wheel_crad_s,
+            right_wheel_crad_s,
+        } => json!({
+            "report": "measured_speed",
+            "linear_mm_s": linear_mm_s,
+            "rotation_mrad_s": rotation_mrad_s,
+            "left_wheel_rad_s": f64::from(left_wheel_crad_s) / 100.0,
+            "right_wheel_rad_s": f64::from(right_wheel_crad_s) / 100.0,
+        }),
         Report::Battery {
             percent,
             voltage_mv,

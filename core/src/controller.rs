@@ -13,7 +13,7 @@ use crate::can::{Faults, Mode, Status, StatusFlags};
 use crate::feedback::{FeedbackPeriods, FeedbackSchedule};
 use crate::gamepad::GamepadState;
 use crate::kinematics::{self, KinematicsParams, MotorRpm, SafetyLimits, Twist, WheelCommand};
-use crate::odometry::{EncoderCounts, Odometry, OdometryParams};
+use crate::odometry::{self, EncoderCounts, Odometry, OdometryParams};
 use crate::plausibility::{self, Commanded, FeedbackCheck, SpeedRange};
 use crate::power::{self, PowerControl, SwitchLevel};
 use crate::registers::{
@@ -991,12 +991,13 @@ impl Controller {
             // whenever the reading itself was taken (on a loaded host a read may even
             // land just after its frame). A reading older than two cycles (a silent
             // drive) is reported as it is.
-            let pose = match self.last_feedback {
-                Some((at, rpm)) if now.millis_since(at) <= 2 * u64::from(periods.odometry_ms) => {
-                    self.odometry
-                        .pose_ahead(&self.odometry_params(), rpm, now.millis_since(at))
-                }
-                _ => self.odometry.pose(),
+            let fresh_rpm = self
+                .last_feedback
+                .filter(|(at, _)| now.millis_since(*at) <= 2 * u64::from(periods.odometry_ms));
+            let params = self.odometry_params();
+            let pose = match fresh_rpm {
+                Some((at, rpm)) => self.odometry.pose_ahead(&params, rpm, now.millis_since(at)),
+                None => self.odometry.pose(),
             };
             // The pose's moment on this clock (ext), ahead of the pose: a PC divides
             // pose differences by these, not by arrival times a busy bus or PC stretches.
@@ -1008,6 +1009,13 @@ impl Controller {
                 }
                 .encode(),
             );
+            // The speed the pose moves at (ext), between its time and the pose: a PC
+            // takes the twist from it, exact to the drives' resolution, instead of
+            // from pose differences (1 mm and 1 mrad of rounding per pose). Only from
+            // a fresh reading: a silent drive's last speed is not the base's.
+            if let Some((_, rpm)) = fresh_rpm {
+                push_frame(out, measured_speed_report(&params, rpm).encode());
+            }
             push_frame(
                 out,
                 Report::Position {
@@ -1267,8 +1275,22 @@ fn frame_subject(id: u16) -> u8 {
     id.to_le_bytes()[0]
 }
 
-/// At most one register reply, two odometry frames, battery, weight and status go out
-/// per input: eight slots always suffice.
+/// 0x0F0 from the drives' reading: rounded to the wire's units, saturating at the i16
+/// range (32 m/s, 32 rad/s; a wheel at 327 rad/s).
+fn measured_speed_report(params: &OdometryParams, rpm: MotorRpm) -> Report {
+    let speed = odometry::measured_speed(params, rpm);
+    // `as` saturates, and maps the NaN of broken geometry registers to 0.
+    let wire = |value: f64| libm::round(value) as i16;
+    Report::MeasuredSpeed {
+        linear_mm_s: wire(speed.linear_mm_s),
+        rotation_mrad_s: wire(speed.rotation_rad_s * 1000.0),
+        left_wheel_crad_s: wire(speed.left_wheel_rad_s * 100.0),
+        right_wheel_crad_s: wire(speed.right_wheel_rad_s * 100.0),
+    }
+}
+
+/// At most one register reply, the four odometry frames, battery, weight and status go
+/// out per input: eight slots always suffice.
 fn push_frame(out: &mut Output, frame: RawFrame) {
     let pushed = out.frames.push(frame);
     debug_assert!(pushed.is_ok(), "more frames than Output holds");
@@ -1655,6 +1677,73 @@ mod tests {
         let (min, max) = (steps.iter().min().unwrap(), steps.iter().max().unwrap());
         assert!(max - min <= 1, "steps between frames: {steps:?}");
         assert!((24..=26).contains(min), "steps between frames: {steps:?}");
+    }
+
+    /// 0x0F0 (ext) carries the speed the pose moves at: between the pose's time and
+    /// the pose, from the reading the pose is carried on from, and never from a
+    /// reading a silent drive left behind.
+    #[test]
+    fn the_measured_speed_goes_between_the_pose_time_and_the_pose_while_readings_are_fresh() {
+        let mut controller = driving_forward();
+        let rpm = MotorRpm {
+            left: 336,
+            right: -336,
+        };
+        let reading = |ms: u64| {
+            let counts = (201.6 * ms as f64).round() as i32;
+            Input::DriveFeedback {
+                counts: EncoderCounts {
+                    left: counts,
+                    right: -counts,
+                },
+                rpm,
+            }
+        };
+        let odometry_frames = |out: &Output| -> std::vec::Vec<Report> {
+            out.frames
+                .iter()
+                .filter_map(|frame| Report::decode(frame.id(), frame.data()).ok().flatten())
+                .filter(|report| !matches!(report, Report::Status(_) | Report::Battery { .. }))
+                .filter(|report| !matches!(report, Report::Weight { .. }))
+                .collect()
+        };
+        controller.handle(at(25), reading(25));
+        controller.handle(at(75), reading(75));
+        let out = controller.handle(at(100), Input::Tick);
+        let frames = odometry_frames(&out);
+        let [
+            Report::PoseTime { controller_ms: 100 },
+            Report::MeasuredSpeed {
+                linear_mm_s,
+                rotation_mrad_s: 0,
+                left_wheel_crad_s,
+                right_wheel_crad_s,
+            },
+            Report::Position { .. },
+            Report::Heading { .. },
+        ] = frames[..]
+        else {
+            panic!("the cycle's frames: {frames:?}");
+        };
+        // The position frames step 25 mm per 50 ms cycle at this speed (see above).
+        assert!((495..=505).contains(&linear_mm_s), "{linear_mm_s} mm/s");
+        assert_eq!(left_wheel_crad_s, right_wheel_crad_s, "straight ahead");
+        assert!(left_wheel_crad_s > 0, "forward: {left_wheel_crad_s}");
+        // The drives fall silent: two cycles on, the pose stands and no speed is sent.
+        controller.handle(at(150), Input::Tick);
+        let out = controller.handle(at(200), Input::Tick);
+        let frames = odometry_frames(&out);
+        assert!(
+            matches!(
+                frames[..],
+                [
+                    Report::PoseTime { .. },
+                    Report::Position { .. },
+                    Report::Heading { .. }
+                ]
+            ),
+            "a stale reading gives no speed: {frames:?}"
+        );
     }
 
     fn write(reg: Reg, value: u16) -> Input {

@@ -73,6 +73,47 @@ pub struct PrecisePose {
     pub heading_rad: f64,
 }
 
+/// The base's speed as the drives measured it, with the calibration factors applied
+/// like the pose's ([`measured_speed`]).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct MeasuredSpeed {
+    /// Of the axle centre, positive forward.
+    pub linear_mm_s: f64,
+    /// Positive clockwise.
+    pub rotation_rad_s: f64,
+    /// Each wheel's own rotation, positive when it drives the base forward (no
+    /// calibration factor: this is how fast the wheel turns).
+    pub left_wheel_rad_s: f64,
+    pub right_wheel_rad_s: f64,
+}
+
+/// The speed at which the pose moves while the motors turn at `rpm` (the drives' own
+/// reading, in their raw sense like the counters): the same geometry and calibration
+/// as [`Odometry::update`], so a PC that integrates these speeds follows the pose.
+pub fn measured_speed(params: &OdometryParams, rpm: MotorRpm) -> MeasuredSpeed {
+    let wheel_rad_s = |rpm: i32, inverted: bool| {
+        let sign = if inverted { -1.0 } else { 1.0 };
+        sign * f64::from(rpm) / 60.0 * TAU / params.gear_ratio
+    };
+    let left_wheel_rad_s = wheel_rad_s(rpm.left, params.invert_left);
+    let right_wheel_rad_s = wheel_rad_s(rpm.right, params.invert_right);
+    let rim_left = left_wheel_rad_s * params.left_radius_mm;
+    let rim_right = right_wheel_rad_s * params.right_radius_mm;
+    let rotation = (rim_left - rim_right) / params.wheel_distance_mm;
+    let rotation_factor = if rotation > 0.0 {
+        params.f_cw
+    } else {
+        params.f_ccw
+    };
+    MeasuredSpeed {
+        linear_mm_s: (rim_left + rim_right) / 2.0 * params.f_lin,
+        rotation_rad_s: rotation * rotation_factor,
+        left_wheel_rad_s,
+        right_wheel_rad_s,
+    }
+}
+
 /// The dead-reckoning state: the last counter sample and the integrated pose.
 #[derive(Debug, Clone, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -368,6 +409,46 @@ mod tests {
             wrapped.discontinuity(&robot(), counts(i32::MIN + 10, i32::MAX - 10), 900, 50),
             0
         );
+    }
+
+    #[test]
+    fn the_measured_speed_moves_the_pose_as_the_counters_do() {
+        // Mirrored left motor and every calibration factor off 1: the speed must use
+        // each of them exactly as the counters' integration does.
+        let params = OdometryParams {
+            invert_left: true,
+            f_lin: 1.02,
+            f_cw: 0.97,
+            f_ccw: 1.05,
+            ..robot()
+        };
+        for (left, right) in [(-600, 600), (-600, 300), (300, -300), (200, 500), (0, 0)] {
+            let rpm = MotorRpm { left, right };
+            let speed = measured_speed(&params, rpm);
+            // One second at `rpm`, in counts (whole numbers for these speeds).
+            let mut odometry = Odometry::new();
+            odometry.update(&params, counts(0, 0));
+            odometry.update(&params, counts(left * 600, right * 600));
+            let moved = odometry.precise_pose();
+            assert!(
+                (moved.heading_rad - speed.rotation_rad_s).abs() < 1e-9,
+                "{rpm:?}: turned {} rad, speed says {} rad/s",
+                moved.heading_rad,
+                speed.rotation_rad_s
+            );
+            // The arc's length, from its chord and its turn.
+            let chord = moved.x_mm.hypot(moved.y_mm);
+            let arc = chord / sin_x_over_x(moved.heading_rad / 2.0);
+            assert!(
+                (arc - speed.linear_mm_s.abs()).abs() < 1e-6,
+                "{rpm:?}: rolled {arc} mm, speed says {} mm/s",
+                speed.linear_mm_s
+            );
+            // 600 r/min of the motor is 60 r/min of the wheel: 2π rad/s.
+            let wheel = |rpm: i32| f64::from(rpm) / 600.0 * 2.0 * PI;
+            assert!((speed.left_wheel_rad_s - wheel(-left)).abs() < 1e-12);
+            assert!((speed.right_wheel_rad_s - wheel(right)).abs() < 1e-12);
+        }
     }
 
     /// Counts each wheel must roll (opposite ways) for a spin of `angle_rad`.

@@ -288,6 +288,20 @@ fn pose_time_100000_ms() {
 }
 
 #[test]
+fn measured_speed_300_mm_s_turning_counter_clockwise() {
+    assert_report_golden(
+        0x0F0,
+        &[0x2C, 0x01, 0x0C, 0xFE, 0xFA, 0x00, 0x5E, 0x01],
+        Report::MeasuredSpeed {
+            linear_mm_s: 300,
+            rotation_mrad_s: -500,
+            left_wheel_crad_s: 250,
+            right_wheel_crad_s: 350,
+        },
+    );
+}
+
+#[test]
 fn battery_87_percent_25300_mv() {
     assert_report_golden(
         0x0EB,
@@ -472,7 +486,7 @@ fn unknown_ids_are_ignored_whatever_they_carry() {
         0x009,
         0x0C9,
         0x0E9,
-        0x0F0,
+        0x0F1,
         0x2E5,
         0x7FF,
         0x800,
@@ -497,6 +511,7 @@ fn reports_are_not_commands_and_commands_are_not_reports() {
         id::HEADING,
         id::STATUS,
         id::POSE_TIME,
+        id::MEASURED_SPEED,
     ] {
         assert_eq!(Command::decode(id, &[0x01, 0, 0, 0, 0, 0, 0, 0]), Ok(None));
     }

@@ -1137,7 +1137,7 @@ fn is_zero(rpm: MotorRpm) -> bool {
 fn is_feedback(frame: &RawFrame) -> bool {
     matches!(
         frame.id(),
-        id::WEIGHT | id::BATTERY | id::POSITION | id::HEADING | id::POSE_TIME
+        id::WEIGHT | id::BATTERY | id::POSITION | id::HEADING | id::POSE_TIME | id::MEASURED_SPEED
     )
 }
 

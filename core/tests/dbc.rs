@@ -313,6 +313,21 @@ fn report_signals(report: &Report) -> Vec<(&'static str, Expect)> {
         }
         Report::Heading { heading_mrad } => vec![("Heading", value(heading_mrad))],
         Report::PoseTime { controller_ms } => vec![("PoseTime", value(controller_ms))],
+        Report::MeasuredSpeed {
+            linear_mm_s,
+            rotation_mrad_s,
+            left_wheel_crad_s,
+            right_wheel_crad_s,
+        } => vec![
+            ("MeasuredLinear", value(linear_mm_s)),
+            ("MeasuredRotation", value(rotation_mrad_s)),
+            // The DBC's factor, applied as a DBC reader applies it.
+            ("LeftWheelSpeed", value(f64::from(left_wheel_crad_s) * 0.01)),
+            (
+                "RightWheelSpeed",
+                value(f64::from(right_wheel_crad_s) * 0.01),
+            ),
+        ],
         Report::Battery {
             percent,
             voltage_mv,
@@ -564,6 +579,19 @@ fn reports() -> Vec<Report> {
     }
     for controller_ms in [0, 100_000, 0x8000_0000, u32::MAX] {
         reports.push(Report::PoseTime { controller_ms });
+    }
+    for (linear_mm_s, rotation_mrad_s, left_wheel_crad_s, right_wheel_crad_s) in [
+        (0, 0, 0, 0),
+        (300, -500, 250, 350),
+        (i16::MIN, i16::MAX, i16::MAX, i16::MIN),
+        (-1, 1, -1, 1),
+    ] {
+        reports.push(Report::MeasuredSpeed {
+            linear_mm_s,
+            rotation_mrad_s,
+            left_wheel_crad_s,
+            right_wheel_crad_s,
+        });
     }
     for (percent, voltage_mv) in [(0, 0), (87, 25300), (100, 0x8001), (100, u16::MAX)] {
         reports.push(Report::Battery {
@@ -1035,6 +1063,7 @@ fn cycle_times_are_the_defaults_of_the_period_registers() {
     let dbc = parse_dbc();
     let periodic = [
         (id::POSE_TIME, Reg::LoopEndDelay),
+        (id::MEASURED_SPEED, Reg::LoopEndDelay),
         (id::POSITION, Reg::LoopEndDelay),
         (id::HEADING, Reg::LoopEndDelay),
         (id::BATTERY, Reg::VoltTime),

@@ -197,7 +197,7 @@ fn uncorrected() -> Registers {
 fn is_feedback(frame: &RawFrame) -> bool {
     matches!(
         frame.id(),
-        id::WEIGHT | id::BATTERY | id::POSITION | id::HEADING | id::POSE_TIME
+        id::WEIGHT | id::BATTERY | id::POSITION | id::HEADING | id::POSE_TIME | id::MEASURED_SPEED
     )
 }
 

@@ -164,6 +164,81 @@ pub struct OdometrySample {
     pub linear_x: f64,
     /// Yaw rate, rad/s, counter-clockwise.
     pub angular_z: f64,
+    /// The pose's moment on the controller's clock (0x0EF), when it came.
+    pub controller_ms: Option<u32>,
+    /// The wheels' joint states, when the pose came with its measured speed (0x0F0).
+    pub wheels: Option<WheelJoints>,
+}
+
+/// 0x0F0 (ext) as it came: see `Report::MeasuredSpeed`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct WireSpeed {
+    pub linear_mm_s: i16,
+    /// Clockwise.
+    pub rotation_mrad_s: i16,
+    pub left_wheel_crad_s: i16,
+    pub right_wheel_crad_s: i16,
+}
+
+/// Both wheels' joints: left, right. Positive is the sense that drives the base
+/// forward.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct WheelJoints {
+    /// Integrated from the measured speeds over the pose times, rad.
+    pub position_rad: [f64; 2],
+    pub velocity_rad_s: [f64; 2],
+}
+
+/// What the base can physically do (parameters `max_linear_speed`,
+/// `max_angular_speed`): a twist beyond it is a jump of the pose, not motion.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SpeedLimits {
+    pub linear_m_s: f64,
+    pub angular_rad_s: f64,
+}
+
+impl Default for SpeedLimits {
+    fn default() -> Self {
+        Self {
+            linear_m_s: 3.0,
+            angular_rad_s: 10.0,
+        }
+    }
+}
+
+impl SpeedLimits {
+    fn holds(&self, (linear, angular): (f64, f64)) -> bool {
+        linear.abs() <= self.linear_m_s && angular.abs() <= self.angular_rad_s
+    }
+
+    fn clamp(&self, (linear, angular): (f64, f64)) -> (f64, f64) {
+        (
+            linear.clamp(-self.linear_m_s, self.linear_m_s),
+            angular.clamp(-self.angular_rad_s, self.angular_rad_s),
+        )
+    }
+}
+
+/// Where the twist of `/odom` comes from, best first.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TwistSource {
+    /// The drives' measured speed (0x0F0).
+    MeasuredSpeed,
+    /// Pose differences over the poses' times on the controller's clock (0x0EF).
+    ControllerClock,
+    /// Pose differences over whole cycles of arrival time: a controller without the
+    /// extensions.
+    Arrival,
+}
+
+impl TwistSource {
+    pub fn name(self) -> &'static str {
+        match self {
+            TwistSource::MeasuredSpeed => "measured_speed",
+            TwistSource::ControllerClock => "controller_clock",
+            TwistSource::Arrival => "arrival",
+        }
+    }
 }
 
 /// The register the base's feedback period is read from: the position frames come
@@ -207,19 +282,32 @@ pub fn stamp_is_stale(stamp_ns: i64, now_ns: i64, timeout: Duration) -> bool {
 }
 
 /// The report side: 0x0EC (x, y) then 0x0ED (heading) make one pose. The twist is the
-/// pose change over the time between the poses on the controller's clock (0x0EF, sent
-/// just before them), not over the frames' arrival times, which a loaded PC or bus
-/// stretches and squeezes. A controller without 0x0EF (older firmware), or a pose whose
-/// 0x0EF was lost: over whole cycles of the base (register `loop_end_delay`) nearest to
-/// the arrival times, which a pose the controller itself sent late still gets wrong.
+/// speed the drives measured (0x0F0, sent with the pose): exact to their resolution
+/// however late any frame arrives, and untouched by a jump of the pose. Without it
+/// (older firmware, or a cycle without a fresh reading) the pose change over the time
+/// between the poses on the controller's clock (0x0EF), which carries 1 mm and 1 mrad
+/// of rounding per pose; without 0x0EF as well, over whole cycles of the base
+/// (register `loop_end_delay`) nearest to the arrival times, which a pose the
+/// controller itself sent late still gets wrong. A pose-difference twist beyond
+/// [`SpeedLimits`] is a jump (someone reset the odometry): the twist before it holds.
 #[derive(Debug, Default)]
 pub struct OdometrySide {
     /// The controller's time of the pose that the next 0x0EC and 0x0ED make.
     pose_time: Option<u32>,
+    /// The measured speed that goes with that pose.
+    speed: Option<WireSpeed>,
     position: Option<(i32, i32)>,
     previous: Option<PreviousPose>,
     /// Whether the controller has sent its pose times (0x0EF).
     speaks_pose_time: bool,
+    /// Whether the controller has sent measured speeds (0x0F0).
+    speaks_measured_speed: bool,
+    /// Where the last twist came from.
+    twist_source: Option<TwistSource>,
+    limits: SpeedLimits,
+    /// Pose-difference twists beyond the limits, held instead.
+    jumps: u64,
+    wheels: WheelIntegral,
     /// The twist last published: kept across a reset, where the pose jumps.
     last_twist: (f64, f64),
     /// The base's feedback period, once its register was read.
@@ -235,22 +323,83 @@ struct PreviousPose {
     pose: RosPose,
 }
 
+/// The wheels' angles, integrated from their measured speeds over the pose times
+/// (trapezoids). They are for a robot model's wheels to turn (RViz), not for
+/// odometry, which the controller integrates from the counters.
+#[derive(Debug, Default)]
+struct WheelIntegral {
+    position_rad: [f64; 2],
+    /// The last speeds and their pose time.
+    last: Option<(u32, [f64; 2])>,
+}
+
+impl WheelIntegral {
+    /// Longer than this between two speeds (the drives were silent, the PC paused),
+    /// nothing is known of what the wheels did: the angles stay.
+    const MAX_GAP_MS: u32 = 1_000;
+
+    fn step(&mut self, controller_ms: Option<u32>, speed: &WireSpeed) -> WheelJoints {
+        let velocity_rad_s = [
+            f64::from(speed.left_wheel_crad_s) / 100.0,
+            f64::from(speed.right_wheel_crad_s) / 100.0,
+        ];
+        if let (Some((then, before)), Some(at)) = (self.last, controller_ms) {
+            let gap = at.wrapping_sub(then);
+            if (1..=Self::MAX_GAP_MS).contains(&gap) {
+                let dt = f64::from(gap) / 1000.0;
+                for wheel in 0..2 {
+                    self.position_rad[wheel] += (before[wheel] + velocity_rad_s[wheel]) / 2.0 * dt;
+                }
+            }
+        }
+        self.last = controller_ms.map(|at| (at, velocity_rad_s));
+        WheelJoints {
+            position_rad: self.position_rad,
+            velocity_rad_s,
+        }
+    }
+}
+
 impl OdometrySide {
+    pub fn new(limits: SpeedLimits) -> Self {
+        Self {
+            limits,
+            ..Self::default()
+        }
+    }
+
     /// 0x0EF (ext): the controller's time of the pose in the 0x0EC and 0x0ED that follow.
     pub fn on_pose_time(&mut self, controller_ms: u32) {
         self.pose_time = Some(controller_ms);
+        self.speed = None;
         self.position = None;
         self.speaks_pose_time = true;
     }
 
-    pub fn on_position(&mut self, x_mm: i32, y_mm: i32) {
-        self.position = Some((x_mm, y_mm));
+    /// 0x0F0 (ext): the measured speed of the pose the next 0x0EC and 0x0ED make.
+    pub fn on_measured_speed(&mut self, speed: WireSpeed) {
+        self.speed = Some(speed);
+        self.speaks_measured_speed = true;
     }
 
-    /// Whether the twist comes from the controller's own clock (0x0EF seen), or from
-    /// arrival times (a controller that predates 0x0EF).
-    pub fn uses_controller_clock(&self) -> bool {
-        self.speaks_pose_time
+    /// Which extensions the controller has spoken: pose times (0x0EF), measured
+    /// speeds (0x0F0).
+    pub fn extensions(&self) -> (bool, bool) {
+        (self.speaks_pose_time, self.speaks_measured_speed)
+    }
+
+    /// Where the last twist came from; `None` before the first pose.
+    pub fn twist_source(&self) -> Option<TwistSource> {
+        self.twist_source
+    }
+
+    /// Pose-difference twists beyond the limits, held instead.
+    pub fn jumps(&self) -> u64 {
+        self.jumps
+    }
+
+    pub fn on_position(&mut self, x_mm: i32, y_mm: i32) {
+        self.position = Some((x_mm, y_mm));
     }
 
     /// 0x0ED completes the pose the last 0x0EC started. `None` without a position
@@ -261,8 +410,10 @@ impl OdometrySide {
         now: Instant,
         heading_mrad: i32,
     ) -> (Option<OdometrySample>, Option<ResetOutcome>) {
-        // A time belongs to the one pose that follows it, never to a later one.
+        // A time and a speed belong to the one pose that follows them, never to a later
+        // one.
         let controller_ms = self.pose_time.take();
+        let speed = self.speed.take();
         let Some((x_mm, y_mm)) = self.position.take() else {
             return (None, None);
         };
@@ -278,6 +429,45 @@ impl OdometrySide {
             None => {}
         }
         let pose = convert::pose_from_wire(x_mm, y_mm, heading_mrad);
+        let (twist, source) = match speed {
+            Some(speed) => (
+                // The wire's rotation is clockwise; ROS's yaw rate counter-clockwise.
+                self.limits.clamp((
+                    f64::from(speed.linear_mm_s) / 1000.0,
+                    -f64::from(speed.rotation_mrad_s) / 1000.0,
+                )),
+                TwistSource::MeasuredSpeed,
+            ),
+            None => self.twist_from_poses(now, controller_ms, pose),
+        };
+        self.previous = Some(PreviousPose {
+            arrival: now,
+            controller_ms,
+            pose,
+        });
+        self.last_twist = twist;
+        self.twist_source = Some(source);
+        let sample = OdometrySample {
+            pose,
+            linear_x: twist.0,
+            angular_z: twist.1,
+            controller_ms,
+            wheels: speed.map(|speed| self.wheels.step(controller_ms, &speed)),
+        };
+        (Some(sample), outcome)
+    }
+
+    /// The twist between the last pose and `pose`, and the clock it was taken on.
+    fn twist_from_poses(
+        &mut self,
+        now: Instant,
+        controller_ms: Option<u32>,
+        pose: RosPose,
+    ) -> ((f64, f64), TwistSource) {
+        let source = match controller_ms {
+            Some(_) => TwistSource::ControllerClock,
+            None => TwistSource::Arrival,
+        };
         let twist = match self.previous {
             Some(previous) => match (previous.controller_ms, controller_ms) {
                 // Differences modulo 2^32: the controller's counter wraps after 49.7
@@ -299,18 +489,12 @@ impl OdometrySide {
             // as before it.
             None => self.last_twist,
         };
-        self.previous = Some(PreviousPose {
-            arrival: now,
-            controller_ms,
-            pose,
-        });
-        self.last_twist = twist;
-        let sample = OdometrySample {
-            pose,
-            linear_x: twist.0,
-            angular_z: twist.1,
-        };
-        (Some(sample), outcome)
+        if self.limits.holds(twist) {
+            (twist, source)
+        } else {
+            self.jumps += 1;
+            (self.last_twist, source)
+        }
     }
 
     /// The time between two poses that arrived `arrival` apart: the whole number of
@@ -554,6 +738,117 @@ mod tests {
             .collect()
     }
 
+    /// One cycle as a controller with both extensions sends it.
+    fn cycle(
+        odometry: &mut OdometrySide,
+        controller_ms: u32,
+        speed: WireSpeed,
+        pose: (i32, i32),
+        arrival: Instant,
+    ) -> OdometrySample {
+        odometry.on_pose_time(controller_ms);
+        odometry.on_measured_speed(speed);
+        odometry.on_position(pose.0, 0);
+        odometry.on_heading(arrival, pose.1).0.unwrap()
+    }
+
+    const FORWARD_300: WireSpeed = WireSpeed {
+        linear_mm_s: 300,
+        rotation_mrad_s: 0,
+        left_wheel_crad_s: 211,
+        right_wheel_crad_s: 211,
+    };
+
+    #[test]
+    fn with_the_measured_speed_the_twist_is_exact_through_late_frames_sends_and_a_new_cycle() {
+        // Never told the cycle. Frames up to 30 ms late, sends 10 ms late, and from
+        // the 20th pose on a cycle of 20 ms the node has not read yet: each of these
+        // made the twist from poses wrong by tens of percent.
+        let start = Instant::now();
+        let mut odometry = OdometrySide::default();
+        let mut sent_ms = 0;
+        for index in 0..40u32 {
+            sent_ms += if index < 20 { 50 } else { 20 } + if index % 7 == 3 { 10 } else { 0 };
+            let late_ms = [0, 30, 2, 17][index as usize % 4];
+            let arrival = start + Duration::from_millis(u64::from(sent_ms + late_ms));
+            // The pose as the wire rounds it: 0.3 mm per ms.
+            let pose = ((sent_ms * 3 / 10) as i32, 0);
+            let sample = cycle(&mut odometry, 10_000 + sent_ms, FORWARD_300, pose, arrival);
+            assert_eq!(
+                (sample.linear_x, sample.angular_z),
+                (0.3, 0.0),
+                "pose {index}"
+            );
+        }
+        assert_eq!(odometry.twist_source(), Some(TwistSource::MeasuredSpeed));
+        assert_eq!(odometry.extensions(), (true, true));
+    }
+
+    #[test]
+    fn a_reset_by_someone_else_makes_no_spike_with_or_without_the_measured_speed() {
+        let start = Instant::now();
+        let at = |ms: u32| start + Duration::from_millis(u64::from(ms));
+        // With 0x0F0 the pose's jump does not touch the twist.
+        let mut odometry = OdometrySide::default();
+        cycle(&mut odometry, 1_000, FORWARD_300, (4_000, 0), at(0));
+        let sample = cycle(&mut odometry, 1_050, FORWARD_300, (0, 0), at(50));
+        assert_eq!(sample.linear_x, 0.3);
+        // With 0x0EF alone the 4 m jump would read 80 m/s: the twist before it holds.
+        let mut odometry = OdometrySide::default();
+        for (index, x_mm) in [3_970, 3_985, 4_000, 0, 15].into_iter().enumerate() {
+            let controller_ms = 1_000 + 50 * index as u32;
+            odometry.on_pose_time(controller_ms);
+            odometry.on_position(x_mm, 0);
+            let sample = odometry.on_heading(at(controller_ms), 0).0.unwrap();
+            if index > 0 {
+                assert!((sample.linear_x - 0.3).abs() < 1e-9, "{index}: {sample:?}");
+            }
+        }
+        assert_eq!(odometry.jumps(), 1);
+    }
+
+    #[test]
+    fn a_measured_speed_beyond_the_limits_is_clamped_to_them() {
+        let mut odometry = OdometrySide::new(SpeedLimits {
+            linear_m_s: 1.0,
+            angular_rad_s: 2.0,
+        });
+        let fast = WireSpeed {
+            linear_mm_s: -1500,
+            rotation_mrad_s: -2500,
+            ..WireSpeed::default()
+        };
+        let sample = cycle(&mut odometry, 0, fast, (0, 0), Instant::now());
+        assert_eq!((sample.linear_x, sample.angular_z), (-1.0, 2.0));
+    }
+
+    #[test]
+    fn the_wheels_turn_by_their_measured_speed_over_the_pose_times() {
+        let start = Instant::now();
+        let mut odometry = OdometrySide::default();
+        let turning = WireSpeed {
+            left_wheel_crad_s: 250,
+            right_wheel_crad_s: -100,
+            ..WireSpeed::default()
+        };
+        let mut wheels = WheelJoints::default();
+        for index in 0..=20u32 {
+            let sample = cycle(&mut odometry, 500 + 50 * index, turning, (0, 0), start);
+            wheels = sample.wheels.expect("a speed came with the pose");
+        }
+        // Twenty cycles of 50 ms: one second.
+        assert!((wheels.position_rad[0] - 2.5).abs() < 1e-9, "{wheels:?}");
+        assert!((wheels.position_rad[1] + 1.0).abs() < 1e-9, "{wheels:?}");
+        assert_eq!(wheels.velocity_rad_s, [2.5, -1.0]);
+        // Two seconds without a speed: nobody knows what the wheels did meanwhile.
+        let later = cycle(&mut odometry, 3_500, turning, (0, 0), start);
+        assert_eq!(later.wheels.unwrap().position_rad, wheels.position_rad);
+        // A pose without its 0x0F0 has no joint states.
+        odometry.on_pose_time(3_550);
+        odometry.on_position(0, 0);
+        assert_eq!(odometry.on_heading(start, 0).0.unwrap().wheels, None);
+    }
+
     #[test]
     fn a_stamped_command_older_than_the_timeout_is_stale_an_unset_or_future_one_is_not() {
         let timeout = Duration::from_millis(500);
@@ -573,7 +868,7 @@ mod tests {
         for twist in &twists[1..] {
             assert!((twist - 0.3).abs() < 1e-9, "{twists:?}");
         }
-        assert!(odometry.uses_controller_clock());
+        assert_eq!(odometry.twist_source(), Some(TwistSource::ControllerClock));
     }
 
     #[test]
@@ -586,7 +881,7 @@ mod tests {
             .map(|twist| (twist - 0.3).abs())
             .fold(0.0, f64::max);
         assert!(worst > 0.05, "{twists:?}");
-        assert!(!odometry.uses_controller_clock());
+        assert_eq!(odometry.twist_source(), Some(TwistSource::Arrival));
     }
 
     #[test]

@@ -14,12 +14,17 @@ use clap::Parser;
 use ros2_client::ParameterValue;
 use yaml_rust2::{Yaml, YamlLoader};
 
+use crate::bridge::SpeedLimits;
 use crate::node::{self, Settings};
 
 /// The accepted `cmd_vel_timeout`, s.
 const CMD_VEL_TIMEOUT_S: std::ops::RangeInclusive<f64> = 0.05..=2.0;
 /// The accepted `command_rate`, Hz.
 const COMMAND_RATE_HZ: std::ops::RangeInclusive<f64> = 1.0..=100.0;
+/// The accepted `max_linear_speed`, m/s.
+const MAX_LINEAR_SPEED: std::ops::RangeInclusive<f64> = 0.1..=20.0;
+/// The accepted `max_angular_speed`, rad/s.
+const MAX_ANGULAR_SPEED: std::ops::RangeInclusive<f64> = 0.1..=100.0;
 
 /// A ROS 2 node for the base controller: /cmd_vel in; /odom, /tf, /battery_state and
 /// /diagnostics out. No ROS installation needed; talks to the base over socketcand,
@@ -72,6 +77,19 @@ pub struct Cli {
     /// does).
     #[arg(long, num_args = 0..=1, default_missing_value = "true", action = clap::ArgAction::Set, default_value_t = false)]
     pub no_tf: bool,
+    /// The fastest the base can drive, m/s: /odom's twist is clamped to it, and a
+    /// pose step that would be faster is a jump (an odometry reset), not motion.
+    #[arg(long, default_value_t = 3.0)]
+    pub max_linear_speed: f64,
+    /// The fastest the base can turn, rad/s (as `max_linear_speed`).
+    #[arg(long, default_value_t = 10.0)]
+    pub max_angular_speed: f64,
+    /// The left wheel's joint in /joint_states (as the robot's URDF names it).
+    #[arg(long, default_value = "left_wheel_joint")]
+    pub left_wheel_joint: String,
+    /// The right wheel's joint in /joint_states.
+    #[arg(long, default_value = "right_wheel_joint")]
+    pub right_wheel_joint: String,
     /// Diagonal of /odom's pose covariance: x, y, z, roll, pitch, yaw.
     #[arg(long, value_delimiter = ',', num_args = 6,
           default_values_t = [0.001, 0.001, 1e6, 1e6, 1e6, 0.01])]
@@ -90,7 +108,7 @@ pub struct Cli {
 }
 
 /// The ROS parameters, each the option of the same name with `-` for `_`.
-const PARAMETERS: [&str; 13] = [
+const PARAMETERS: [&str; 17] = [
     "interface",
     "channel",
     "bitrate",
@@ -100,6 +118,10 @@ const PARAMETERS: [&str; 13] = [
     "odom_frame",
     "base_frame",
     "publish_tf",
+    "max_linear_speed",
+    "max_angular_speed",
+    "left_wheel_joint",
+    "right_wheel_joint",
     "pose_covariance",
     "twist_covariance",
     "heartbeat_ms",
@@ -282,6 +304,22 @@ impl Cli {
             ),
             ("publish_tf".into(), ParameterValue::Boolean(!self.no_tf)),
             (
+                "max_linear_speed".into(),
+                ParameterValue::Double(self.max_linear_speed),
+            ),
+            (
+                "max_angular_speed".into(),
+                ParameterValue::Double(self.max_angular_speed),
+            ),
+            (
+                "left_wheel_joint".into(),
+                ParameterValue::String(self.left_wheel_joint.clone()),
+            ),
+            (
+                "right_wheel_joint".into(),
+                ParameterValue::String(self.right_wheel_joint.clone()),
+            ),
+            (
                 "pose_covariance".into(),
                 ParameterValue::DoubleArray(self.pose_covariance.clone()),
             ),
@@ -323,6 +361,28 @@ impl Cli {
                 COMMAND_RATE_HZ.end()
             ));
         }
+        for (option, value, range, unit) in [
+            (
+                "--max-linear-speed",
+                self.max_linear_speed,
+                MAX_LINEAR_SPEED,
+                "m/s",
+            ),
+            (
+                "--max-angular-speed",
+                self.max_angular_speed,
+                MAX_ANGULAR_SPEED,
+                "rad/s",
+            ),
+        ] {
+            if !range.contains(&value) {
+                return Err(format!(
+                    "{option} {value} {unit}: between {} and {} {unit}",
+                    range.start(),
+                    range.end()
+                ));
+            }
+        }
         let six = |values: &[f64], what: &str| -> Result<[f64; 6], String> {
             <[f64; 6]>::try_from(values)
                 .map_err(|_| format!("{what} takes 6 values, got {}", values.len()))
@@ -337,6 +397,14 @@ impl Cli {
             odom_frame: self.odom_frame.clone(),
             base_frame: self.base_frame.clone(),
             publish_tf: !self.no_tf,
+            speed_limits: SpeedLimits {
+                linear_m_s: self.max_linear_speed,
+                angular_rad_s: self.max_angular_speed,
+            },
+            wheel_joints: [
+                self.left_wheel_joint.clone(),
+                self.right_wheel_joint.clone(),
+            ],
             pose_covariance: six(&self.pose_covariance, "--pose-covariance")?,
             twist_covariance: six(&self.twist_covariance, "--twist-covariance")?,
             heartbeat_period: Duration::from_millis(self.heartbeat_ms),
@@ -483,6 +551,17 @@ mod tests {
             );
         }
         assert!(settings("--command-rate", "100").is_ok());
+        for (option, bad) in [
+            ("--max-linear-speed", "0"),
+            ("--max-linear-speed", "NaN"),
+            ("--max-angular-speed", "1e9"),
+        ] {
+            let error = settings(option, bad).err();
+            assert!(
+                error.is_some_and(|error| error.contains("between")),
+                "{option} {bad}"
+            );
+        }
     }
 
     #[test]

@@ -6,6 +6,7 @@
 
 pub mod bridge;
 pub mod cli;
+pub mod clock;
 pub mod convert;
 pub mod msgs;
 pub mod node;

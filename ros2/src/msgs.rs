@@ -206,6 +206,17 @@ pub struct BatteryState {
 }
 impl ros2_client::Message for BatteryState {}
 
+/// sensor_msgs/JointState.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct JointState {
+    pub header: Header,
+    pub name: Vec<String>,
+    pub position: Vec<f64>,
+    pub velocity: Vec<f64>,
+    pub effort: Vec<f64>,
+}
+impl ros2_client::Message for JointState {}
+
 /// diagnostic_msgs/KeyValue.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct KeyValue {

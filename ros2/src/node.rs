@@ -22,8 +22,10 @@ use ros2_client::{
 };
 
 use crate::bridge::{
-    CYCLE_REGISTER, CommandSide, Counts, OdometrySample, OdometrySide, ResetOutcome, stamp_is_stale,
+    CYCLE_REGISTER, CommandSide, Counts, OdometrySample, OdometrySide, ResetOutcome, SpeedLimits,
+    WireSpeed, stamp_is_stale,
 };
+use crate::clock::ControllerClock;
 use crate::msgs::{self, *};
 
 /// How long the loop waits for a frame before it looks at DDS again.
@@ -46,6 +48,9 @@ pub struct Settings {
     pub odom_frame: String,
     pub base_frame: String,
     pub publish_tf: bool,
+    pub speed_limits: SpeedLimits,
+    /// The names of the left and right wheel joints in `/joint_states`.
+    pub wheel_joints: [String; 2],
     pub pose_covariance: [f64; 6],
     pub twist_covariance: [f64; 6],
     /// 0 = no heartbeat.
@@ -112,6 +117,7 @@ struct Ros {
     cmd_vel: CmdVel,
     reset_service: Server<TriggerRequest, TriggerResponse>,
     odom: Publisher<Odometry>,
+    joint_states: Publisher<JointState>,
     tf: Option<Publisher<TfMessage>>,
     battery: Publisher<BatteryState>,
     diagnostics: Publisher<DiagnosticArray>,
@@ -207,6 +213,16 @@ impl Ros {
             )
             .map_err(ros("/odom"))?;
         let odom = node.create_publisher(&topic, None).map_err(ros("/odom"))?;
+        let topic = node
+            .create_topic(
+                &name(ns, "joint_states")?,
+                msgs::type_name("sensor_msgs", "JointState"),
+                &reliable,
+            )
+            .map_err(ros("/joint_states"))?;
+        let joint_states = node
+            .create_publisher(&topic, None)
+            .map_err(ros("/joint_states"))?;
         let tf = if settings.publish_tf {
             // /tf is always the absolute topic: tf2 listens there.
             let tf_qos = reliable.clone().history(History::KeepLast { depth: 100 });
@@ -248,6 +264,7 @@ impl Ros {
             cmd_vel,
             reset_service,
             odom,
+            joint_states,
             tf,
             battery,
             diagnostics,
@@ -317,6 +334,16 @@ struct State<'a> {
     settings: &'a Settings,
     commands: CommandSide,
     odometry: OdometrySide,
+    /// Maps the poses' times (0x0EF) onto ROS time for the stamps.
+    clock: ControllerClock,
+    /// When the pose time of the pose under way arrived, ROS time in ns.
+    pose_time_arrival_ns: Option<i64>,
+    /// The last pose's time, for the poses missed in between.
+    last_pose_ms: Option<u32>,
+    /// Poses that arrived more than a cycle after their moment.
+    late_poses: u64,
+    /// Poses that never came: gaps of whole cycles between pose times.
+    missed_poses: u64,
     last_status: Option<Status>,
     last_frame: Instant,
     next_heartbeat: Instant,
@@ -341,7 +368,12 @@ impl<'a> State<'a> {
         State {
             settings,
             commands: CommandSide::new(settings.cmd_vel_timeout, settings.command_period),
-            odometry: OdometrySide::default(),
+            odometry: OdometrySide::new(settings.speed_limits),
+            clock: ControllerClock::default(),
+            pose_time_arrival_ns: None,
+            last_pose_ms: None,
+            late_poses: 0,
+            missed_poses: 0,
             last_status: None,
             last_frame: now,
             next_heartbeat: now,
@@ -529,12 +561,28 @@ impl<'a> State<'a> {
         self.last_frame = now;
         self.next_silence_report = now + SILENCE;
         match report {
-            Report::PoseTime { controller_ms } => self.odometry.on_pose_time(controller_ms),
+            Report::PoseTime { controller_ms } => {
+                self.pose_time_arrival_ns = Some(Time::now().to_nanos());
+                self.odometry.on_pose_time(controller_ms);
+            }
+            Report::MeasuredSpeed {
+                linear_mm_s,
+                rotation_mrad_s,
+                left_wheel_crad_s,
+                right_wheel_crad_s,
+            } => self.odometry.on_measured_speed(WireSpeed {
+                linear_mm_s,
+                rotation_mrad_s,
+                left_wheel_crad_s,
+                right_wheel_crad_s,
+            }),
             Report::Position { x_mm, y_mm } => self.odometry.on_position(x_mm, y_mm),
             Report::Heading { heading_mrad } => {
                 let (sample, reset) = self.odometry.on_heading(now, heading_mrad);
+                let arrival_ns = self.pose_time_arrival_ns.take();
                 if let Some(sample) = sample {
-                    self.publish_odometry(ros, &sample);
+                    let stamp = self.stamp(sample.controller_ms, arrival_ns);
+                    self.publish_odometry(ros, &sample, stamp);
                 }
                 if let Some(outcome) = reset {
                     self.reset_ended(ros, outcome);
@@ -569,10 +617,54 @@ impl<'a> State<'a> {
         }
     }
 
-    fn publish_odometry(&self, ros: &Ros, sample: &OdometrySample) {
+    /// The ROS time of a pose: its moment on the controller's clock mapped by the
+    /// clock estimate, or its arrival from a controller without pose times.
+    fn stamp(&mut self, controller_ms: Option<u32>, arrival_ns: Option<i64>) -> Time {
+        let (Some(controller_ms), Some(arrival_ns)) = (controller_ms, arrival_ns) else {
+            return Time::now();
+        };
+        let mapped = self.clock.map(controller_ms, arrival_ns);
+        let cycle_ms = self.odometry.cycle().map(|cycle| cycle.as_millis() as u32);
+        if let Some(cycle_ms) = cycle_ms.filter(|&cycle| cycle > 0) {
+            if mapped.delay_ns > i64::from(cycle_ms) * 1_000_000 {
+                self.late_poses += 1;
+            }
+            // A gap of whole cycles beyond the first, up to a minute (longer is a pause
+            // of the controller's poses: an emergency, a reboot).
+            if let Some(last) = self.last_pose_ms {
+                let gap = controller_ms.wrapping_sub(last);
+                if gap < 60_000 {
+                    let cycles = (gap + cycle_ms / 2) / cycle_ms;
+                    self.missed_poses += u64::from(cycles.saturating_sub(1));
+                }
+            }
+        }
+        self.last_pose_ms = Some(controller_ms);
+        Time::from_nanos(mapped.stamp_ns)
+    }
+
+    fn publish_odometry(&self, ros: &Ros, sample: &OdometrySample, stamp: Time) {
         let settings = self.settings;
         let orientation = Quaternion::from_yaw(sample.pose.yaw);
-        let header = header(&settings.odom_frame);
+        let header = Header {
+            stamp,
+            frame_id: settings.odom_frame.clone(),
+        };
+        if let Some(wheels) = sample.wheels {
+            let joints = JointState {
+                header: Header {
+                    stamp,
+                    frame_id: settings.base_frame.clone(),
+                },
+                name: settings.wheel_joints.to_vec(),
+                position: wheels.position_rad.to_vec(),
+                velocity: wheels.velocity_rad_s.to_vec(),
+                effort: Vec::new(),
+            };
+            if let Err(error) = ros.joint_states.publish(joints) {
+                eprintln!("base-ros2: /joint_states not published: {error:?}");
+            }
+        }
         let odometry = Odometry {
             header: header.clone(),
             child_frame_id: settings.base_frame.clone(),
@@ -655,17 +747,42 @@ impl<'a> State<'a> {
     fn publish_status(&self, ros: &Ros, status: &Status) {
         let mut diagnostic = diagnose(status, &self.settings.hardware_id, self.counts());
         add_boot_info(&mut diagnostic, self.boot_info);
-        // Which clock the twist is taken on: a controller that predates the pose time
-        // frame (0x0EF) leaves only the frames' arrival times.
-        let twist_clock = match self.odometry.uses_controller_clock() {
-            true => "controller",
-            false => "arrival",
-        };
-        diagnostic.values.push(KeyValue {
-            key: "twist_clock".to_owned(),
-            value: twist_clock.to_owned(),
-        });
+        self.add_odometry_figures(&mut diagnostic);
         self.publish_diagnostic(ros, diagnostic);
+    }
+
+    /// Where the twist and the stamps come from, and how the frames arrive: a
+    /// controller that predates the extensions leaves only the frames' arrival times.
+    fn add_odometry_figures(&self, diagnostic: &mut DiagnosticStatus) {
+        let mut push = |key: &str, value: String| {
+            diagnostic.values.push(KeyValue {
+                key: key.to_owned(),
+                value,
+            })
+        };
+        let extensions: Vec<&str> = match self.odometry.extensions() {
+            (true, true) => vec!["pose_time", "measured_speed"],
+            (true, false) => vec!["pose_time"],
+            (false, true) => vec!["measured_speed"],
+            (false, false) => vec![],
+        };
+        push("odometry_extensions", extensions.join(","));
+        if let Some(source) = self.odometry.twist_source() {
+            push("twist_source", source.name().to_owned());
+        }
+        push("twist_jumps_held", self.odometry.jumps().to_string());
+        match self.clock.figures() {
+            Some(figures) => {
+                push("stamp_clock", "controller".to_owned());
+                push("clock_offset_s", format!("{:.6}", figures.offset_s));
+                push("pose_delay_p50_ms", format!("{:.2}", figures.delay_p50_ms));
+                push("pose_delay_max_ms", format!("{:.2}", figures.delay_max_ms));
+                push("controller_reboots_seen", figures.reboots.to_string());
+            }
+            None => push("stamp_clock", "arrival".to_owned()),
+        }
+        push("poses_late", self.late_poses.to_string());
+        push("poses_missed", self.missed_poses.to_string());
     }
 
     fn publish_silence(&self, ros: &Ros, silent: Duration) {

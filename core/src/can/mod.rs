@@ -47,6 +47,8 @@ pub mod id {
     pub const STATUS: u16 = 0x0EE;
     /// BC → PC: the controller's time of the pose in the 0x0EC and 0x0ED that follow (ext).
     pub const POSE_TIME: u16 = 0x0EF;
+    /// BC → PC: the measured speed of the base and its wheels (ext).
+    pub const MEASURED_SPEED: u16 = 0x0F0;
 
     /// Every ID the base controller listens to, e.g. for the receive acceptance filter.
     pub const COMMANDS: [u16; 8] = [
@@ -72,7 +74,7 @@ pub mod id {
     pub const UPDATE: [u16; 2] = [UPDATE_COMMAND, UPDATE_DATA];
 
     /// Every ID the base controller sends, e.g. for the PC-side receive filter.
-    pub const REPORTS: [u16; 7] = [
+    pub const REPORTS: [u16; 8] = [
         REGISTER_READ,
         WEIGHT,
         BATTERY,
@@ -80,12 +82,21 @@ pub mod id {
         HEADING,
         STATUS,
         POSE_TIME,
+        MEASURED_SPEED,
     ];
 
     /// The periodic feedback frames: sent on their own schedule whatever else the bus
     /// carries. Everything else the base controller sends (register replies, update
     /// replies) answers a request.
-    pub const FEEDBACK: [u16; 6] = [POSE_TIME, POSITION, HEADING, BATTERY, WEIGHT, STATUS];
+    pub const FEEDBACK: [u16; 7] = [
+        POSE_TIME,
+        MEASURED_SPEED,
+        POSITION,
+        HEADING,
+        BATTERY,
+        WEIGHT,
+        STATUS,
+    ];
 
     /// Whether the base controller sends `frame_id` as periodic feedback rather than as
     /// a reply (see [`FEEDBACK`]).

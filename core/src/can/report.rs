@@ -25,6 +25,16 @@ pub enum Report {
     /// wrapping after 49.7 days), at which the pose in the 0x0EC and 0x0ED that follow
     /// this frame holds. Sent just before them in every cycle.
     PoseTime { controller_ms: u32 },
+    /// 0x0F0 (ext): the speeds the drives measured at the reading the next pose is
+    /// carried on from, sent between 0x0EF and 0x0EC. Linear + forward, rotation +
+    /// clockwise (like 0x0C8 and 0x0ED), each wheel + when it drives the base forward,
+    /// in hundredths of a radian per second. Each saturates at the i16 range.
+    MeasuredSpeed {
+        linear_mm_s: i16,
+        rotation_mrad_s: i16,
+        left_wheel_crad_s: i16,
+        right_wheel_crad_s: i16,
+    },
     /// 0x0EB.
     Battery { percent: u8, voltage_mv: u16 },
     /// 0x0EA: the producer clamps negative weights to 0.
@@ -80,6 +90,17 @@ impl Report {
                 };
                 Report::PoseTime {
                     controller_ms: u32::from_le_bytes([t0, t1, t2, t3]),
+                }
+            }
+            id::MEASURED_SPEED => {
+                let &[l0, l1, r0, r1, a0, a1, b0, b1] = data else {
+                    return Err(FrameError::WrongLength);
+                };
+                Report::MeasuredSpeed {
+                    linear_mm_s: i16::from_le_bytes([l0, l1]),
+                    rotation_mrad_s: i16::from_le_bytes([r0, r1]),
+                    left_wheel_crad_s: i16::from_le_bytes([a0, a1]),
+                    right_wheel_crad_s: i16::from_le_bytes([b0, b1]),
                 }
             }
             id::BATTERY => {
@@ -150,6 +171,18 @@ impl Report {
             }
             Report::PoseTime { controller_ms } => {
                 RawFrame::from_array(id::POSE_TIME, controller_ms.to_le_bytes())
+            }
+            Report::MeasuredSpeed {
+                linear_mm_s,
+                rotation_mrad_s,
+                left_wheel_crad_s,
+                right_wheel_crad_s,
+            } => {
+                let [l0, l1] = linear_mm_s.to_le_bytes();
+                let [r0, r1] = rotation_mrad_s.to_le_bytes();
+                let [a0, a1] = left_wheel_crad_s.to_le_bytes();
+                let [b0, b1] = right_wheel_crad_s.to_le_bytes();
+                RawFrame::from_array(id::MEASURED_SPEED, [l0, l1, r0, r1, a0, a1, b0, b1])
             }
             Report::Battery {
                 percent,

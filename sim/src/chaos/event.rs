@@ -24,6 +24,7 @@ pub mod wire {
     pub const HEADING: u16 = 0x0ED;
     pub const STATUS: u16 = 0x0EE;
     pub const POSE_TIME: u16 = 0x0EF;
+    pub const MEASURED_SPEED: u16 = 0x0F0;
     pub const UPDATE_COMMAND: u16 = 0x2E8;
     pub const UPDATE_REPLY: u16 = 0x2EA;
     pub const UPDATE_DATA: u16 = 0x2EC;

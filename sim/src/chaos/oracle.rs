@@ -914,7 +914,12 @@ impl Oracle {
         }
         if matches!(
             id,
-            wire::WEIGHT | wire::BATTERY | wire::POSITION | wire::HEADING | wire::POSE_TIME
+            wire::WEIGHT
+                | wire::BATTERY
+                | wire::POSITION
+                | wire::HEADING
+                | wire::POSE_TIME
+                | wire::MEASURED_SPEED
         ) && self.estop_pressed
             && self.estop_since_press(at) > 10_000 + bounds::FRAME_QUEUE_US
         {

@@ -39,12 +39,13 @@ impl Telemetry {
                 })) => self.battery = Some((percent, voltage_mv)),
                 Ok(Some(Report::Weight { grams })) => self.weight_g = Some(grams),
                 Ok(Some(Report::Status(status))) => self.status = Some(status),
-                // Register replies and pose times are the PC's business, not the
-                // status line's.
+                // Register replies, pose times and measured speeds are the PC's
+                // business, not the status line's.
                 Ok(Some(
                     Report::RegisterValue { .. }
                     | Report::RegisterReadError { .. }
-                    | Report::PoseTime { .. },
+                    | Report::PoseTime { .. }
+                    | Report::MeasuredSpeed { .. },
                 ))
                 | Ok(None)
                 | Err(_) => {}
