@@ -7,7 +7,8 @@ use std::time::{Duration, Instant};
 
 use base_core::panic_loop::{LOOP_PANICS, SHORT_LIFE_MS};
 use base_core::registers::{
-    BLUETOOTH_ON_KEY, BootInfo, Charge, Reg, RemoteBattery, RemoteInfo, RemoteKind, UpdateReset,
+    BLE_OFF_AFTER_HOST_STOPS, BLUETOOTH_ON_KEY, BootInfo, Charge, Reg, RemoteBattery, RemoteInfo,
+    RemoteKind, UpdateReset,
 };
 use serde_json::{Value, json};
 
@@ -63,6 +64,8 @@ const REMOTE_REGMAP: u16 = 4;
 enum Bluetooth {
     On,
     OffAfterPanics,
+    /// The BLE host stopped three times within a minute: BLE pads are off.
+    BleOffAfterHostStops,
     /// A firmware older than register 36.
     Unknown,
 }
@@ -76,6 +79,11 @@ impl Bluetooth {
                  confirm press of the front button or `basectl reg set command 0x{BLUETOOTH_ON_KEY:04X}`",
                 SHORT_LIFE_MS / 1_000
             ),
+            Bluetooth::BleOffAfterHostStops => format!(
+                "BLE remote OFF: its host stopped 3 times within a minute (PlayStation pads \
+                 still connect); turn it on with a confirm press of the front button or \
+                 `basectl reg set command 0x{BLUETOOTH_ON_KEY:04X}`"
+            ),
             Bluetooth::Unknown => "not reported by this firmware (no register 36)".to_owned(),
         }
     }
@@ -84,6 +92,8 @@ impl Bluetooth {
 fn bluetooth_state(base: &mut Base) -> Result<Bluetooth, Error> {
     match base.read_register(Reg::BluetoothOff.address()) {
         Ok(0) => Ok(Bluetooth::On),
+        Ok(BLE_OFF_AFTER_HOST_STOPS) => Ok(Bluetooth::BleOffAfterHostStops),
+        // 1, and anything a later firmware may add: off.
         Ok(_) => Ok(Bluetooth::OffAfterPanics),
         Err(Error::ReadRefused { .. }) => Ok(Bluetooth::Unknown),
         Err(error) => Err(error),
@@ -156,9 +166,13 @@ pub fn info(base: &mut Base, json_output: bool, out: &mut dyn Write) -> Result<(
             "weight_g": base.weight_g(),
             "remote": remote_json(remote),
             "bluetooth_off_after_panics": match bluetooth {
-                Bluetooth::On => Some(false),
+                Bluetooth::On | Bluetooth::BleOffAfterHostStops => Some(false),
                 Bluetooth::OffAfterPanics => Some(true),
                 Bluetooth::Unknown => None,
+            },
+            "ble_off_after_host_stops": match bluetooth {
+                Bluetooth::Unknown => None,
+                other => Some(other == Bluetooth::BleOffAfterHostStops),
             },
         });
         writeln!(out, "{object}")?;

@@ -17,8 +17,9 @@ use crate::odometry::{self, EncoderCounts, Odometry, OdometryParams};
 use crate::plausibility::{self, Commanded, FeedbackCheck, SpeedRange};
 use crate::power::{self, PowerControl, SwitchLevel};
 use crate::registers::{
-    BootInfo, MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, RESTORE_DEFAULTS_KEY, Reg,
-    RegisterError, Registers, RemoteInfo, WriteOutcome,
+    BLE_OFF_AFTER_HOST_STOPS, BLUETOOTH_OFF_AFTER_PANICS, BootInfo, MOTOR_DIR_INVERT_LEFT,
+    MOTOR_DIR_INVERT_RIGHT, RESTORE_DEFAULTS_KEY, Reg, RegisterError, Registers, RemoteInfo,
+    WriteOutcome,
 };
 use crate::remote::{self, Control, Pad, PadArbiter, PairingWindow, Remote};
 use crate::scale::{self, RawAverage};
@@ -73,6 +74,15 @@ pub enum Input {
         pad: Pad,
         info: RemoteInfo,
     },
+    /// The radio guard refused a packet of `pad`'s link and closed it (counted as
+    /// [`Rejection::RadioPacketRefused`]; the task backs off before the next attempt).
+    RadioPacketRefused {
+        pad: Pad,
+    },
+    /// The BLE task gave up its host: it stopped three times within a minute. BLE pads
+    /// stay off until a confirm press or [`crate::registers::BLUETOOTH_ON_KEY`]
+    /// ([`Output::bluetooth_on`]); register 36 says so.
+    BleHostOff,
     /// The update task's word, sent on every change: a firmware update runs or a new
     /// image is on trial (`true`), so velocity, a refreshing enable and the gamepad's
     /// dead-man are refused; or neither.
@@ -121,6 +131,7 @@ impl Input {
                 | Input::RemoteLink { .. }
                 | Input::RemotePaired
                 | Input::RemoteInfo { .. }
+                | Input::RadioPacketRefused { .. }
         )
     }
 }
@@ -175,9 +186,10 @@ pub struct Output {
     /// restarts it) or closed (`false`). It is closed at boot. While it is closed the
     /// BLE task connects only to the bonded pad and accepts no pairing request.
     pub pairing_window: Option<bool>,
-    /// Bluetooth was off after a panic loop and is turned on now (a confirm press of
-    /// the front button, or [`crate::registers::BLUETOOTH_ON_KEY`]): start the remote
-    /// and forget the panics.
+    /// Bluetooth was off after a panic loop, or the BLE task gave up its host, and is
+    /// turned on now (a confirm press of the front button, or
+    /// [`crate::registers::BLUETOOTH_ON_KEY`]): start the remote (and forget the
+    /// panics), or start the BLE host again.
     pub bluetooth_on: bool,
 }
 
@@ -300,24 +312,27 @@ impl Controller {
         controller.faults.flash = report.flash_fault;
         controller.faults.watchdog_reset = report.watchdog_reset;
         controller.set_flash_erases(report.flash_erases);
-        controller.registers.set_counter(
-            Reg::BluetoothOff,
-            u16::from(report.bluetooth_off_after_panics),
-        );
+        if report.bluetooth_off_after_panics {
+            controller
+                .registers
+                .set_counter(Reg::BluetoothOff, BLUETOOTH_OFF_AFTER_PANICS);
+        }
         controller
             .registers
             .set_counter(Reg::BootInfo, report.boot_info.to_bits());
         controller
     }
 
-    /// Bluetooth is off after a panic loop, until a confirm press or its key.
-    fn bluetooth_off(&self) -> bool {
-        self.registers.get(Reg::BluetoothOff) != 0
+    /// Bluetooth is off after a panic loop, until a confirm press or its key: no remote
+    /// task runs.
+    fn bluetooth_off_after_panics(&self) -> bool {
+        self.registers.get(Reg::BluetoothOff) == BLUETOOTH_OFF_AFTER_PANICS
     }
 
-    /// Turns the Bluetooth remote on if a panic loop switched it off at boot.
+    /// Turns the Bluetooth remote on if a panic loop switched it off at boot, or the
+    /// BLE task gave up its host.
     fn turn_bluetooth_on(&mut self, out: &mut Output) {
-        if self.bluetooth_off() {
+        if self.registers.get(Reg::BluetoothOff) != 0 {
             info!("Bluetooth on again");
             self.registers.set_counter(Reg::BluetoothOff, 0);
             out.bluetooth_on = true;
@@ -384,7 +399,7 @@ impl Controller {
     /// the input caused, so the shell may feed frames and ticks in any mix.
     pub fn handle(&mut self, now: Timestamp, input: Input) -> Output {
         let mut out = Output::default();
-        if self.bluetooth_off() && input.is_from_a_remote_task() {
+        if self.bluetooth_off_after_panics() && input.is_from_a_remote_task() {
             // The remote tasks do not run while Bluetooth is off; should anything
             // still come from them, no pad may connect or drive.
             warn!("remote input while Bluetooth is off dropped");
@@ -455,6 +470,23 @@ impl Controller {
             Input::RemoteInfo { pad, info } => {
                 self.pads.set_info(pad, info);
                 self.registers.set_remote_info(self.pads.info());
+            }
+            Input::RadioPacketRefused { pad } => {
+                // Subject: 1 a BLE pad, 2 a PlayStation pad (as `remote_kind` counts).
+                let subject = match pad {
+                    Pad::Ble => 1,
+                    Pad::Classic => 2,
+                };
+                self.rejections
+                    .record(Rejection::RadioPacketRefused.code(), subject);
+            }
+            Input::BleHostOff => {
+                // A panic loop's "all off" says more, and stays.
+                if self.registers.get(Reg::BluetoothOff) == 0 {
+                    warn!("the BLE host stays stopped: BLE pads off until turned on");
+                    self.registers
+                        .set_counter(Reg::BluetoothOff, BLE_OFF_AFTER_HOST_STOPS);
+                }
             }
             Input::UpdateLock(locked) => {
                 self.supervise(now, supervisor::Event::MotionLock { locked }, &mut out)
@@ -1959,6 +1991,37 @@ mod tests {
         let released = controller.handle(at(300), Input::Button(false));
         assert!(released.bluetooth_on);
         assert_eq!(controller.registers().get(Reg::BluetoothOff), 0);
+    }
+
+    /// The BLE task gave up its host: register 36 says so (2), a PlayStation pad still
+    /// connects, and the key starts the BLE host again; a panic loop's 1 stays 1.
+    #[test]
+    fn a_ble_host_given_up_reads_2_leaves_classic_pads_alone_and_the_key_restarts_it() {
+        let mut controller = Controller::new(at(0), Registers::defaults());
+        assert!(!controller.handle(at(10), Input::BleHostOff).bluetooth_on);
+        assert_eq!(controller.registers().get(Reg::BluetoothOff), 2);
+        controller.handle(
+            at(20),
+            Input::RemoteLink {
+                pad: Pad::Classic,
+                bonded: true,
+                connected: true,
+            },
+        );
+        assert!(
+            controller.status(at(20)).flags.remote_connected,
+            "a PlayStation pad is not a BLE pad"
+        );
+        let out = controller.handle(
+            at(30),
+            write(Reg::Command, crate::registers::BLUETOOTH_ON_KEY),
+        );
+        assert!(out.bluetooth_on);
+        assert_eq!(controller.registers().get(Reg::BluetoothOff), 0);
+
+        let mut looped = booted_after_a_panic_loop();
+        looped.handle(at(10), Input::BleHostOff);
+        assert_eq!(looped.registers().get(Reg::BluetoothOff), 1);
     }
 
     #[test]

@@ -10,7 +10,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use base_core::can::{Command, Mode, RawFrame, Rejection, Report, Status};
-use base_core::registers::{BootInfo, Reg, UpdateReset};
+use base_core::registers::{BLE_OFF_AFTER_HOST_STOPS, BootInfo, Reg, UpdateReset};
 use basectl::bus::{Bus, BusError};
 use ros2_client::log::LogLevel;
 use ros2_client::rosout::{NodeLoggingHandle, RosoutRaw};
@@ -358,6 +358,8 @@ struct State<'a> {
     /// How the base controller's current boot came about (register `boot_info`), read
     /// with the cycle: `None` until it answers, or from firmware without it.
     boot_info: Option<BootInfo>,
+    /// Register `bluetooth_off`, read with the cycle: `None` until it answers.
+    bluetooth_off: Option<u16>,
     /// Reset service calls waiting for the reset to show in the poses.
     reset_callers: Vec<RmwRequestId>,
 }
@@ -384,6 +386,7 @@ impl<'a> State<'a> {
             last_tag: 0,
             next_cycle_read: now,
             boot_info: None,
+            bluetooth_off: None,
             reset_callers: Vec::new(),
         }
     }
@@ -512,6 +515,11 @@ impl<'a> State<'a> {
                     tag: self.next_tag(),
                 };
                 bus.send(&boot_info.encode())?;
+                let bluetooth_off = Command::RegisterRead {
+                    address: Reg::BluetoothOff.address(),
+                    tag: self.next_tag(),
+                };
+                bus.send(&bluetooth_off.encode())?;
                 self.next_cycle_read = now + CYCLE_READ_PERIOD;
             }
             let timeouts = self.commands.counts.timeouts;
@@ -594,6 +602,9 @@ impl<'a> State<'a> {
             } => {
                 if echo.address == Reg::BootInfo.address() {
                     self.boot_info = BootInfo::from_bits(value);
+                }
+                if echo.address == Reg::BluetoothOff.address() {
+                    self.bluetooth_off = Some(value);
                 }
                 self.odometry.on_register_value(now, echo, value)
             }
@@ -747,6 +758,7 @@ impl<'a> State<'a> {
     fn publish_status(&self, ros: &Ros, status: &Status) {
         let mut diagnostic = diagnose(status, &self.settings.hardware_id, self.counts());
         add_boot_info(&mut diagnostic, self.boot_info);
+        add_bluetooth_state(&mut diagnostic, self.bluetooth_off);
         self.add_odometry_figures(&mut diagnostic);
         self.publish_diagnostic(ros, diagnostic);
     }
@@ -869,6 +881,37 @@ pub fn add_boot_info(diagnostic: &mut DiagnosticStatus, boot_info: Option<BootIn
                 "; held: unconfirmed image, no rollback possible, motion locked until basectl firmware confirm or rollback",
             )
         }
+    }
+}
+
+/// Register `bluetooth_off` (36): a remote that is off is a warning, with the way to
+/// turn it on; `None` (not read yet, or a firmware without it) says nothing.
+pub fn add_bluetooth_state(diagnostic: &mut DiagnosticStatus, bluetooth_off: Option<u16>) {
+    let Some(state) = bluetooth_off else {
+        return;
+    };
+    let (value, message) = match state {
+        0 => ("on", None),
+        BLE_OFF_AFTER_HOST_STOPS => (
+            "ble_off_after_host_stops",
+            Some("; BLE remote off: its host stopped 3 times within a minute"),
+        ),
+        // BLUETOOTH_OFF_AFTER_PANICS, and anything a later firmware may add.
+        _ => (
+            "off_after_panics",
+            Some("; Bluetooth remote off after a panic loop"),
+        ),
+    };
+    diagnostic.values.push(KeyValue {
+        key: "bluetooth".to_owned(),
+        value: value.to_owned(),
+    });
+    if let Some(message) = message {
+        diagnostic.level = diagnostic.level.max(DIAGNOSTIC_WARN);
+        diagnostic.message.push_str(message);
+        diagnostic
+            .message
+            .push_str(" (a confirm press or command 0xB1E1 turns it on)");
     }
 }
 
@@ -1054,6 +1097,37 @@ mod tests {
                 .iter()
                 .any(|value| value.key == "first_boot" && value.value == "unknown")
         );
+    }
+
+    #[test]
+    fn a_remote_that_is_off_is_a_warning_that_says_how_to_turn_it_on() {
+        use base_core::registers::BLUETOOTH_OFF_AFTER_PANICS;
+        let status = Status {
+            mode: Mode::Standby,
+            ..Status::default()
+        };
+        for (state, value) in [
+            (BLE_OFF_AFTER_HOST_STOPS, "ble_off_after_host_stops"),
+            (BLUETOOTH_OFF_AFTER_PANICS, "off_after_panics"),
+        ] {
+            let mut diagnostic = diagnose(&status, "base", BridgeCounts::default());
+            add_bluetooth_state(&mut diagnostic, Some(state));
+            assert_eq!(diagnostic.level, DIAGNOSTIC_WARN, "{state}");
+            assert!(
+                diagnostic.message.contains("0xB1E1"),
+                "{}",
+                diagnostic.message
+            );
+            assert!(
+                diagnostic
+                    .values
+                    .iter()
+                    .any(|kv| kv.key == "bluetooth" && kv.value == value)
+            );
+        }
+        let mut on = diagnose(&status, "base", BridgeCounts::default());
+        add_bluetooth_state(&mut on, Some(0));
+        assert_eq!(on.level, DIAGNOSTIC_OK);
     }
 
     #[test]

@@ -163,7 +163,7 @@ fn dispatch<S: OutputPin>(
         remote.disconnect(pad);
     }
     if out.bluetooth_on {
-        remote.bluetooth_on = true;
+        remote.turn_ons = remote.turn_ons.wrapping_add(1);
     }
     if remote != state.remote {
         state.remote = remote;

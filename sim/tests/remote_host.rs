@@ -7,7 +7,8 @@
 //! Virtual time: the bounds here (200 ms to zero on the wire, 2 s until the owner is
 //! back) do not depend on how busy the machine is.
 
-use base_core::can::Mode;
+use base_core::can::{Command, Mode};
+use base_core::registers::{BLE_OFF_AFTER_HOST_STOPS, BLUETOOTH_ON_KEY, Reg};
 use embassy_time::{Duration, Instant};
 use virtual_robot::ble::RemoteRobot;
 use virtual_robot::fake_hci::{AttackAt, FakeHandle, PAD_ADDRESS, XboxReport, fake_controller};
@@ -123,6 +124,50 @@ fn one_empty_att_pdu_from_an_impostor_costs_the_owner_at_most_2_s() {
 }
 
 /// The speed both drives were last commanded, in r/min (None before any command).
+/// The bonded pad itself sends an empty ATT PDU on every link once encrypted: the
+/// guard closes each. It is reached again at most once a second (it was reconnected
+/// 33 times in 10 s), each closed link counts as rejection 0x60 on CAN, and once it
+/// behaves it is served within 2 s.
+#[test]
+fn a_bonded_pad_whose_packets_the_guard_keeps_refusing_is_backed_off_and_counted() {
+    let (robot, controller, fake) = bonded_robot_and_pad();
+    robot.run_virtual(controller, async |pc| {
+        pad_ready(&fake, pc, 10_000).await;
+        fake.attack_every_link(AttackAt::Encrypted, [empty_att_pdu()]);
+        fake.peer_disconnects();
+        let connections = fake.stats().connections;
+        wait_ms(10_000).await;
+        let reconnects = fake.stats().connections - connections;
+        eprintln!("a pad refused on every link: {reconnects} connections in 10 s");
+        assert!(
+            (1..=11).contains(&reconnects),
+            "at most one attempt a second: {reconnects} in 10 s, {:?}",
+            fake.stats()
+        );
+        let status = pc
+            .wait_for_status(2_000, |s| s.last_rejection == 0x60)
+            .await
+            .expect("the refused packets show as rejection 0x60 RadioPacketRefused");
+        assert_eq!(status.last_rejection_subject, 1, "a BLE pad");
+        assert!(
+            u32::from(status.rejected_count) + 1 >= reconnects,
+            "{status:?}"
+        );
+        fake.peace();
+        let behaved = Instant::now();
+        assert!(
+            within(5_000, || fake.subscribed()).await,
+            "{:?}",
+            fake.stats()
+        );
+        assert!(
+            behaved.elapsed() <= Duration::from_secs(2),
+            "served again {} ms after it behaved",
+            behaved.elapsed().as_millis()
+        );
+    });
+}
+
 fn commanded_rpm(robot: &RemoteRobot) -> [Option<i32>; 2] {
     [1, 2].map(|slave| {
         robot
@@ -206,8 +251,10 @@ fn a_host_stopped_by_a_broken_transport_stops_the_wheels_within_200_ms_and_start
     });
 }
 
+/// A host that stops three times within a minute stays off (no restart loop), the PC
+/// sees it in register 36, and the key starts it again: the owner's pad is back.
 #[test]
-fn a_host_that_keeps_stopping_stays_off() {
+fn a_host_that_keeps_stopping_stays_off_shows_it_and_the_key_starts_it_again() {
     let (robot, controller, fake) = bonded_robot_and_pad();
     robot.run_virtual(controller, async |pc| {
         pad_ready(&fake, pc, 10_000).await;
@@ -233,5 +280,20 @@ fn a_host_that_keeps_stopping_stays_off() {
                 .is_some(),
             "the pad counts as gone"
         );
+        assert_eq!(
+            pc.read_register(Reg::BluetoothOff as u8).await,
+            Some(BLE_OFF_AFTER_HOST_STOPS),
+            "register 36 says the BLE host is off"
+        );
+        pc.command(Command::RegisterWrite {
+            address: Reg::Command as u8,
+            value: BLUETOOTH_ON_KEY,
+        });
+        assert!(
+            within(5_000, || fake.stats().resets == 5 && fake.subscribed()).await,
+            "turned on: a fresh host serves the owner's pad again: {:?}",
+            fake.stats()
+        );
+        assert_eq!(pc.read_register(Reg::BluetoothOff as u8).await, Some(0));
     });
 }

@@ -29,11 +29,14 @@ pub enum Rejection {
     /// Velocity, enable or the gamepad's dead-man while a firmware update runs or a
     /// new image is on trial: refused, the base stays braked.
     UpdateInProgress,
+    /// Not a refused command: the radio guard refused a pad's packet and closed its
+    /// link; the remote task waits before it reaches for the pad again.
+    RadioPacketRefused,
 }
 
 impl Rejection {
     /// Every reason this firmware reports, in code order.
-    pub const ALL: [Rejection; 23] = [
+    pub const ALL: [Rejection; 24] = [
         Rejection::Frame(FrameError::WrongLength),
         Rejection::Frame(FrameError::BadVelocityMarker),
         Rejection::Frame(FrameError::UnknownSubcommand),
@@ -57,6 +60,7 @@ impl Rejection {
         Rejection::Feedback(Finding::SpeedStale),
         Rejection::Feedback(Finding::WrongDirection),
         Rejection::UpdateInProgress,
+        Rejection::RadioPacketRefused,
     ];
 
     /// `None` for 0 (nothing rejected) and for codes this firmware does not define (a
@@ -77,6 +81,7 @@ impl Rejection {
             Rejection::Feedback(Finding::SpeedStale) => 0x42,
             Rejection::Feedback(Finding::WrongDirection) => 0x43,
             Rejection::UpdateInProgress => 0x50,
+            Rejection::RadioPacketRefused => 0x60,
         }
     }
 
@@ -108,6 +113,7 @@ impl Rejection {
             Rejection::Feedback(Finding::SpeedStale) => "SpeedStale",
             Rejection::Feedback(Finding::WrongDirection) => "WrongDirection",
             Rejection::UpdateInProgress => "UpdateInProgress",
+            Rejection::RadioPacketRefused => "RadioPacketRefused",
         }
     }
 
@@ -174,6 +180,9 @@ impl Rejection {
             }
             Rejection::UpdateInProgress => {
                 "velocity, enable or the gamepad while a firmware update runs or a new image is on trial"
+            }
+            Rejection::RadioPacketRefused => {
+                "a pad sent a packet the radio guard refuses; its link was closed and the next attempt waits 1 s"
             }
         }
     }

@@ -23,9 +23,9 @@ pub use record::{
 };
 pub use remote_info::{Charge, RemoteBattery, RemoteInfo, RemoteKind};
 pub use table::{
-    ADDRESS_COUNT, Access, BLUETOOTH_ON_KEY, FW_VERSION, LAST_MANUAL_ADDRESS,
-    MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT, OPEN_PAIRING_WINDOW_KEY, REGMAP_VERSION,
-    RESTORE_DEFAULTS_KEY, Reg, RegisterInfo, TABLE, info,
+    ADDRESS_COUNT, Access, BLE_OFF_AFTER_HOST_STOPS, BLUETOOTH_OFF_AFTER_PANICS, BLUETOOTH_ON_KEY,
+    FW_VERSION, LAST_MANUAL_ADDRESS, MOTOR_DIR_INVERT_LEFT, MOTOR_DIR_INVERT_RIGHT,
+    OPEN_PAIRING_WINDOW_KEY, REGMAP_VERSION, RESTORE_DEFAULTS_KEY, Reg, RegisterInfo, TABLE, info,
 };
 
 /// Why a register read or write was refused. The code goes on CAN (register-read error

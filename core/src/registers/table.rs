@@ -85,9 +85,10 @@ pub enum Reg {
     /// (ext) `remote_battery`, read-only: the remote's battery
     /// ([`super::RemoteBattery`]: level in bits 0–7, charge state in 8–15; 0 unknown).
     RemoteBattery = 35,
-    /// (ext) `bluetooth_off`, read-only: 1 while the Bluetooth remote is off after a
-    /// panic loop ([`crate::panic_loop`]); [`BLUETOOTH_ON_KEY`] to `command` or a confirm
-    /// press turns it on.
+    /// (ext) `bluetooth_off`, read-only: [`BLUETOOTH_OFF_AFTER_PANICS`] while the
+    /// Bluetooth remote is off after a panic loop ([`crate::panic_loop`]),
+    /// [`BLE_OFF_AFTER_HOST_STOPS`] while the BLE host stays stopped;
+    /// [`BLUETOOTH_ON_KEY`] to `command` or a confirm press turns it on.
     BluetoothOff = 36,
     /// (ext) `fw_version`, read-only: `(major << 8) | minor`.
     FwVersion = 38,
@@ -272,8 +273,16 @@ pub const RESTORE_DEFAULTS_KEY: u16 = 0xDEF0;
 pub const OPEN_PAIRING_WINDOW_KEY: u16 = 0xB1E0;
 
 /// Writing this to [`Reg::Command`] turns the Bluetooth remote on again after a panic
-/// loop switched it off ([`Reg::BluetoothOff`]); with Bluetooth on it changes nothing.
+/// loop or the BLE host's stops switched it off ([`Reg::BluetoothOff`]); with
+/// Bluetooth on it changes nothing.
 pub const BLUETOOTH_ON_KEY: u16 = 0xB1E1;
+
+/// [`Reg::BluetoothOff`]: three panics in a row, each soon after its boot, left the
+/// whole Bluetooth remote off (no task touches the radio).
+pub const BLUETOOTH_OFF_AFTER_PANICS: u16 = 1;
+/// [`Reg::BluetoothOff`]: the BLE host stopped three times within a minute and is not
+/// started again; BLE pads cannot connect, a PlayStation pad still can.
+pub const BLE_OFF_AFTER_HOST_STOPS: u16 = 2;
 
 /// [`Reg::MotorDir`] bit: invert the left motor's direction.
 pub const MOTOR_DIR_INVERT_LEFT: u16 = 0b01;
@@ -441,7 +450,7 @@ pub static TABLE: [RegisterInfo; 48] = [
     row(Reg::PcSwitchPulse, "pc_switch_pulse", "ms", 500, (50, 2000), ReadWrite, "how long the PC power switch is closed"),
     row(Reg::RemoteKind, "remote_kind", "kind", 0, (0, RemoteKind::MAX_CODE), ReadOnly, "the connected remote: 0 none, 1 BLE pad, 2 DualShock 4, 3 DualSense"),
     row(Reg::RemoteBattery, "remote_battery", "state<<8 | %", 0, (0, RemoteBattery::MAX_REGISTER), ReadOnly, "the remote's battery: bits 0-7 percent, bits 8-15 1 level only, 2 discharging, 3 charging, 4 full, 5 fault; 0 unknown"),
-    row(Reg::BluetoothOff, "bluetooth_off", "flag", 0, (0, 1), ReadOnly, "1: Bluetooth is off after 3 panics each within 30 s of boot; 0xB1E1 to command or a confirm press turns it on"),
+    row(Reg::BluetoothOff, "bluetooth_off", "state", 0, (0, BLE_OFF_AFTER_HOST_STOPS), ReadOnly, "1: Bluetooth is off after 3 panics each within 30 s of boot; 2: the BLE host stopped 3 times within a minute (BLE pads off); 0xB1E1 to command or a confirm press turns it on"),
     row(Reg::FwVersion, "fw_version", "major.minor", FW_VERSION, (FW_VERSION, FW_VERSION), ReadOnly, "firmware version"),
     row(Reg::RegmapVersion, "regmap_version", "", REGMAP_VERSION, (REGMAP_VERSION, REGMAP_VERSION), ReadOnly, "register map version"),
     row(Reg::Command, "command", "key", 0, (OPEN_PAIRING_WINDOW_KEY, RESTORE_DEFAULTS_KEY), WriteOnly, "0xDEF0 restores every writable register to its default; 0xB1E0 opens the remote's pairing window; 0xB1E1 turns Bluetooth on after a panic loop"),

@@ -44,7 +44,7 @@ const EXTENSIONS: [(u8, &str, u16, u16, u16, bool); 21] = [
     (33, "pc_switch_pulse", 500, 50, 2000, false),
     (34, "remote_kind", 0, 0, 3, false),
     (35, "remote_battery", 0, 0, 0x0564, false),
-    (36, "bluetooth_off", 0, 0, 1, false),
+    (36, "bluetooth_off", 0, 0, 2, false),
     (43, "can_tx_dropped", 0, 0, 65535, false),
     (44, "weight_offset_hi", 0, 0, 255, false),
     (45, "weight_offset_lo", 20490, 0, 65535, false),
@@ -199,7 +199,7 @@ fn bad_writes_are_rejected_and_change_nothing() {
         (8, 49, OutOfRange),     // PS_rel_max_vel below the lowest speed level
         (28, 4, OutOfRange),     // motor_dir has two bits
         (40, 1, OutOfRange),     // command: not the restore key
-        (36, 0, ReadOnly),       // bluetooth_off: only the panic-loop decision sets it
+        (36, 0, ReadOnly),       // bluetooth_off: only the panic loop and the BLE task set it
         (37, 1, UnknownAddress),
         (41, 1, UnknownAddress),
         (255, 1, UnknownAddress),

@@ -113,9 +113,10 @@ enum Attempt {
 /// How long the task waits before it starts a stopped host again: time for a
 /// controller that failed to settle, and no tight loop if it fails at once again.
 const PAUSE_BEFORE_RESTART: Duration = Duration::from_millis(500);
-/// A host that stopped this many times within [`STOPS_WINDOW`] stays stopped: the
-/// remote is off until reboot (a controller that keeps failing, or a peer that keeps
-/// making it fail, must not keep the radio in a restart loop).
+/// A host that stopped this many times within [`STOPS_WINDOW`] stays stopped: the BLE
+/// remote is off until a person turns it on (a confirm press, or `command` 0xB1E1): a
+/// controller that keeps failing, or a peer that keeps making it fail, must not keep
+/// the radio in a restart loop.
 const STOPS_BEFORE_OFF: usize = 3;
 const STOPS_WINDOW: Duration = Duration::from_secs(60);
 /// How long the controller may take to answer the HCI Reset that ends the remote.
@@ -128,7 +129,8 @@ const RESET_TIMEOUT: Duration = Duration::from_secs(1);
 /// error, an answer it cannot parse). Then the link is reported down at once, so a
 /// held dead-man brakes as on link loss, and a fresh host starts over the same
 /// controller (it resets the controller first) after [`PAUSE_BEFORE_RESTART`]; after
-/// [`STOPS_BEFORE_OFF`] stops within [`STOPS_WINDOW`] the remote stays off.
+/// [`STOPS_BEFORE_OFF`] stops within [`STOPS_WINDOW`] the remote stays off, and the
+/// controller shows it (register 36 reads 2), until it turns Bluetooth on again.
 pub async fn run<C, F>(
     controller: C,
     address: [u8; 6],
@@ -158,6 +160,7 @@ where
         }
     };
     let hosts = async {
+        // Runs for ever: a host that stops is started again, or waits to be turned on.
         let mut host = Host {
             bonded,
             request: RemoteRequest::default(),
@@ -177,7 +180,10 @@ where
             )
             .await;
             if stops.one_more(Instant::now()) {
-                error!("remote: the Bluetooth host stopped again; the remote is off until reboot");
+                error!(
+                    "remote: the Bluetooth host stopped again; the BLE remote is off until a \
+                     confirm press or command 0xB1E1"
+                );
                 // No link may outlive the host: the reset ends them (and stops any scan).
                 if with_timeout(
                     RESET_TIMEOUT,
@@ -188,17 +194,17 @@ where
                 {
                     error!("remote: the Bluetooth controller does not answer its reset");
                 }
-                return;
+                host.wait_until_turned_on(channels).await;
+                stops = StopHistory::default();
+                info!("remote: Bluetooth turned on; the BLE host starts again");
+                continue;
             }
             error!("remote: the Bluetooth host stopped; it starts again");
             Timer::after(PAUSE_BEFORE_RESTART).await;
         }
     };
     match select(store_bonds_at_rest, hosts).await {
-        Either::First(never) => never,
-        Either::Second(()) => loop {
-            core::future::pending::<()>().await;
-        },
+        Either::First(never) | Either::Second(never) => never,
     }
 }
 
@@ -229,6 +235,25 @@ struct Host {
 }
 
 impl Host {
+    /// Tells the controller that the BLE host stays stopped, and waits until it turns
+    /// Bluetooth on again (a new count in the request). The pairing window and the
+    /// disconnects that come meanwhile are kept for the next host.
+    async fn wait_until_turned_on(&mut self, channels: RemoteEnds<'_>) {
+        if let Some(request) = channels.remote_requests.try_take() {
+            self.request = request;
+        }
+        let turned_on_before = self.request.turn_ons;
+        report(channels, Input::BleHostOff).await;
+        loop {
+            self.request = channels.remote_requests.wait().await;
+            if self.request.turn_ons != turned_on_before {
+                // The next host takes the request as its first.
+                channels.remote_requests.signal(self.request);
+                return;
+            }
+        }
+    }
+
     /// One host, from its start (HCI Reset) until it stops.
     async fn run<C>(
         &mut self,
@@ -291,8 +316,7 @@ impl Host {
                                 }
                                 unsaved_bond.signal(bond);
                                 report(channels, Input::RemotePaired).await;
-                                remote.serve(&conn).await;
-                                Attempt::Served
+                                remote.serve(&conn).await
                             }
                             Err(attempt) => attempt,
                         }
@@ -433,16 +457,14 @@ impl<C: HciController + ControllerCmdSync<LeSetScanParams>> PadLink<'_, '_, C> {
         let attempt = with_timeout(RECONNECT_ATTEMPT, central.connect(&config));
         match select(attempt, self.channels.remote_requests.wait()).await {
             Either::First(Ok(Ok(conn))) => {
+                let closed_before = self.guard.counters().links_closed;
                 // Never pair here: not bondable, no security request of ours.
                 if conn.set_bondable(false).is_err() {
                     conn.disconnect();
                     return Attempt::Failed;
                 }
                 match self.encrypt_with_bond(&conn).await {
-                    Some(client) => {
-                        self.serve_with(&conn, &client).await;
-                        Attempt::Served
-                    }
+                    Some(client) => self.serve_with(&conn, &client, closed_before).await,
                     None => {
                         warn!(
                             "remote: the pad at the bonded address did not encrypt with the bond; refused"
@@ -509,24 +531,29 @@ impl<C: HciController + ControllerCmdSync<LeSetScanParams>> PadLink<'_, '_, C> {
     }
 
     /// Discovers the pad's HID service, subscribes to its input reports and forwards
-    /// them until the link drops or the controller asks to disconnect.
-    async fn serve(&mut self, conn: &Connection<'_, DefaultPacketPool>) {
+    /// them until the link drops or the controller asks to disconnect. `Failed` when
+    /// the pad could not be served, or the guard closed its link.
+    async fn serve(&mut self, conn: &Connection<'_, DefaultPacketPool>) -> Attempt {
+        let closed_before = self.guard.counters().links_closed;
         match GattClient::<C, DefaultPacketPool, MAX_SERVICES>::new(self.stack, conn).await {
-            Ok(client) => self.serve_with(conn, &client).await,
+            Ok(client) => self.serve_with(conn, &client, closed_before).await,
             Err(_) => {
                 self.report_link(true).await;
                 conn.disconnect();
                 self.report_link(false).await;
+                Attempt::Failed
             }
         }
     }
 
-    /// [`Self::serve`] with the GATT client of the connection.
+    /// [`Self::serve`] with the GATT client of the connection. `closed_before`: the
+    /// guard's count of closed links when this link came up.
     async fn serve_with(
         &mut self,
         conn: &Connection<'_, DefaultPacketPool>,
         client: &GattClient<'_, C, DefaultPacketPool, MAX_SERVICES>,
-    ) {
+        closed_before: u32,
+    ) -> Attempt {
         self.report_link(true).await;
         {
             let disconnects_before = self.request.disconnects_of(Pad::Ble);
@@ -553,6 +580,15 @@ impl<C: HciController + ControllerCmdSync<LeSetScanParams>> PadLink<'_, '_, C> {
         }
         conn.disconnect();
         self.report_link(false).await;
+        // A pad whose packets the guard refuses is backed off like a failed attempt,
+        // and counted on CAN: one that does it after every reconnect is not served in
+        // a loop (it was reconnected 33 times in 10 s).
+        if self.guard.counters().links_closed != closed_before {
+            report(self.channels, Input::RadioPacketRefused { pad: Pad::Ble }).await;
+            Attempt::Failed
+        } else {
+            Attempt::Served
+        }
     }
 
     /// The link of the bonded pad came up or went down (down brakes a held dead-man).

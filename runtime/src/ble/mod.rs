@@ -35,8 +35,13 @@ pub struct RemoteRequest {
     /// [`Pad`], read with [`RemoteRequest::disconnects_of`]); a change means "drop the
     /// link now" (a counter, so two requests in a row are not merged into one state).
     pub disconnects: [u16; 2],
-    /// Bluetooth, off after a panic loop, was turned on ([`wait_until_on`]).
-    pub bluetooth_on: bool,
+    /// Counts the controller's turn-ons of Bluetooth ([`Output::bluetooth_on`]): after
+    /// a panic loop ([`wait_until_on`]), or after the BLE task gave up its host; a
+    /// change means "start now" (a counter, so a second turn-on is not lost in the
+    /// first one's state).
+    ///
+    /// [`Output::bluetooth_on`]: base_core::controller::Output::bluetooth_on
+    pub turn_ons: u16,
 }
 
 impl RemoteRequest {

@@ -27,7 +27,7 @@ pub async fn wait_until_on(
     warn!("Bluetooth off after a panic loop: a confirm press or command 0xB1E1 turns it on");
     loop {
         let request = requests.wait().await;
-        if request.bluetooth_on {
+        if request.turn_ons != 0 {
             info!("Bluetooth turned on: the remote starts");
             turned_on();
             requests.signal(request);
@@ -71,7 +71,7 @@ mod tests {
         );
         assert!(!forgotten.get());
         let on = RemoteRequest {
-            bluetooth_on: true,
+            turn_ons: 1,
             ..pairing
         };
         requests.signal(on);
