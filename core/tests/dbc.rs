@@ -213,6 +213,9 @@ const FEEDBACK_REASONS: [Rejection; 4] = [
 /// Motion refused while a firmware update runs or an image is on trial (0x50).
 const UPDATE_REASONS: [Rejection; 1] = [Rejection::UpdateInProgress];
 
+/// A pad's packet the radio guard refused (0x60).
+const REMOTE_REASONS: [Rejection; 1] = [Rejection::RadioPacketRefused];
+
 /// Status byte 4 before anything was rejected.
 const NO_REJECTION: u8 = 0;
 
@@ -228,6 +231,7 @@ fn rejection_reasons() -> Vec<(u8, String)> {
     let feedback = FEEDBACK_REASONS
         .iter()
         .chain(UPDATE_REASONS.iter())
+        .chain(REMOTE_REASONS.iter())
         .map(|r| (r.code(), r.name().to_string()));
     frame
         .chain(register)
