@@ -304,7 +304,7 @@ pub fn run(settings: &Settings, bus: &mut dyn Bus, stop: &Arc<AtomicBool>) -> Re
         .spinner()
         .map_err(|error| Error::Ros(format!("spinner: {error:?}")))?;
     // The spinner answers the parameter services; it ends when the node is dropped.
-    std::thread::spawn(move || futures::executor::block_on(spinner.spin()));
+    let spinning = std::thread::spawn(move || futures::executor::block_on(spinner.spin()));
     ros.log(
         LogLevel::Info,
         &format!(
@@ -320,7 +320,24 @@ pub fn run(settings: &Settings, bus: &mut dyn Bus, stop: &Arc<AtomicBool>) -> Re
     // Whatever ended the loop: the base must not keep driving on our last command.
     let frames = state.commands.stop();
     let stopped = send_all(bus, &frames);
+    leave_the_graph(ros, &spinning);
     result.and(stopped)
+}
+
+/// How long leaving the graph may take before the process ends anyway.
+const LEAVE_TIMEOUT: Duration = Duration::from_secs(3);
+
+/// Drops the node, then waits for the spinner's thread: it holds the last handle on
+/// the DDS participant, whose drop announces the departure (the node list without us,
+/// then the participant's dispose) and joins the threads that send it. Ending the
+/// process before that loses the announcement whenever those threads have not run
+/// yet (a busy machine), and the others then see the node for the whole lease.
+fn leave_the_graph<T>(ros: Ros, spinning: &std::thread::JoinHandle<T>) {
+    drop(ros);
+    let deadline = Instant::now() + LEAVE_TIMEOUT;
+    while !spinning.is_finished() && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(5));
+    }
 }
 
 fn send_all(bus: &mut dyn Bus, commands: &[Command]) -> Result<(), Error> {
