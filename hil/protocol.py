@@ -58,6 +58,12 @@ def register_read(address, tag=0):
     return REGISTER_READ, struct.pack(">BBH", 0x01, address, tag)
 
 
+def register_bulk_read(first, count, tag):
+    """(ext) `02 first count tagMSB tagLSB`: `count` (1 to 8) consecutive addresses,
+    each answered by its own reply with this tag, in address order."""
+    return REGISTER_READ, struct.pack(">BBBH", 0x02, first, count, tag)
+
+
 _tags = itertools.count(random.randrange(1, 0xFFFF))
 
 

@@ -52,3 +52,18 @@ def test_each_reply_names_the_address_and_tag_it_answers(base):
     assert [(r.address, r.tag) for r in replies] == [
         (p.REG_LOOP_END_DELAY, 0), (p.REG_REGMAP_VERSION, 0xBEEF), (p.REG_LOOP_END_DELAY, 0)]
     assert all(r.value == expected[r.address] for r in replies)
+
+
+def test_a_bulk_read_answers_each_address_in_order_with_its_tag(base):
+    """Registers 36 to 43 in one request: a value or a refusal for each address (37, 41
+    and 42 hold no register), in address order, each with the request's tag."""
+    expected = {address: base.read_register(address) for address in range(36, 44)}
+    tag = p.next_tag()
+    base.flush()
+    base.send(p.register_bulk_read(36, 8, tag))
+    replies = [p.parse_register_reply(base.wait_for(p.REGISTER_READ, lambda data: data[0] != 0x02))
+               for _ in range(8)]
+    assert [(r.address, r.tag) for r in replies] == [(address, tag) for address in range(36, 44)]
+    assert [r.refused_address for r in replies] == [expected[a].refused_address for a in range(36, 44)]
+    # The counters (43) may move between the two readings; the rest hold still.
+    assert [r.value for r in replies[:7]] == [expected[a].value for a in range(36, 43)]

@@ -2,10 +2,11 @@
 //! (register reads, steps whose refusal shows only in the status frame) and the latest
 //! reports seen on the way.
 
+use std::collections::{BTreeMap, BTreeSet};
 use std::fmt;
 use std::time::{Duration, Instant};
 
-use base_core::can::{Command, ReadEcho, Report, Status};
+use base_core::can::{BULK_READ_MAX, Command, ReadEcho, Report, Status};
 use base_core::registers::{Reg, RegisterInfo};
 
 use crate::bus::{Bus, BusError};
@@ -129,6 +130,8 @@ pub struct Base<'bus> {
     battery: Option<(u8, u16)>,
     /// The tag of the previous register read; each read gets the next one.
     last_tag: u16,
+    /// Whether the base controller answers bulk reads: `None` until one was tried.
+    bulk_reads: Option<bool>,
 }
 
 /// How often a register read is asked, under a new tag each time, before basectl gives
@@ -150,6 +153,7 @@ impl<'bus> Base<'bus> {
             weight_g: None,
             battery: None,
             last_tag: first_tag(),
+            bulk_reads: None,
         }
     }
 
@@ -407,14 +411,110 @@ impl<'bus> Base<'bus> {
     }
 
     /// The values of `registers`, in order.
+    /// The values of `addresses`, by address: in bulk reads of up to
+    /// [`BULK_READ_MAX`] consecutive addresses (one request, the replies back to back),
+    /// or one by one from a controller that does not answer bulk reads (firmware before
+    /// them). A refused address is an error, as for [`Self::read_register`].
+    pub fn read_many(&mut self, addresses: &[u8]) -> Result<BTreeMap<u8, u16>, Error> {
+        let wanted: BTreeSet<u8> = addresses.iter().copied().collect();
+        let mut values = BTreeMap::new();
+        let mut rest = wanted.iter().copied().peekable();
+        while let Some(first) = rest.next() {
+            let last_in_reach = first.saturating_add(BULK_READ_MAX - 1);
+            let mut last = first;
+            while let Some(&address) = rest.peek() {
+                if address > last_in_reach {
+                    break;
+                }
+                last = address;
+                rest.next();
+            }
+            for (address, reply) in (first..=last).zip(self.read_range(first, last - first + 1)?) {
+                if !wanted.contains(&address) {
+                    continue;
+                }
+                match reply {
+                    Ok(value) => values.insert(address, value),
+                    Err(reason) => return Err(Error::ReadRefused { address, reason }),
+                };
+            }
+        }
+        Ok(values)
+    }
+
+    /// Each address of `first .. first + count` read, or the reason the controller
+    /// refused it.
+    fn read_range(&mut self, first: u8, count: u8) -> Result<Vec<Result<u16, u8>>, Error> {
+        if self.bulk_reads == Some(false) {
+            return (first..=first + (count - 1))
+                .map(|address| match self.read_register(address) {
+                    Ok(value) => Ok(Ok(value)),
+                    Err(Error::ReadRefused { reason, .. }) => Ok(Err(reason)),
+                    Err(error) => Err(error),
+                })
+                .collect();
+        }
+        let attempt_timeout = self.reply_timeout / ATTEMPT_SHARE;
+        let mut replies: Vec<Option<Result<u16, u8>>> = vec![None; usize::from(count)];
+        for _ in 0..READ_ATTEMPTS {
+            let tag = self.next_tag();
+            self.send(Command::RegisterBulkRead { first, count, tag })?;
+            let deadline = Instant::now() + attempt_timeout;
+            while replies.iter().any(Option::is_none) {
+                let remaining = deadline.saturating_duration_since(Instant::now());
+                let Some(report) = self.next_report(remaining)? else {
+                    break;
+                };
+                let (address, reply) = match report {
+                    Report::RegisterValue {
+                        value,
+                        echo: Some(echo),
+                    } if echo.tag == tag => (echo.address, Ok(value)),
+                    Report::RegisterReadError {
+                        address,
+                        reason,
+                        tag: Some(refused_tag),
+                    } if refused_tag == tag => (address, Err(reason)),
+                    _ => continue,
+                };
+                if let Some(slot) = address
+                    .checked_sub(first)
+                    .and_then(|offset| replies.get_mut(usize::from(offset)))
+                {
+                    *slot = Some(reply);
+                    self.bulk_reads = Some(true);
+                }
+            }
+            if replies.iter().all(Option::is_some) {
+                return Ok(replies.into_iter().flatten().collect());
+            }
+            if self.bulk_reads.is_none() {
+                // Not one reply: a controller that predates bulk reads counts the
+                // request as an unknown sub-command. If it answers a single read, read
+                // one by one from now on.
+                match self.read_register(first) {
+                    Ok(_) | Err(Error::ReadRefused { .. }) => {}
+                    Err(error) => return Err(error),
+                }
+                self.bulk_reads = Some(false);
+                return self.read_range(first, count);
+            }
+        }
+        Err(Error::NoReply {
+            awaited: format!(
+                "reading registers {first} to {}, asked {READ_ATTEMPTS} times",
+                first + (count - 1)
+            ),
+            timeout_ms: (attempt_timeout * READ_ATTEMPTS).as_millis(),
+        })
+    }
+
+    /// The values of `registers`, in their order, read as [`Self::read_many`] does.
     pub fn read_registers<const N: usize>(
         &mut self,
         registers: [Reg; N],
     ) -> Result<[u16; N], Error> {
-        let mut values = [0; N];
-        for (value, register) in values.iter_mut().zip(registers) {
-            *value = self.read_register(register.address())?;
-        }
-        Ok(values)
+        let values = self.read_many(&registers.map(Reg::address))?;
+        Ok(registers.map(|register| values[&register.address()]))
     }
 }

@@ -36,11 +36,10 @@ pub fn version_text(value: u16) -> String {
     format!("{}.{}", value >> 8, value & 0xFF)
 }
 
-/// The value of every read-write register, by address.
+/// The value of every read-write register, by address, in bulk reads.
 fn read_writable(base: &mut Base) -> Result<BTreeMap<u8, u16>, Error> {
-    writable()
-        .map(|register| Ok((register.address, base.read_register(register.address)?)))
-        .collect()
+    let addresses: Vec<u8> = writable().map(|register| register.address).collect();
+    base.read_many(&addresses)
 }
 
 /// Reads every read-write register and the versions, reads the registers once more

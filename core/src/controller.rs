@@ -8,7 +8,7 @@ use heapless::Vec;
 use crate::battery::{self, BatteryFilter, BatteryParams};
 use crate::calibration::odometry::OdometryCalibration;
 use crate::calibration::scale::{ScaleCalibration, ScaleUpdate};
-use crate::can::{Command, FrameError, RawFrame, ReadEcho, Rejection, Report};
+use crate::can::{BULK_READ_MAX, Command, FrameError, RawFrame, ReadEcho, Rejection, Report};
 use crate::can::{Faults, Mode, Status, StatusFlags};
 use crate::feedback::{FeedbackPeriods, FeedbackSchedule};
 use crate::gamepad::GamepadState;
@@ -169,6 +169,10 @@ pub struct Persist {
 pub struct Output {
     /// Frames to transmit, in order.
     pub frames: Vec<RawFrame, 8>,
+    /// The replies to one bulk register read, in address order. The shell queues them
+    /// as one batch apart from the single replies, so that programs flooding the bus
+    /// with single reads cannot crowd them out.
+    pub bulk_replies: Vec<RawFrame, { BULK_READ_MAX as usize }>,
     /// A new command for both wheels: send it to the drives at once.
     pub wheels: Option<WheelCommand>,
     /// Excite (`true`, brakes released) or de-excite (`false`, brakes close) the drives.
@@ -652,23 +656,22 @@ impl Controller {
                 self.write_register(now, address, value, out);
             }
             Command::RegisterRead { address, tag } => {
-                // Every reply says which read it answers: with several programs on the
-                // bus, a reply without it could be taken for another register's value.
-                let report = match self.registers.read(address) {
-                    Ok(value) => Report::RegisterValue {
-                        value,
-                        echo: Some(ReadEcho { address, tag }),
-                    },
-                    Err(error) => {
-                        self.rejections.record(error.code(), address);
-                        Report::RegisterReadError {
-                            address,
-                            reason: error.code(),
-                            tag: Some(tag),
-                        }
-                    }
-                };
+                let report = self.read_reply(address, tag);
+                if let Report::RegisterReadError { reason, .. } = report {
+                    self.rejections.record(reason, address);
+                }
                 push_frame(out, report.encode());
+            }
+            Command::RegisterBulkRead { first, count, tag } => {
+                // An address without a register inside the range gets its refusal and
+                // is not counted as a rejection: the PC asked for a range, and the
+                // table's gaps are no mistake of its.
+                for address in (first..=u8::MAX).take(usize::from(count)) {
+                    let pushed = out
+                        .bulk_replies
+                        .push(self.read_reply(address, tag).encode());
+                    debug_assert!(pushed.is_ok(), "the codec bounds a bulk read");
+                }
             }
             Command::ResetOdometry => self.odometry.reset(),
             Command::Heartbeat => self.power_event(now, power::Event::Heartbeat, out),
@@ -723,6 +726,23 @@ impl Controller {
     /// under a moving base turns a straight drive into a spin. So is a new value for a
     /// register that shapes the stop ([`Reg::shapes_stop`]): a stop must not be
     /// stretched by a write while the base moves.
+    /// The reply to a read of `address` with `tag`. Every reply says which read it
+    /// answers: with several programs on the bus, a reply without it could be taken
+    /// for another register's value.
+    fn read_reply(&self, address: u8, tag: u16) -> Report {
+        match self.registers.read(address) {
+            Ok(value) => Report::RegisterValue {
+                value,
+                echo: Some(ReadEcho { address, tag }),
+            },
+            Err(error) => Report::RegisterReadError {
+                address,
+                reason: error.code(),
+                tag: Some(tag),
+            },
+        }
+    }
+
     fn write_register(&mut self, now: Timestamp, address: u8, value: u16, out: &mut Output) {
         let changes_motion = match Reg::from_address(address) {
             Some(Reg::Command) => value == RESTORE_DEFAULTS_KEY,

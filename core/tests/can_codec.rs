@@ -3,8 +3,8 @@
 
 use base_core::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
 use base_core::can::{
-    Command, ControlSource, Faults, FrameError, Mode, RawFrame, ReadEcho, Report, Status,
-    StatusFlags, id,
+    BULK_READ_MAX, Command, ControlSource, Faults, FrameError, Mode, RawFrame, ReadEcho, Report,
+    Status, StatusFlags, id,
 };
 use proptest::prelude::*;
 
@@ -182,6 +182,44 @@ fn a_lone_third_byte_of_a_register_read_is_no_tag() {
             address: 15,
             tag: 0
         }))
+    );
+}
+
+#[test]
+fn bulk_register_read_names_first_address_count_and_tag() {
+    assert_command_golden(
+        0x004,
+        &[0x02, 0x10, 0x08, 0xBE, 0xEF],
+        Command::RegisterBulkRead {
+            first: 16,
+            count: 8,
+            tag: 0xBEEF,
+        },
+    );
+}
+
+#[test]
+fn a_bulk_read_of_no_register_too_many_or_past_255_is_refused() {
+    for data in [
+        [0x02, 0x10, 0x00, 0, 1],
+        [0x02, 0x10, BULK_READ_MAX + 1, 0, 1],
+        [0x02, 0xFA, 0x07, 0, 1],
+    ] {
+        assert_eq!(
+            Command::decode(0x004, &data),
+            Err(FrameError::BadReadCount),
+            "{data:02X?}"
+        );
+    }
+    // The last address is 255: first 248, 8 registers.
+    assert!(matches!(
+        Command::decode(0x004, &[0x02, 0xF8, 0x08, 0, 1]),
+        Ok(Some(Command::RegisterBulkRead { count: 8, .. }))
+    ));
+    // The tag is not optional in a bulk read.
+    assert_eq!(
+        Command::decode(0x004, &[0x02, 0x10, 0x08, 0xBE]),
+        Err(FrameError::WrongLength)
     );
 }
 
@@ -476,6 +514,7 @@ fn register_replies_on_0x004_are_not_commands() {
 #[test]
 fn register_read_requests_on_0x004_are_not_reports() {
     assert_eq!(Report::decode(0x004, &[0x01, 0x0F]), Ok(None));
+    assert_eq!(Report::decode(0x004, &[0x02, 0x0F, 0x08, 0, 1]), Ok(None));
 }
 
 #[test]
@@ -578,7 +617,7 @@ fn velocity_without_marker_0x03_is_refused() {
 #[test]
 fn unknown_sub_commands_are_refused() {
     let cases: [(u16, &[u8]); 12] = [
-        (0x004, &[0x02, 0x0F]),
+        (0x004, &[0x03, 0x0F]),
         (0x004, &[0xFE, 0x0F]),
         (0x005, &[0x00]),
         (0x005, &[0x02]),
@@ -632,7 +671,7 @@ fn reports_need_their_exact_length() {
 #[test]
 fn register_reply_with_unknown_first_byte_is_refused() {
     assert_eq!(
-        report_error(0x004, &[0x02, 0x00, 0x32]),
+        report_error(0x004, &[0x03, 0x00, 0x32]),
         FrameError::UnknownSubcommand
     );
 }
@@ -702,6 +741,13 @@ fn command() -> impl Strategy<Value = Command> {
             .prop_map(|(address, value)| Command::RegisterWrite { address, value }),
         (any::<u8>(), any::<u16>())
             .prop_map(|(address, tag)| Command::RegisterRead { address, tag }),
+        (any::<u8>(), 1..=BULK_READ_MAX, any::<u16>()).prop_map(|(first, count, tag)| {
+            Command::RegisterBulkRead {
+                first: first.min(u8::MAX - (count - 1)),
+                count,
+                tag,
+            }
+        }),
         Just(Command::ResetOdometry),
         Just(Command::Heartbeat),
         scale_step().prop_map(Command::ScaleCalibration),

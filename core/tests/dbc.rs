@@ -174,10 +174,11 @@ fn register_address(address: u8) -> Expect {
     registers::info(address).map_or(value(address), |info| named(info.name))
 }
 
-const FRAME_ERRORS: [FrameError; 3] = [
+const FRAME_ERRORS: [FrameError; 4] = [
     FrameError::WrongLength,
     FrameError::BadVelocityMarker,
     FrameError::UnknownSubcommand,
+    FrameError::BadReadCount,
 ];
 const REGISTER_ERRORS: [RegisterError; 5] = [
     RegisterError::UnknownAddress,
@@ -278,6 +279,12 @@ fn command_signals(command: &Command) -> Vec<(&'static str, Expect)> {
             ("RegisterReadKind", variant_name(command)),
             ("ReadAddress", register_address(address)),
             ("ReadTag", value(tag)),
+        ],
+        Command::RegisterBulkRead { first, count, tag } => vec![
+            ("RegisterReadKind", variant_name(command)),
+            ("BulkFirstAddress", value(first)),
+            ("BulkCount", value(count)),
+            ("BulkTag", value(tag)),
         ],
         Command::ResetOdometry => vec![("ResetRequest", variant_name(command))],
         Command::Heartbeat => vec![("HeartbeatRequest", variant_name(command))],
@@ -477,6 +484,11 @@ fn commands() -> Vec<Command> {
         commands.push(Command::RegisterWrite {
             address,
             value: 0x1234,
+        });
+        commands.push(Command::RegisterBulkRead {
+            first: address.min(248),
+            count: 8,
+            tag: 0xBEEF,
         });
     }
     for value in U16_EDGES {

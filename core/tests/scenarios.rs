@@ -4,7 +4,7 @@
 //! so 500 mm/s is 336 motor r/min: +336 on the left drive, −336 on the right.
 
 use base_core::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
-use base_core::can::{Command, ControlSource, Mode, RawFrame, ReadEcho, Report, id};
+use base_core::can::{Command, ControlSource, FrameError, Mode, RawFrame, ReadEcho, Report, id};
 use base_core::controller::{Controller, Input, Output};
 use base_core::gamepad::{Buttons, Dpad, GamepadState};
 use base_core::kinematics::MotorRpm;
@@ -1512,6 +1512,68 @@ fn register_writes_with_bad_values_are_rejected_and_change_nothing() {
                 })],
             ),
         ],
+    );
+}
+
+#[test]
+fn a_bulk_read_answers_each_address_in_order_with_its_tag_and_counts_no_gap() {
+    let mut controller = run(defaults(), &[]);
+    let out = controller.handle(
+        Timestamp::from_millis(10),
+        can(Command::RegisterBulkRead {
+            first: 36,
+            count: 8,
+            tag: 0xBEEF,
+        }),
+    );
+    assert!(
+        out.frames.is_empty(),
+        "the replies go as one batch: {out:?}"
+    );
+    let replies: Vec<Report> = out
+        .bulk_replies
+        .iter()
+        .map(|frame| Report::decode(frame.id(), frame.data()).unwrap().unwrap())
+        .collect();
+    let expected: Vec<Report> = (36..44)
+        .map(|address| match controller.registers().read(address) {
+            Ok(value) => Report::RegisterValue {
+                value,
+                echo: Some(ReadEcho {
+                    address,
+                    tag: 0xBEEF,
+                }),
+            },
+            Err(error) => Report::RegisterReadError {
+                address,
+                reason: error.code(),
+                tag: Some(0xBEEF),
+            },
+        })
+        .collect();
+    assert_eq!(replies, expected);
+    // 37, 41 and 42 hold no register: refused in the batch, not counted as rejections.
+    let refused: Vec<u8> = replies
+        .iter()
+        .filter_map(|reply| match reply {
+            Report::RegisterReadError { address, .. } => Some(*address),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(refused, [37, 41, 42]);
+    assert_eq!(
+        controller.status(Timestamp::from_millis(10)).rejected_count,
+        0
+    );
+    // A malformed count is a frame rejection.
+    controller.handle(
+        Timestamp::from_millis(20),
+        raw(id::REGISTER_READ, &[0x02, 36, 9, 0, 1]),
+    );
+    let status = controller.status(Timestamp::from_millis(20));
+    assert_eq!(
+        (status.rejected_count, status.last_rejection),
+        (1, FrameError::BadReadCount.code())
     );
 }
 

@@ -9,7 +9,7 @@ use embassy_sync::signal::Signal;
 use embassy_time::Timer;
 use heapless::Deque;
 
-use base_core::can::{RawFrame, id};
+use base_core::can::{BULK_READ_MAX, RawFrame, id};
 use base_core::controller::Input;
 
 use crate::channels::{InputSender, RawMutex};
@@ -24,6 +24,10 @@ use crate::update::UpdateLink;
 /// 32 frames of 16 bytes.
 pub const REPLY_QUEUE: usize = 32;
 
+/// Bulk-read replies the transmit queue holds: two whole batches
+/// ([`BULK_READ_MAX`] each), 16 frames of 16 bytes.
+pub const BULK_QUEUE: usize = 2 * BULK_READ_MAX as usize;
+
 /// The frames waiting for the CAN TX task, in two classes. The periodic feedback frames
 /// ([`id::FEEDBACK`]) have one slot per ID and always go first: a reply never drops
 /// or delays them beyond the one frame already on its way to the wire. Replies wait in
@@ -33,6 +37,12 @@ pub const REPLY_QUEUE: usize = 32;
 /// period), which counts as dropped too. The newer frame goes behind the others that
 /// fell due, so frames that belong together leave in the order they were sent: a pose
 /// time (0x0EF) never goes out after the pose of the next cycle.
+///
+/// The replies to bulk register reads wait apart, as whole batches, and take turns
+/// with the single replies: programs that flood the bus with single reads keep the
+/// reply queue full, and a batch that had to find room there would never fit, or would
+/// wait behind their whole backlog. A batch that finds no room for all its replies is
+/// dropped whole, so a reader never waits for a reply that will not come.
 pub struct FrameQueue {
     queued: Mutex<RawMutex, RefCell<Queued>>,
     /// Set by every send; the TX task waits on it when both classes are empty.
@@ -44,6 +54,9 @@ struct Queued {
     /// frame's successor counts as falling due when it is sent).
     feedback: Deque<RawFrame, { id::FEEDBACK.len() }>,
     replies: Deque<RawFrame, REPLY_QUEUE>,
+    bulk_replies: Deque<RawFrame, BULK_QUEUE>,
+    /// The next reply comes from the bulk batches if both classes wait.
+    bulk_turn: bool,
     dropped: u32,
 }
 
@@ -80,10 +93,32 @@ impl Queued {
         }
     }
 
+    fn push_batch(&mut self, frames: &[RawFrame]) {
+        if BULK_QUEUE - self.bulk_replies.len() < frames.len() {
+            self.dropped = self.dropped.wrapping_add(frames.len() as u32);
+            return;
+        }
+        for frame in frames {
+            // Room was checked above.
+            let _ = self.bulk_replies.push_back(*frame);
+        }
+    }
+
     fn pop(&mut self) -> Option<RawFrame> {
-        self.feedback
-            .pop_front()
-            .or_else(|| self.replies.pop_front())
+        if let Some(frame) = self.feedback.pop_front() {
+            return Some(frame);
+        }
+        let from_bulk =
+            !self.bulk_replies.is_empty() && (self.bulk_turn || self.replies.is_empty());
+        let frame = if from_bulk {
+            self.bulk_replies.pop_front()
+        } else {
+            self.replies.pop_front()
+        };
+        if frame.is_some() {
+            self.bulk_turn = !from_bulk;
+        }
+        frame
     }
 }
 
@@ -93,6 +128,8 @@ impl FrameQueue {
             queued: Mutex::new(RefCell::new(Queued {
                 feedback: Deque::new(),
                 replies: Deque::new(),
+                bulk_replies: Deque::new(),
+                bulk_turn: false,
                 dropped: 0,
             })),
             queued_signal: Signal::new(),
@@ -105,8 +142,16 @@ impl FrameQueue {
         self.queued_signal.signal(());
     }
 
-    /// Frames dropped since boot: replies that found their queue full, and feedback
-    /// frames replaced by a newer one before they were sent.
+    /// Queues the replies to one bulk read together, or drops and counts them all
+    /// when the bulk queue has no room for all of them.
+    pub fn send_batch(&self, frames: &[RawFrame]) {
+        self.queued
+            .lock(|queued| queued.borrow_mut().push_batch(frames));
+        self.queued_signal.signal(());
+    }
+
+    /// Frames dropped since boot: replies that found their queue full (a bulk read's
+    /// batch counts each of its replies), and feedback frames replaced by a newer one before they were sent.
     pub fn dropped(&self) -> u32 {
         self.queued.lock(|queued| queued.borrow().dropped)
     }
@@ -211,6 +256,47 @@ mod tests {
         assert_eq!(sent.len(), REPLY_QUEUE);
         assert_eq!(sent[0], reply(0));
         assert_eq!(sent[REPLY_QUEUE - 1], reply(REPLY_QUEUE as u8 - 1));
+    }
+
+    fn bulk_batch(tag: u8) -> [RawFrame; BULK_READ_MAX as usize] {
+        core::array::from_fn(|i| {
+            RawFrame::new(id::REGISTER_READ, &[0, 0, 1, i as u8, 0, tag]).expect("valid frame")
+        })
+    }
+
+    #[test]
+    fn a_bulk_batch_gets_in_beside_a_full_reply_queue_and_takes_turns_with_it() {
+        let queue = FrameQueue::new();
+        for address in 0..REPLY_QUEUE as u8 {
+            queue.send(reply(address));
+        }
+        let batch = bulk_batch(1);
+        queue.send_batch(&batch);
+        assert_eq!(queue.dropped(), 0);
+        let sent = drain(&queue);
+        let bulk_positions: Vec<usize> = sent
+            .iter()
+            .enumerate()
+            .filter(|(_, frame)| batch.contains(frame))
+            .map(|(position, _)| position)
+            .collect();
+        // Reply, bulk, reply, bulk...: the batch is out after 16 frames, not 40.
+        assert_eq!(bulk_positions, [1, 3, 5, 7, 9, 11, 13, 15]);
+        assert_eq!(sent.len(), REPLY_QUEUE + batch.len());
+        assert_eq!(sent[0], reply(0), "the single replies keep their order");
+        assert_eq!(sent[2], reply(1));
+    }
+
+    #[test]
+    fn a_bulk_batch_without_room_for_all_its_replies_is_dropped_whole_and_counted() {
+        let queue = FrameQueue::new();
+        queue.send_batch(&bulk_batch(1));
+        queue.send_batch(&bulk_batch(2));
+        queue.send_batch(&bulk_batch(3));
+        assert_eq!(queue.dropped(), u32::from(BULK_READ_MAX));
+        let sent = drain(&queue);
+        assert_eq!(sent[..8], bulk_batch(1));
+        assert_eq!(sent[8..], bulk_batch(2));
     }
 
     #[test]

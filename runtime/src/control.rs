@@ -121,6 +121,9 @@ fn dispatch<S: OutputPin>(
     for frame in out.frames {
         channels.can_tx.send(frame);
     }
+    if !out.bulk_replies.is_empty() {
+        channels.can_tx.send_batch(&out.bulk_replies);
+    }
     let mut next = *demand;
     if let Some(wheels) = out.wheels {
         next.wheels = wheels;

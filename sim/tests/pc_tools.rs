@@ -763,3 +763,52 @@ fn config_save_and_load_finish_exact_while_two_other_programs_read_registers() {
         "config save took {busy:?} under two readers, {quiet:?} on a quiet bus"
     );
 }
+
+/// A controller from before bulk reads, as basectl sees it: the bulk requests go
+/// unanswered (that firmware counts them as an unknown sub-command).
+struct WithoutBulkReads<B> {
+    bus: B,
+    bulk_requests: u32,
+}
+
+impl<B: basectl::bus::Bus> basectl::bus::Bus for WithoutBulkReads<B> {
+    fn send(&mut self, frame: &base_core::can::RawFrame) -> Result<(), basectl::bus::BusError> {
+        if let Ok(Some(base_core::can::Command::RegisterBulkRead { .. })) =
+            base_core::can::Command::decode(frame.id(), frame.data())
+        {
+            self.bulk_requests += 1;
+            return Ok(());
+        }
+        self.bus.send(frame)
+    }
+
+    fn receive(
+        &mut self,
+        timeout: Duration,
+    ) -> Result<Option<base_core::can::RawFrame>, basectl::bus::BusError> {
+        self.bus.receive(timeout)
+    }
+}
+
+#[test]
+fn config_save_reads_one_by_one_from_a_controller_without_bulk_reads() {
+    let simulator = start_simulator();
+    let open = || basectl::bus::SocketcandBus::open(&simulator.socketcand().to_string()).unwrap();
+    let save = |bus: &mut dyn basectl::bus::Bus, name: &str| {
+        let path = simulator.directory().join(name);
+        let mut base = basectl::base::Base::new(bus, Duration::from_millis(1500));
+        basectl::config::save(&mut base, &path, &mut Vec::new()).expect("saved");
+        std::fs::read_to_string(path).unwrap()
+    };
+    let in_bulk = save(&mut open(), "bulk.json");
+    let mut old = WithoutBulkReads {
+        bus: open(),
+        bulk_requests: 0,
+    };
+    let one_by_one = save(&mut old, "single.json");
+    assert_eq!(one_by_one, in_bulk, "the same file either way");
+    assert_eq!(
+        old.bulk_requests, 1,
+        "one unanswered bulk read, then single reads for the rest of the session"
+    );
+}

@@ -15,6 +15,12 @@ pub(super) const REGISTER_VALUE: u8 = 0x00;
 /// byte0 of a register read error reply (ext); shares ID 0x004 with the request.
 pub(super) const REGISTER_ERROR: u8 = 0xFF;
 pub(super) const REGISTER_READ_REQUEST: u8 = REQUEST;
+/// byte0 of a bulk register read request (ext).
+pub(super) const REGISTER_BULK_READ_REQUEST: u8 = 0x02;
+
+/// The most registers one bulk read asks for: their replies fit one controller output
+/// and the transmit queue holds two such batches.
+pub const BULK_READ_MAX: u8 = 8;
 
 const SCALE_START: u8 = 0x01;
 const SCALE_TARE: u8 = 0x02;
@@ -45,6 +51,11 @@ pub enum Command {
     /// the reply echoes the address and the tag, so that a program can tell its own
     /// reply from another program's. `tag` 0 is the manual's two-byte request.
     RegisterRead { address: u8, tag: u16 },
+    /// 0x004 (ext): `02, first, count, tag MSB, tag LSB`: reads the `count` addresses
+    /// from `first` on (1 ..= [`BULK_READ_MAX`], not past 255) in one request. Each
+    /// address gets its own reply, as for [`Command::RegisterRead`] with this tag, in
+    /// address order, and the replies leave together.
+    RegisterBulkRead { first: u8, count: u8, tag: u16 },
     /// 0x005: `01`.
     ResetOdometry,
     /// 0x006: `01`.
@@ -98,6 +109,20 @@ impl Command {
                     tag: be_u16(tag).unwrap_or(0),
                 },
                 (REGISTER_READ_REQUEST, []) => return Err(FrameError::WrongLength),
+                (REGISTER_BULK_READ_REQUEST, &[first, count, tag_msb, tag_lsb, ..]) => {
+                    if count == 0
+                        || count > BULK_READ_MAX
+                        || usize::from(first) + usize::from(count) > 256
+                    {
+                        return Err(FrameError::BadReadCount);
+                    }
+                    Command::RegisterBulkRead {
+                        first,
+                        count,
+                        tag: u16::from_be_bytes([tag_msb, tag_lsb]),
+                    }
+                }
+                (REGISTER_BULK_READ_REQUEST, _) => return Err(FrameError::WrongLength),
                 _ => return Err(FrameError::UnknownSubcommand),
             },
             id::RESET_ODOMETRY => only_request(first, Command::ResetOdometry)?,
@@ -136,6 +161,13 @@ impl Command {
                 RawFrame::from_array(
                     id::REGISTER_READ,
                     [REGISTER_READ_REQUEST, address, tag_msb, tag_lsb],
+                )
+            }
+            Command::RegisterBulkRead { first, count, tag } => {
+                let [tag_msb, tag_lsb] = tag.to_be_bytes();
+                RawFrame::from_array(
+                    id::REGISTER_READ,
+                    [REGISTER_BULK_READ_REQUEST, first, count, tag_msb, tag_lsb],
                 )
             }
             Command::ResetOdometry => RawFrame::from_array(id::RESET_ODOMETRY, [REQUEST]),

@@ -9,7 +9,7 @@ mod report;
 mod status;
 pub mod update;
 
-pub use command::Command;
+pub use command::{BULK_READ_MAX, Command};
 pub use rejection::Rejection;
 pub use report::{ReadEcho, Report};
 pub use status::{ControlSource, Faults, Mode, Status, StatusFlags};
@@ -124,6 +124,9 @@ pub enum FrameError {
     BadVelocityMarker = 0x02,
     /// A sub-command byte (or a status nibble) this protocol does not define.
     UnknownSubcommand = 0x03,
+    /// (ext) A bulk register read asking for no register, more than
+    /// [`BULK_READ_MAX`], or for addresses past 255.
+    BadReadCount = 0x04,
 }
 
 impl FrameError {
@@ -139,6 +142,7 @@ impl fmt::Display for FrameError {
             FrameError::WrongLength => "wrong frame length",
             FrameError::BadVelocityMarker => "velocity frame byte 4 is not 0x03",
             FrameError::UnknownSubcommand => "unknown sub-command",
+            FrameError::BadReadCount => "bulk register read of 0, more than 8, or past address 255",
         })
     }
 }

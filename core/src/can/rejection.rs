@@ -36,10 +36,11 @@ pub enum Rejection {
 
 impl Rejection {
     /// Every reason this firmware reports, in code order.
-    pub const ALL: [Rejection; 24] = [
+    pub const ALL: [Rejection; 25] = [
         Rejection::Frame(FrameError::WrongLength),
         Rejection::Frame(FrameError::BadVelocityMarker),
         Rejection::Frame(FrameError::UnknownSubcommand),
+        Rejection::Frame(FrameError::BadReadCount),
         Rejection::Register(RegisterError::UnknownAddress),
         Rejection::Register(RegisterError::ReadOnly),
         Rejection::Register(RegisterError::OutOfRange),
@@ -93,6 +94,7 @@ impl Rejection {
             Rejection::Frame(FrameError::WrongLength) => "WrongLength",
             Rejection::Frame(FrameError::BadVelocityMarker) => "BadVelocityMarker",
             Rejection::Frame(FrameError::UnknownSubcommand) => "UnknownSubcommand",
+            Rejection::Frame(FrameError::BadReadCount) => "BadReadCount",
             Rejection::Register(RegisterError::UnknownAddress) => "UnknownAddress",
             Rejection::Register(RegisterError::ReadOnly) => "ReadOnly",
             Rejection::Register(RegisterError::OutOfRange) => "OutOfRange",
@@ -130,6 +132,9 @@ impl Rejection {
             }
             Rejection::Frame(FrameError::UnknownSubcommand) => {
                 "the frame's first byte is not a defined sub-command"
+            }
+            Rejection::Frame(FrameError::BadReadCount) => {
+                "a bulk register read of 0 or more than 8 registers, or past address 255"
             }
             Rejection::Register(RegisterError::UnknownAddress) => "no register at this address",
             Rejection::Register(RegisterError::ReadOnly) => "the register is read-only",

@@ -1,7 +1,9 @@
 //! Frames from the base controller to the robot PC (docs/protocol.md): encoded on the robot,
 //! decoded by test tools and the PC-side CLI.
 
-use super::command::{REGISTER_ERROR, REGISTER_READ_REQUEST, REGISTER_VALUE};
+use super::command::{
+    REGISTER_BULK_READ_REQUEST, REGISTER_ERROR, REGISTER_READ_REQUEST, REGISTER_VALUE,
+};
 use super::{FrameError, MAX_DATA_LEN, RawFrame, Status, id};
 
 /// Which read a register reply answers (ext, after the manual's bytes): the address
@@ -121,7 +123,7 @@ impl Report {
                 }
             }
             id::REGISTER_READ => match *data {
-                [REGISTER_READ_REQUEST, ..] => return Ok(None),
+                [REGISTER_READ_REQUEST | REGISTER_BULK_READ_REQUEST, ..] => return Ok(None),
                 [REGISTER_VALUE, msb, lsb] => Report::RegisterValue {
                     value: u16::from_be_bytes([msb, lsb]),
                     echo: None,

@@ -55,6 +55,16 @@ pub mod wire {
         let [high, low] = tag.to_be_bytes();
         vec![0x01, address, high, low]
     }
+
+    /// The most addresses one bulk read may ask for.
+    pub const BULK_READ_MAX: u8 = 8;
+
+    /// A bulk read of `count` addresses from `first` on (1 to 8, not past 255; others
+    /// are refused whole).
+    pub fn register_bulk_read(first: u8, count: u8, tag: u16) -> Vec<u8> {
+        let [high, low] = tag.to_be_bytes();
+        vec![0x02, first, count, high, low]
+    }
 }
 
 /// One of the two pads the controller takes at once.

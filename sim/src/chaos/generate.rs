@@ -214,11 +214,18 @@ fn single_frame(plan: &mut Plan, t: u64) -> u64 {
         3 => (wire::RESET_ODOMETRY, vec![0x01]),
         4 => {
             let address = plan.range(0, 60) as u8;
-            if plan.chance(0.5) {
-                (wire::REGISTER_READ, vec![0x01, address])
-            } else {
-                let tag = plan.range(1, 0xFFFF) as u16;
-                (wire::REGISTER_READ, wire::register_read(address, tag))
+            let tag = plan.range(1, 0xFFFF) as u16;
+            match plan.range(0, 2) {
+                0 => (wire::REGISTER_READ, vec![0x01, address]),
+                1 => (wire::REGISTER_READ, wire::register_read(address, tag)),
+                // Counts of 0 and 9 too: those are refused whole.
+                _ => {
+                    let count = plan.range(0, u64::from(wire::BULK_READ_MAX) + 1) as u8;
+                    (
+                        wire::REGISTER_READ,
+                        wire::register_bulk_read(address, count, tag),
+                    )
+                }
             }
         }
         5 => {

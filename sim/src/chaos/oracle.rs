@@ -830,6 +830,17 @@ impl Oracle {
                 };
                 self.reads.push_back((data[1], tag, at));
             }
+            wire::REGISTER_READ if data.len() >= 5 && data[0] == 0x02 => {
+                let (first, count) = (data[1], data[2]);
+                let tag = u16::from_be_bytes([data[3], data[4]]);
+                if (1..=wire::BULK_READ_MAX).contains(&count)
+                    && usize::from(first) + usize::from(count) <= 256
+                {
+                    for address in (first..=u8::MAX).take(usize::from(count)) {
+                        self.reads.push_back((address, tag, at));
+                    }
+                }
+            }
             _ => {}
         }
         self.trim(at);
