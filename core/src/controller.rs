@@ -925,11 +925,13 @@ impl Controller {
         // faster than the zone allows reaches its limits within 300 ms (the estop_decel
         // rule), whatever the source's own acceleration.
         let zone_brake = zone && slows_down(start, target);
-        // A fault's stop de-excites the drives `STOPPED_AFTER_MS` after it began,
-        // which holds only if every wheel brakes with `estop_decel`. Shared out by the
-        // measured speeds, a speed register frozen low (the fault itself, perhaps)
-        // would give its wheel a gentle ramp: each wheel brakes with the full rate.
-        let fault_stop = self.supervisor.mode() == Mode::Fault && target == MotorRpm::ZERO;
+        // An e-stop's or a fault's stop de-excites the drives `STOPPED_AFTER_MS` after
+        // it began, which holds only if every wheel brakes with `estop_decel`. Shared
+        // out by the measured speeds, a speed register frozen low (the fault itself,
+        // perhaps) would give its wheel a gentle ramp: each wheel brakes with the full
+        // rate.
+        let hard_stop = matches!(self.supervisor.mode(), Mode::Fault | Mode::Emergency)
+            && target == MotorRpm::ZERO;
         let weak_brake_in_force =
             self.in_force.left_accel.max(self.in_force.right_accel) < estop_decel;
         let a_weak_brake_in_force =
@@ -937,14 +939,14 @@ impl Controller {
         if effects.setpoint.is_some()
             || target != self.in_force.rpm
             || (zone_brake && weak_brake_in_force)
-            || (fault_stop && a_weak_brake_in_force)
+            || (hard_stop && a_weak_brake_in_force)
         {
             let mut accel = self.setpoint.accel_rpm_per_s;
             if zone_brake {
                 accel = accel.max(estop_decel);
             }
             let mut command = kinematics::ramp(start, target, accel);
-            if fault_stop {
+            if hard_stop {
                 command.left_accel = command.left_accel.max(estop_decel);
                 command.right_accel = command.right_accel.max(estop_decel);
             }
@@ -1927,6 +1929,40 @@ mod tests {
             },
         );
         let command = out.wheels.expect("the fault stops the wheels");
+        assert_eq!(command.rpm, MotorRpm::ZERO);
+        let estop_decel = u32::from(controller.registers().get(Reg::EstopDecel));
+        assert!(
+            command.left_accel >= estop_decel && command.right_accel >= estop_decel,
+            "left at {}, right at {} (r/min)/s; estop_decel {estop_decel}",
+            command.left_accel,
+            command.right_accel
+        );
+    }
+
+    /// Found by the whole-robot tester (`estop-speed-lie-seed-1-rule-4`): while the
+    /// right drive's speed register read 0 with the wheel at -729 r/min, and the
+    /// e-stop came. Its command shared `estop_decel` out by the speeds read and gave
+    /// that wheel 241 (r/min)/s (the drive link's emergency broadcast braked it hard
+    /// for 9 ms, then the wheel's own command took over), and the e-stop de-excited
+    /// it 300 ms later at -632 r/min. An e-stop brakes each wheel with
+    /// `estop_decel`, whatever the speeds read.
+    #[test]
+    fn an_estop_brakes_every_wheel_with_estop_decel_whatever_the_speeds_read() {
+        let mut controller = driving_forward();
+        controller.handle(at(400), can(Command::Enable { refresh: true }));
+        // The right wheel runs at -336 r/min; its speed register reads 0.
+        controller.handle(
+            at(420),
+            Input::DriveFeedback {
+                counts: EncoderCounts { left: 0, right: 0 },
+                rpm: MotorRpm {
+                    left: 336,
+                    right: 0,
+                },
+            },
+        );
+        let out = controller.handle(at(430), Input::Estop(true));
+        let command = out.wheels.expect("the e-stop stops the wheels");
         assert_eq!(command.rpm, MotorRpm::ZERO);
         let estop_decel = u32::from(controller.registers().get(Reg::EstopDecel));
         assert!(

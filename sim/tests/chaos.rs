@@ -108,11 +108,11 @@ fn every_case_the_tester_once_shrunk_now_breaks_no_rule() {
 
 /// The cases of defects found and not fixed yet (docs/tests.md, "What the tester
 /// found"): each still breaks the rule it broke, so the oracle is shown to catch it.
-/// The fix of one makes its case pass here: move it to `tests/chaos/` then.
+/// The fix of one makes its case pass here: move it to `tests/chaos/` then. With no
+/// defect open, the directory is empty (or absent) and there is nothing to check.
 #[test]
 fn every_open_case_still_breaks_the_rule_it_was_found_with() {
     let open = cases("tests/chaos/open");
-    assert!(!open.is_empty(), "no open cases in sim/tests/chaos/open/");
     let mut wrong = Vec::new();
     for path in open {
         let (case, outcome) = replay(&path);

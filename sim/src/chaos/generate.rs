@@ -68,8 +68,8 @@ impl Plan {
 /// the tester found").
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Mix {
-    /// Register-read and QUERY floods. Open: reply traffic delays and drops the
-    /// periodic frames (issue 30, item 4).
+    /// Register-read and QUERY floods. Fixed: reply traffic once delayed and dropped
+    /// the periodic frames (issue 30, item 4).
     pub floods: bool,
     /// A drive's speed register frozen at a wrong value. Fixed: the fault's stop once
     /// shared `estop_decel` out by the lying speed, so that wheel braked gently and was
@@ -78,9 +78,9 @@ pub struct Mix {
     /// Velocity streams whose sign flips every frame, and a second program streaming
     /// velocity while the first does (its frames interleave: the wheels are told one
     /// way and the other every few ms). Fixed: the direction check once reported a
-    /// healthy drive turning against its command (`WrongDirection`, 0x43). Still out
-    /// of the fixed budget: with it in, seed 20 breaks rule 1 in a pad case with no
-    /// reversal in it (`tests/chaos/open/ble-pad-frame-744-seed-20-rule-1.jsonl`).
+    /// healthy drive turning against its command (`WrongDirection`, 0x43). With them
+    /// in, seed 20 once broke rule 1 in a pad case: the oracle's defect
+    /// (`tests/chaos/oracle-update-state-disarmed-pad-seed-20-rule-1.jsonl`).
     pub reversals: bool,
     /// Both pads connected at once: the waiting pad's reports are dropped, and one
     /// takes over when the pad in control leaves (once a finding: a dead-man held on
@@ -100,13 +100,8 @@ impl Mix {
         two_pads_at_once: true,
         brake_at_once: true,
     };
-    pub const WITHOUT_OPEN_DEFECTS: Mix = Mix {
-        floods: false,
-        speed_lies: true,
-        reversals: false,
-        two_pads_at_once: true,
-        brake_at_once: true,
-    };
+    /// No defect the tester found is open: the fixed budget throws every input.
+    pub const WITHOUT_OPEN_DEFECTS: Mix = Mix::ALL;
 
     /// The option of the example that gives this mix.
     pub fn option(self) -> &'static str {

@@ -254,6 +254,11 @@ pub struct Oracle {
     position: Period,
     status: Period,
     last_status: Option<[u8; 8]>,
+    /// The confirm press started a recovery (the drives are set up again) and no frame
+    /// has shown its end yet: a status frame in a driving mode, or a position frame.
+    /// Feedback is not due meanwhile; the last status frame, from before the e-stop,
+    /// says nothing about it (`status_time` may be long).
+    recovering: bool,
     /// The boot's first status frame is still to come.
     first_status_of_boot: bool,
     flash_fault_this_boot: bool,
@@ -330,6 +335,7 @@ impl Oracle {
             position: Period::default(),
             status: Period::default(),
             last_status: None,
+            recovering: false,
             first_status_of_boot: true,
             flash_fault_this_boot: false,
             flash_fault_before: false,
@@ -645,7 +651,10 @@ impl Oracle {
             (true, true) => self.drives[index].excited_since,
         };
         let side = if index == 0 { "left" } else { "right" };
-        if order.excited() && order.target_rpm != before.target_rpm {
+        if order.excited()
+            && (order.target_rpm != before.target_rpm
+                || order.decel_rpm_per_s != before.decel_rpm_per_s)
+        {
             self.note(
                 at,
                 format!(
@@ -1067,6 +1076,9 @@ impl Oracle {
                 ),
             );
         }
+        if matches!(mode, 1 | 2 | 6) {
+            self.recovering = false;
+        }
         self.last_status = Some(status);
         self.period(at, PeriodKind::Status);
     }
@@ -1140,6 +1152,7 @@ impl Oracle {
     }
 
     fn position_frame(&mut self, at: Us, data: &[u8]) {
+        self.recovering = false;
         // Rule 6: every pose is fresh: wheels that turned half a motor revolution
         // (4.5 mm at the default radius and gear) since the last frame move it.
         let pose = pose_of(data);
@@ -1184,6 +1197,7 @@ impl Oracle {
     }
 
     fn update_reply(&mut self, at: Us, data: &[u8]) {
+        let held_before = self.update.locked();
         match data {
             // DONE: begun, aborted, confirmed.
             [0x85, session, step, ..] => match step {
@@ -1201,7 +1215,6 @@ impl Oracle {
                         .is_some_and(|(running, _)| running == *session)
                     {
                         self.update.session = None;
-                        self.lock_lifts();
                         self.note(at, format!("update session {session} aborted"));
                     }
                 }
@@ -1209,7 +1222,6 @@ impl Oracle {
                     if let Some(version) = self.images.activated.take() {
                         self.images.confirmed = version;
                     }
-                    self.lock_lifts();
                     self.note(at, "image on trial confirmed".to_owned());
                 }
                 _ => {}
@@ -1218,7 +1230,6 @@ impl Oracle {
             [0xFF, _, 18, ..] => {
                 if self.update.session.take().is_some() {
                     self.update.session_uncertain = false;
-                    self.lock_lifts();
                     self.note(at, "update session timed out".to_owned());
                 }
             }
@@ -1226,7 +1237,6 @@ impl Oracle {
             [0xFF, ..] => {
                 if self.update.session.is_some() && !self.update.session_uncertain {
                     self.update.session_uncertain = true;
-                    self.lock_lifts();
                 }
             }
             // STATE: idle means no session; a session's phase beyond its bound is a
@@ -1234,7 +1244,6 @@ impl Oracle {
             [0x81, phase, ..] => {
                 if *phase == 0 && self.update.session.take().is_some() {
                     self.update.session_uncertain = false;
-                    self.lock_lifts();
                 }
                 if (1..=3).contains(phase) && self.update.session.is_some() {
                     self.update.session_uncertain = false;
@@ -1255,6 +1264,9 @@ impl Oracle {
             }
             _ => {}
         }
+        if held_before && !self.update.locked() {
+            self.lock_lifted();
+        }
     }
 
     fn lock_begins(&mut self) {
@@ -1265,10 +1277,10 @@ impl Oracle {
         }
     }
 
-    fn lock_lifts(&mut self) {
-        if self.update.locked() {
-            return;
-        }
+    /// The lock held and does no more. Only then: a reply that ends a session the
+    /// oracle already took as ended (a refusal left it uncertain, then STATE says idle)
+    /// lifts nothing, and must not take away an arming the pad earned since.
+    fn lock_lifted(&mut self) {
         // A dead-man seen up when the lock lifts is armed; one held through it is not.
         for pad in &mut self.pads {
             pad.armed = pad.hands.is_some_and(|hands| !hands.dead_man);
@@ -1442,6 +1454,7 @@ impl Oracle {
             if self.emergency && !self.estop_active(at + BUTTON_DEBOUNCE_US) {
                 self.emergency = false;
                 self.estop_stop = None;
+                self.recovering = true;
                 self.note(at, "emergency confirmed".to_owned());
             }
         }
@@ -1785,6 +1798,7 @@ impl Oracle {
             && mode_ok
             && !bus_fault
             && !self.emergency
+            && !self.recovering
             && !self.estop_active(at)
             && self
                 .estop_released_at
