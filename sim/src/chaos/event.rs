@@ -110,6 +110,15 @@ pub enum PadAction {
     Drop,
     /// A decoded report.
     Report(PadHands),
+    /// The radio guard refused a packet of this pad's link and closed it: the task
+    /// reports the link down and the refusal, and reaches for the pad again only after
+    /// 1 s.
+    PacketRefused,
+    /// The BLE host stopped (a transport error, an answer it cannot parse): the task
+    /// reports the links down (on the ESP32 the restarted host's HCI Reset reaches the
+    /// Classic host too) and starts a fresh host; after the third stop within a minute
+    /// it gives the host up until Bluetooth is turned on. Whichever pad names it.
+    HostStops,
 }
 
 /// A drive fault the virtual drives can play (`crate::drives`).

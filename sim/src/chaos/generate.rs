@@ -139,6 +139,8 @@ pub fn generate(seed: u64, duration_ms: u64, mix: Mix) -> Vec<Timed> {
     plan.actor(150_000.0, flash_fault);
     plan.actor(200_000.0, bus_fault);
     plan.actor(180_000.0, reset);
+    // Last, so that the actors before it draw the same events as before it came.
+    plan.actor(90_000.0, radio_fault);
     plan.events.sort_by_key(|timed| timed.at_ms);
     plan.events
 }
@@ -428,6 +430,44 @@ fn pad_session(plan: &mut Plan, t: u64, pad: PadKind) -> u64 {
         },
     );
     ms
+}
+
+/// The radio's own faults: a packet of a pad's the guard refuses (and the pad trying
+/// again, perhaps inside the task's back-off), or the BLE host stopping, up to three
+/// times in a row (given up then, until Bluetooth is turned on).
+fn radio_fault(plan: &mut Plan, t: u64) -> u64 {
+    if plan.chance(0.5) {
+        let pad = PadKind::ALL[plan.range(0, 1) as usize];
+        plan.push(
+            t,
+            Event::Pad {
+                pad,
+                action: PadAction::PacketRefused,
+            },
+        );
+        let again = plan.range(200, 3_000);
+        plan.push(
+            t + again,
+            Event::Pad {
+                pad,
+                action: PadAction::Connect,
+            },
+        );
+        again
+    } else {
+        let mut at = t;
+        for _ in 0..plan.range(1, 3) {
+            plan.push(
+                at,
+                Event::Pad {
+                    pad: PadKind::Ble,
+                    action: PadAction::HostStops,
+                },
+            );
+            at += plan.range(100, 20_000);
+        }
+        at - t
+    }
 }
 
 fn estop(plan: &mut Plan, t: u64) -> u64 {

@@ -247,12 +247,28 @@ struct Pads {
     waker: Option<Waker>,
     /// The controller's switch-off requests seen so far, per pad.
     disconnects: [u16; 2],
+    /// A pad whose packet the guard refused is not reached for before this.
+    refused_until: [Option<Instant>; 2],
+    /// When the BLE host stopped within the last minute.
+    host_stops: VecDeque<Instant>,
+    /// The BLE task gave its host up: no BLE pad connects until a turn-on.
+    ble_host_off: bool,
+    /// The controller's turn-ons of Bluetooth seen so far.
+    turn_ons: u16,
 }
+
+/// The BLE task gives its host up after this many stops within [`HOST_STOPS_WINDOW`].
+const HOST_STOPS_GIVEN_UP: usize = 3;
+const HOST_STOPS_WINDOW: Duration = Duration::from_secs(60);
+/// How long the remote task waits after the guard refused a pad's packet.
+const REFUSED_BACKOFF: Duration = Duration::from_secs(1);
 
 #[derive(Debug, Clone, Copy)]
 enum PadNote {
     Link(bool),
     Report(PadHands),
+    /// An input the oracle has no rule about (a refusal counted, the host given up).
+    Nothing,
 }
 
 /// How the world is set up for one run.
@@ -519,9 +535,18 @@ impl World {
                     self.observe(|oracle, at| match note {
                         PadNote::Link(up) => oracle.pad_link(at, pad, up),
                         PadNote::Report(hands) => oracle.pad_report(at, pad, hands),
+                        PadNote::Nothing => {}
                     });
                 }
                 Either::Second(request) => {
+                    {
+                        let mut pads = self.pads.borrow_mut();
+                        if request.turn_ons != pads.turn_ons {
+                            pads.turn_ons = request.turn_ons;
+                            pads.ble_host_off = false;
+                            pads.host_stops.clear();
+                        }
+                    }
                     for pad in PadKind::ALL {
                         let asked = request.disconnects_of(pad_of(pad));
                         let mut pads = self.pads.borrow_mut();
@@ -548,26 +573,57 @@ impl World {
         }
         let mut pads = self.pads.borrow_mut();
         let index = pad.index();
-        let item = match action {
-            PadAction::Connect if !pads.connected[index] => {
+        let now = now();
+        let link_down = |pads: &mut Pads, pad: PadKind| {
+            if pads.connected[pad.index()] {
+                pads.connected[pad.index()] = false;
+                pads.queue
+                    .push_back((link_input(pad, false), pad, PadNote::Link(false)));
+            }
+        };
+        match action {
+            PadAction::Connect
+                if !pads.connected[index]
+                    && !(pad == PadKind::Ble && pads.ble_host_off)
+                    && pads.refused_until[index].is_none_or(|until| now >= until) =>
+            {
                 pads.connected[index] = true;
-                (link_input(pad, true), pad, PadNote::Link(true))
+                pads.queue
+                    .push_back((link_input(pad, true), pad, PadNote::Link(true)));
             }
-            PadAction::Drop if pads.connected[index] => {
-                pads.connected[index] = false;
-                (link_input(pad, false), pad, PadNote::Link(false))
-            }
-            PadAction::Report(hands) if pads.connected[index] => (
+            PadAction::Drop => link_down(&mut pads, pad),
+            PadAction::Report(hands) if pads.connected[index] => pads.queue.push_back((
                 Input::Gamepad {
                     pad: pad_of(pad),
                     state: gamepad_state(*hands),
                 },
                 pad,
                 PadNote::Report(*hands),
-            ),
+            )),
+            PadAction::PacketRefused if pads.connected[index] => {
+                link_down(&mut pads, pad);
+                pads.refused_until[index] = Some(now + REFUSED_BACKOFF);
+                pads.queue.push_back((
+                    Input::RadioPacketRefused { pad: pad_of(pad) },
+                    pad,
+                    PadNote::Nothing,
+                ));
+            }
+            PadAction::HostStops if !pads.ble_host_off => {
+                for pad in PadKind::ALL {
+                    link_down(&mut pads, pad);
+                }
+                pads.host_stops
+                    .retain(|&stop| now < stop + HOST_STOPS_WINDOW);
+                pads.host_stops.push_back(now);
+                if pads.host_stops.len() >= HOST_STOPS_GIVEN_UP {
+                    pads.ble_host_off = true;
+                    pads.queue
+                        .push_back((Input::BleHostOff, PadKind::Ble, PadNote::Nothing));
+                }
+            }
             _ => return,
-        };
-        pads.queue.push_back(item);
+        }
         if let Some(waker) = pads.waker.take() {
             waker.wake();
         }
