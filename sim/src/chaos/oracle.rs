@@ -51,6 +51,12 @@ pub enum Injected {
         slave: u8,
         active: bool,
     },
+    /// A drive turns against its command and reports it so (its direction parameter
+    /// at the other value), or is set right: its feedback lies too, as above.
+    ReversedMotion {
+        slave: u8,
+        active: bool,
+    },
     Flash,
     LoadCell {
         missing: bool,
@@ -83,6 +89,11 @@ struct Drive {
     feedback_at: Option<Us>,
     /// When its order last changed.
     order_at: Us,
+    /// Its shaft turns against its command (and its feedback says so).
+    reversed_motion: bool,
+    /// Since when it has turned against its command at `AGAINST_RPM` or more, its order
+    /// keeping one sign (+1 or -1).
+    against_since: Option<(Us, f64)>,
 }
 
 impl Drive {
@@ -103,6 +114,8 @@ impl Drive {
             feedback_lie: false,
             feedback_at: None,
             order_at: 0,
+            reversed_motion: false,
+            against_since: None,
         }
     }
 
@@ -1482,6 +1495,13 @@ impl Oracle {
                 self.drives[index].feedback_lie = active;
                 self.drives[index].feedback_at = Some(at);
             }
+            Injected::ReversedMotion { slave, active } => {
+                let index = usize::from(slave.saturating_sub(1)).min(1);
+                self.drives[index].feedback_lie = active;
+                self.drives[index].feedback_at = Some(at);
+                self.drives[index].reversed_motion = active;
+                self.drives[index].against_since = None;
+            }
             Injected::Flash => self.flash_fault_injected = true,
             Injected::LoadCell { missing } => {
                 if missing {
@@ -1649,6 +1669,48 @@ impl Oracle {
         }
         self.check_periods(at);
         self.check_update_bounds(at);
+        self.check_against(at);
+    }
+
+    /// Rule 6: a drive turning against its command is found (`WrongDirection`) and
+    /// stopped: its wheel may not keep turning against a command of one sign for
+    /// [`bounds::AGAINST_FOUND_US`] (two 100 ms windows, the cycle that acts on them,
+    /// and as much again for slack).
+    fn check_against(&mut self, at: Us) {
+        let settled = self.up_since().is_some_and(|since| at >= since + 2_000_000);
+        for index in 0..2 {
+            let drive = &mut self.drives[index];
+            // The order is the shaft's: a reversed drive's shaft turns as ordered,
+            // against its command.
+            let sign = drive.order.target_rpm.signum();
+            let against = settled
+                && drive.reversed_motion
+                && drive.faults == 0
+                && drive.order.excited()
+                && drive.order.target_rpm.abs() >= bounds::AGAINST_RPM
+                && drive.speed_rpm.abs() >= bounds::AGAINST_RPM
+                && drive.speed_rpm.signum() == sign;
+            drive.against_since = match drive.against_since {
+                Some((since, was)) if against && was == sign => Some((since, was)),
+                _ if against => Some((at, sign)),
+                _ => None,
+            };
+            let Some((since, _)) = drive.against_since else {
+                continue;
+            };
+            if at > since + bounds::AGAINST_FOUND_US {
+                let side = if index == 0 { "left" } else { "right" };
+                let speed = drive.speed_rpm;
+                self.violate(
+                    Rule::FeedbackAndFaults,
+                    at,
+                    format!(
+                        "the {side} drive has turned against its command ({speed:+.0} r/min) for {:.0} ms, not found (WrongDirection) nor stopped",
+                        (at - since) as f64 / 1000.0
+                    ),
+                );
+            }
+        }
     }
 
     /// At a stop's deadline: zero on the wire for every drive the controller can reach.

@@ -29,8 +29,9 @@ pub enum Rule {
     /// confirmed image or, once, the one just activated boots.
     StoreAndBoot,
     /// Periodic frames come on time, the pose moves while the wheels do, the
-    /// controller never panics or starves its watchdog, and every fault the status
-    /// frame reports is one that happened.
+    /// controller never panics or starves its watchdog, every fault the status frame
+    /// reports is one that happened, and a drive turning against its command is found
+    /// and stopped.
     FeedbackAndFaults,
 }
 
@@ -133,6 +134,12 @@ pub mod bounds {
     pub const FRAME_QUEUE_US: u64 = 30_000;
     /// Periodic frames may be late by one flash erase (45 ms typical) and the bus.
     pub const PERIOD_SLACK_US: u64 = 70_000;
+    /// A wheel turns against its command when it does so at this motor speed or more
+    /// (docs/behaviour.md, "A wheel turning against its command": 40 1/min).
+    pub const AGAINST_RPM: f64 = 40.0;
+    /// Such a wheel, its command keeping one sign, is found within two 100 ms windows
+    /// and stopped by the next cycle: this long with as much again for slack.
+    pub const AGAINST_FOUND_US: u64 = 600_000;
     /// An update session ends 10 s after its PC's last frame (docs/protocol.md).
     pub const SESSION_SILENCE_US: u64 = 10_000_000;
     /// An image on trial rejects itself 120 s after its boot without CONFIRM.

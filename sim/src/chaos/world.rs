@@ -816,7 +816,11 @@ impl World {
                             Reversal::Feedback
                         };
                         drives.set_reversed(slave, on.then_some(reversal));
-                        Injected::Feedback { slave, active: on }
+                        if motion {
+                            Injected::ReversedMotion { slave, active: on }
+                        } else {
+                            Injected::Feedback { slave, active: on }
+                        }
                     }
                 };
                 self.observe(|oracle, at| oracle.injected(at, injected));
