@@ -141,6 +141,7 @@ pub fn generate(seed: u64, duration_ms: u64, mix: Mix) -> Vec<Timed> {
     plan.actor(180_000.0, reset);
     // Last, so that the actors before it draw the same events as before it came.
     plan.actor(90_000.0, radio_fault);
+    plan.actor(120_000.0, pad_through_update);
     plan.events.sort_by_key(|timed| timed.at_ms);
     plan.events
 }
@@ -468,6 +469,67 @@ fn radio_fault(plan: &mut Plan, t: u64) -> u64 {
         }
         at - t
     }
+}
+
+/// A pad held through an update: connected and seen released, its dead-man pressed
+/// while a session runs (one that ends without a reboot, so the pad stays) and still
+/// held, the stick pushed, after the lock lifts. Such a dead-man must be released
+/// after the lift before it drives (docs/behaviour.md, "Who may move the base"); the
+/// random pads and sessions cross this way too seldom to test it.
+fn pad_through_update(plan: &mut Plan, t: u64) -> u64 {
+    let pad = PadKind::ALL[plan.range(0, 1) as usize];
+    plan.push(
+        t,
+        Event::Pad {
+            pad,
+            action: PadAction::Connect,
+        },
+    );
+    let released = hands(plan, false);
+    plan.push(
+        t + 100,
+        Event::Pad {
+            pad,
+            action: PadAction::Report(released),
+        },
+    );
+    let (image, end) = match plan.range(0, 2) {
+        0 => (ImageKind::WrongDigest, SessionEnd::Confirm),
+        1 => (ImageKind::Healthy, SessionEnd::Abort { after_windows: 1 }),
+        _ => (ImageKind::Healthy, SessionEnd::Vanish { after_windows: 1 }),
+    };
+    let session = plan.range(1, 255) as u8;
+    plan.push(
+        t + 500,
+        Event::Update {
+            session,
+            image,
+            windows: 2,
+            bad_crc_window: None,
+            end,
+        },
+    );
+    let until = t + plan.range(3_000, 20_000);
+    let mut at = t + 600;
+    while at < until {
+        let held = hands(plan, true);
+        plan.push(
+            at,
+            Event::Pad {
+                pad,
+                action: PadAction::Report(held),
+            },
+        );
+        at += plan.range(50, 1_000);
+    }
+    plan.push(
+        until,
+        Event::Pad {
+            pad,
+            action: PadAction::Drop,
+        },
+    );
+    until - t
 }
 
 fn estop(plan: &mut Plan, t: u64) -> u64 {
