@@ -410,7 +410,6 @@ impl<'bus> Base<'bus> {
         )))
     }
 
-    /// The values of `registers`, in order.
     /// The values of `addresses`, by address: in bulk reads of up to
     /// [`BULK_READ_MAX`] consecutive addresses (one request, the replies back to back),
     /// or one by one from a controller that does not answer bulk reads (firmware before

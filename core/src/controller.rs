@@ -665,7 +665,7 @@ impl Controller {
             Command::RegisterBulkRead { first, count, tag } => {
                 // An address without a register inside the range gets its refusal and
                 // is not counted as a rejection: the PC asked for a range, and the
-                // table's gaps are no mistake of its.
+                // table's gaps are not its mistake.
                 for address in (first..=u8::MAX).take(usize::from(count)) {
                     let pushed = out
                         .bulk_replies
@@ -718,14 +718,6 @@ impl Controller {
         self.rejections.record(error.code(), frame_subject(id));
     }
 
-    /// Validates and applies a register write; a change is handed to the flash task and
-    /// takes effect at once, because every parameter struct is built from the registers
-    /// at the moment it is used, and a supervisor step applies it to the running command.
-    /// A new value for a motion register, and restore-defaults, are refused with
-    /// `NotAtRest` unless the base stands: a geometry, direction or limit that changes
-    /// under a moving base turns a straight drive into a spin. So is a new value for a
-    /// register that shapes the stop ([`Reg::shapes_stop`]): a stop must not be
-    /// stretched by a write while the base moves.
     /// The reply to a read of `address` with `tag`. Every reply says which read it
     /// answers: with several programs on the bus, a reply without it could be taken
     /// for another register's value.
@@ -743,6 +735,14 @@ impl Controller {
         }
     }
 
+    /// Validates and applies a register write; a change is handed to the flash task and
+    /// takes effect at once, because every parameter struct is built from the registers
+    /// at the moment it is used, and a supervisor step applies it to the running command.
+    /// A new value for a motion register, and restore-defaults, are refused with
+    /// `NotAtRest` unless the base stands: a geometry, direction or limit that changes
+    /// under a moving base turns a straight drive into a spin. So is a new value for a
+    /// register that shapes the stop ([`Reg::shapes_stop`]): a stop must not be
+    /// stretched by a write while the base moves.
     fn write_register(&mut self, now: Timestamp, address: u8, value: u16, out: &mut Output) {
         let changes_motion = match Reg::from_address(address) {
             Some(Reg::Command) => value == RESTORE_DEFAULTS_KEY,

@@ -151,7 +151,8 @@ impl FrameQueue {
     }
 
     /// Frames dropped since boot: replies that found their queue full (a bulk read's
-    /// batch counts each of its replies), and feedback frames replaced by a newer one before they were sent.
+    /// batch counts each of its replies), and feedback frames replaced by a newer one
+    /// before they were sent.
     pub fn dropped(&self) -> u32 {
         self.queued.lock(|queued| queued.borrow().dropped)
     }
