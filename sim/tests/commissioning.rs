@@ -111,16 +111,16 @@ fn swapped_drive_addresses_are_found_by_the_wheel_check() {
     // The controller saw each of its drives turn as told ...
     assert!(
         text.contains("the controller saw its left drive turn forward"),
-        "{text}"
+        "{result:?}\n{text}"
     );
     // ... but the person saw the other wheel turn, backward.
     assert!(
         text.contains("you saw: the right wheel turned backward"),
-        "{text}"
+        "{result:?}\n{text}"
     );
     assert!(
         text.contains("you saw: the left wheel turned backward"),
-        "{text}"
+        "{result:?}\n{text}"
     );
     match result {
         Err(Error::Aborted(diagnosis)) => {
