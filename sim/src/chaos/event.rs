@@ -268,6 +268,10 @@ pub enum Event {
         windows: u8,
         /// Window whose CRC is sent wrong once (it must be sent again).
         bad_crc_window: Option<u8>,
+        /// A WINDOW out of turn with this index, sent once after the first window
+        /// (a PC tool's bug or a retry gone astray): refused, the session goes on.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        stray_window: Option<u16>,
         end: SessionEnd,
     },
     // --- the pads ---

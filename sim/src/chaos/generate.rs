@@ -340,6 +340,13 @@ fn update_session(plan: &mut Plan, t: u64) -> u64 {
     let bad_crc_window = plan
         .chance(0.2)
         .then(|| plan.range(0, u64::from(windows) - 1) as u8);
+    // Out of turn: past the image, at the top of the index's range, or anywhere.
+    let stray_window = plan.chance(0.2).then(|| match plan.range(0, 3) {
+        0 => u16::MAX,
+        1 => u16::MAX - 1,
+        2 => u16::from(windows) + 1,
+        _ => plan.range(0, u64::from(u16::MAX)) as u16,
+    });
     let end = match plan.range(0, 19) {
         0..=7 => SessionEnd::Confirm,
         8..=11 => SessionEnd::Rollback,
@@ -358,6 +365,7 @@ fn update_session(plan: &mut Plan, t: u64) -> u64 {
             image,
             windows,
             bad_crc_window,
+            stray_window,
             end,
         },
     );
@@ -506,6 +514,7 @@ fn pad_through_update(plan: &mut Plan, t: u64) -> u64 {
             image,
             windows: 2,
             bad_crc_window: None,
+            stray_window: None,
             end,
         },
     );

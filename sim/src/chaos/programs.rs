@@ -70,17 +70,17 @@ pub async fn run(world: &World, event: &Event) {
             image,
             windows,
             bad_crc_window,
+            stray_window,
             end,
         } => {
-            update(
-                world,
-                (*session).max(1),
-                *image,
-                (*windows).max(1),
-                *bad_crc_window,
-                *end,
-            )
-            .await
+            let plan = SessionPlan {
+                image: *image,
+                windows: (*windows).max(1),
+                bad_crc_window: *bad_crc_window,
+                stray_window: *stray_window,
+                end: *end,
+            };
+            update(world, (*session).max(1), plan).await
         }
         _ => {}
     }
@@ -181,14 +181,23 @@ fn done_or_refused(session: u8, step: u8, opcode: u8) -> impl Fn(&[u8]) -> bool 
     }
 }
 
-async fn update(
-    world: &World,
-    session: u8,
+/// How one update session goes (see [`Event::Update`]).
+struct SessionPlan {
     image: ImageKind,
     windows: u8,
     bad_crc_window: Option<u8>,
+    stray_window: Option<u16>,
     end: SessionEnd,
-) {
+}
+
+async fn update(world: &World, session: u8, plan: SessionPlan) {
+    let SessionPlan {
+        image,
+        windows,
+        bad_crc_window,
+        stray_window,
+        end,
+    } = plan;
     let bytes = image_bytes(session, image, windows);
     let version = image_version(session, image);
     world.observe(|oracle, _| oracle.session_image(session, &version));
@@ -252,6 +261,16 @@ async fn update(
             // The controller went away or refused: end as a PC tool does.
             world.send(wire::UPDATE_COMMAND, &[0x07, session]).await;
             return;
+        }
+        if let (0, Some(stray)) = (index, stray_window) {
+            // Refused as out of turn (WrongWindow), or answered WRITTEN again if it
+            // names the window just written; either way the session goes on.
+            let [i0, i1] = stray.to_le_bytes();
+            world
+                .send(wire::UPDATE_COMMAND, &[0x04, session, i0, i1, 0, 0, 0, 0])
+                .await;
+            let answered = |data: &[u8]| matches!(data, [0xFF, 0x04, ..] | [0x84, ..]);
+            let _ = reply(world, &mut cursor, answered).await;
         }
     }
     world.send(wire::UPDATE_COMMAND, &[0x05, session]).await;
