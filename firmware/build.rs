@@ -2,9 +2,20 @@
 //! the interned log strings, and embedded-test's script collects the on-target tests.
 //! Here rather than in `.cargo/config.toml` so the firmware links the same from any
 //! directory. On the ESP32 the linker also wraps the Bluetooth controller's start so
-//! that it runs in dual mode (see `board/esp32.rs`).
+//! that it runs in dual mode (see `board/esp32.rs`). It also stamps the image's
+//! version (`BASE_FIRMWARE_VERSION`, see [`firmware_version`]).
+
+use std::process::Command;
 
 fn main() {
+    let version = firmware_version();
+    assert!(
+        version.len() <= 31,
+        "firmware version {version:?} is longer than the app descriptor's 31 bytes"
+    );
+    println!("cargo:rustc-env=BASE_FIRMWARE_VERSION={version}");
+    println!("cargo:rerun-if-env-changed=BASE_FIRMWARE_VERSION");
+
     let arch = std::env::var("CARGO_CFG_TARGET_ARCH").unwrap_or_default();
     if arch == "xtensa" {
         // The esp toolchain links Xtensa with GNU ld through gcc.
@@ -24,4 +35,44 @@ fn main() {
     // embedded-test's macro looks at this cfg.
     println!("cargo::rustc-check-cfg=cfg(rust_analyzer)");
     println!("cargo:rerun-if-env-changed=CAN_BITRATE_KBIT");
+}
+
+/// The version the image carries (its app descriptor, QUERY's VERSION, `basectl
+/// info`): `BASE_FIRMWARE_VERSION` as given for a release build; otherwise the crate's
+/// version with the build as semver metadata, `0.1.0+412.g7efef4d`: the number of
+/// commits, the commit, and `.dirty` for uncommitted changes. The update's downgrade
+/// check compares the number when the releases are equal (docs/protocol.md,
+/// "Versions"); a build outside a git checkout is `+unknown` and has none.
+fn firmware_version() -> String {
+    if let Ok(version) = std::env::var("BASE_FIRMWARE_VERSION") {
+        return version;
+    }
+    let release = std::env::var("CARGO_PKG_VERSION").expect("cargo sets it");
+    let git = |args: &[&str]| {
+        Command::new("git")
+            .args(args)
+            .output()
+            .ok()
+            .filter(|output| output.status.success())
+            .map(|output| String::from_utf8_lossy(&output.stdout).trim().to_owned())
+    };
+    let (Some(count), Some(commit)) = (
+        git(&["rev-list", "--count", "HEAD"]),
+        git(&["rev-parse", "--short=7", "HEAD"]),
+    ) else {
+        return format!("{release}+unknown");
+    };
+    // A new commit, a checkout or a change to a tracked file builds a new stamp.
+    for path in ["HEAD", "index"] {
+        if let Some(file) = git(&["rev-parse", "--git-path", path]) {
+            println!("cargo:rerun-if-changed={file}");
+        }
+    }
+    if let Some(refs) = git(&["rev-parse", "--git-common-dir"]) {
+        println!("cargo:rerun-if-changed={refs}/refs/heads");
+    }
+    let dirty = git(&["status", "--porcelain", "--untracked-files=no"])
+        .is_some_and(|changes| !changes.is_empty());
+    let dirty = if dirty { ".dirty" } else { "" };
+    format!("{release}+{count}.g{commit}{dirty}")
 }

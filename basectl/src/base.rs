@@ -157,6 +157,12 @@ impl<'bus> Base<'bus> {
         }
     }
 
+    /// The bus itself, for exchanges that are not register reads or reports (the
+    /// update's QUERY).
+    pub fn bus(&mut self) -> &mut (dyn Bus + 'bus) {
+        &mut *self.bus
+    }
+
     pub fn send(&mut self, command: Command) -> Result<(), Error> {
         Ok(self.bus.send(&command.encode())?)
     }

@@ -21,7 +21,7 @@ use base_core::can::{ControlSource, Mode};
 use base_core::update::image::{self, Chip, ImageInfo};
 use base_core::update::partitions::SLOT_LEN;
 use base_core::update::session::{
-    DIGEST_PARTS, SUB_BLOCK, WINDOW_LEN, release, window_count, window_crc, window_len,
+    DIGEST_PARTS, SUB_BLOCK, WINDOW_LEN, is_older, window_count, window_crc, window_len,
 };
 use serde_json::json;
 use sha2::{Digest, Sha256};
@@ -395,10 +395,7 @@ pub fn update(
             ));
         }
     }
-    if let (Some(new), Some(old)) = (release(&file.version), release(&running.version))
-        && new < old
-        && !plan.allow_downgrade
-    {
+    if is_older(&file.version, &running.version) && !plan.allow_downgrade {
         return Err(Error::InvalidInput(format!(
             "{} is older than the running {}: --allow-downgrade",
             file.version, running.version

@@ -14,11 +14,15 @@ use serde_json::{Value, json};
 
 use crate::base::{Base, Error};
 use crate::config::version_text;
+use crate::firmware;
 use crate::monitor::{fault_names, flag_names};
 use crate::rejection;
 
 /// The register map that brought `boot_info` (50).
 const BOOT_INFO_REGMAP: u16 = 4;
+/// How long the update's QUERY may take to tell the image's version: its replies come
+/// within milliseconds; a firmware without the update never answers.
+const IMAGE_QUERY_TIMEOUT: Duration = Duration::from_millis(500);
 
 /// The `boot` line: how this boot came about, from `boot_info`.
 fn boot_text(boot_info: Option<Option<BootInfo>>) -> String {
@@ -124,6 +128,11 @@ pub fn info(base: &mut Base, json_output: bool, out: &mut dyn Write) -> Result<(
         None
     };
     let bluetooth = bluetooth_state(base)?;
+    // The whole version the image carries (its build stamp); a firmware without the
+    // update does not answer QUERY.
+    let image = firmware::query(base.bus(), IMAGE_QUERY_TIMEOUT)
+        .ok()
+        .map(|running| running.version);
     let status = base.next_status()?;
     // The battery report comes every volt_time (5 s by default): wait for one.
     let listen = (Duration::from_millis(u64::from(volt_time)) + Duration::from_millis(500))
@@ -147,6 +156,7 @@ pub fn info(base: &mut Base, json_output: bool, out: &mut dyn Write) -> Result<(
     if json_output {
         let object = json!({
             "firmware_version": version_text(firmware),
+            "firmware_image": image,
             "regmap_version": regmap,
             "mode": format!("{:?}", status.mode),
             "control": format!("{:?}", status.control),
@@ -185,7 +195,8 @@ pub fn info(base: &mut Base, json_output: bool, out: &mut dyn Write) -> Result<(
             names.join(", ")
         }
     };
-    writeln!(out, "firmware        {}", version_text(firmware))?;
+    let image = image.map_or_else(String::new, |version| format!(", image {version}"));
+    writeln!(out, "firmware        {}{image}", version_text(firmware))?;
     writeln!(out, "register map    {regmap}")?;
     writeln!(out, "boot            {}", boot_text(boot_info))?;
     writeln!(

@@ -31,7 +31,18 @@ use base_controller_firmware::watchdog::LivenessWatchdog;
 use base_controller_firmware::{can, update, watchdog};
 
 // The application descriptor the ESP-IDF bootloader checks before it starts the image.
-esp_bootloader_esp_idf::esp_app_desc!();
+// The app descriptor, with the version the build stamped (firmware/build.rs).
+esp_bootloader_esp_idf::esp_app_desc!(
+    env!("BASE_FIRMWARE_VERSION"),
+    env!("CARGO_PKG_NAME"),
+    esp_bootloader_esp_idf::BUILD_TIME,
+    esp_bootloader_esp_idf::BUILD_DATE,
+    esp_bootloader_esp_idf::ESP_IDF_COMPATIBLE_VERSION,
+    esp_bootloader_esp_idf::MMU_PAGE_SIZE,
+    0,
+    u16::MAX,
+    esp_bootloader_esp_idf::SECURE_VERSION
+);
 
 /// The heap the radio's driver allocates from (nothing else allocates). trouble's
 /// examples use 72 KiB on these chips.
@@ -61,7 +72,7 @@ async fn main(_spawner: embassy_executor::Spawner) {
     );
     info!(
         "base controller {} on {}, CAN at {} kbit/s, reset reason {}",
-        env!("CARGO_PKG_VERSION"),
+        env!("BASE_FIRMWARE_VERSION"),
         board::CHIP,
         can::BIT_RATE_KBIT,
         defmt::Debug2Format(&reset_reason)
@@ -186,7 +197,7 @@ async fn main(_spawner: embassy_executor::Spawner) {
         let config = base_runtime::update::UpdateConfig {
             chip: update::CHIP,
             project: base_runtime::update::PROJECT,
-            version: env!("CARGO_PKG_VERSION"),
+            version: env!("BASE_FIRMWARE_VERSION"),
             trial_deadline_ms: base_runtime::update::TRIAL_DEADLINE_MS,
         };
         let reset = base_runtime::update::run(

@@ -9,6 +9,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+use base_core::can::update::{UpdateCommand, UpdateReply, VERSION_CHUNK, VERSION_CHUNKS};
 use base_core::can::{Command, Mode, RawFrame, Rejection, Report, Status};
 use base_core::registers::{BLE_OFF_AFTER_HOST_STOPS, BootInfo, Reg, UpdateReset};
 use basectl::bus::{Bus, BusError};
@@ -377,6 +378,8 @@ struct State<'a> {
     boot_info: Option<BootInfo>,
     /// Register `bluetooth_off`, read with the cycle: `None` until it answers.
     bluetooth_off: Option<u16>,
+    /// The running image's whole version, asked with the cycle (the update's QUERY).
+    image: ImageVersion,
     /// Reset service calls waiting for the reset to show in the poses.
     reset_callers: Vec<RmwRequestId>,
 }
@@ -404,6 +407,7 @@ impl<'a> State<'a> {
             next_cycle_read: now,
             boot_info: None,
             bluetooth_off: None,
+            image: ImageVersion::default(),
             reset_callers: Vec::new(),
         }
     }
@@ -537,6 +541,8 @@ impl<'a> State<'a> {
                     tag: self.next_tag(),
                 };
                 bus.send(&bluetooth_off.encode())?;
+                // Seven replies, once a cycle: the image after an update shows.
+                bus.send(&UpdateCommand::Query.encode())?;
                 self.next_cycle_read = now + CYCLE_READ_PERIOD;
             }
             let timeouts = self.commands.counts.timeouts;
@@ -567,6 +573,12 @@ impl<'a> State<'a> {
 
     fn on_frame(&mut self, ros: &Ros, frame: &RawFrame) {
         let now = Instant::now();
+        if let Ok(Some(reply)) = UpdateReply::decode(frame.id(), frame.data()) {
+            self.image.on_reply(&reply);
+            self.last_frame = now;
+            self.next_silence_report = now + SILENCE;
+            return;
+        }
         let report = match Report::decode(frame.id(), frame.data()) {
             Ok(Some(report)) => report,
             Ok(None) => return,
@@ -775,6 +787,10 @@ impl<'a> State<'a> {
     fn publish_status(&self, ros: &Ros, status: &Status) {
         let mut diagnostic = diagnose(status, &self.settings.hardware_id, self.counts());
         add_boot_info(&mut diagnostic, self.boot_info);
+        diagnostic.values.push(KeyValue {
+            key: "firmware_image".to_owned(),
+            value: self.image.version().unwrap_or("unknown").to_owned(),
+        });
         add_bluetooth_state(&mut diagnostic, self.bluetooth_off);
         self.add_odometry_figures(&mut diagnostic);
         self.publish_diagnostic(ros, diagnostic);
@@ -858,6 +874,51 @@ pub struct BridgeCounts {
     pub malformed_cmd_vel: u64,
     pub stale_cmd_vel: u64,
     pub malformed_frames: u64,
+}
+
+/// The running image's version from the update's replies: every STATE is followed by
+/// the version in parts, whoever asked (docs/protocol.md, "Firmware update").
+#[derive(Debug)]
+struct ImageVersion {
+    text: [u8; VERSION_CHUNK * VERSION_CHUNKS as usize],
+    /// The parts seen since the last STATE, one bit each.
+    parts: u8,
+    version: Option<String>,
+}
+
+impl Default for ImageVersion {
+    fn default() -> Self {
+        Self {
+            text: [0; VERSION_CHUNK * VERSION_CHUNKS as usize],
+            parts: 0,
+            version: None,
+        }
+    }
+}
+
+impl ImageVersion {
+    fn on_reply(&mut self, reply: &UpdateReply) {
+        match reply {
+            UpdateReply::State { .. } => self.parts = 0,
+            UpdateReply::Version { part, text } if *part < VERSION_CHUNKS => {
+                let at = usize::from(*part) * VERSION_CHUNK;
+                self.text[at..at + VERSION_CHUNK].copy_from_slice(text);
+                self.parts |= 1 << part;
+                if self.parts == (1 << VERSION_CHUNKS) - 1 {
+                    let end = self.text.iter().position(|&b| b == 0);
+                    let text = &self.text[..end.unwrap_or(self.text.len())];
+                    self.version = Some(String::from_utf8_lossy(text).into_owned());
+                    self.parts = 0;
+                }
+            }
+            _ => {}
+        }
+    }
+
+    /// The version, once all its parts came.
+    fn version(&self) -> Option<&str> {
+        self.version.as_deref()
+    }
 }
 
 /// Adds how the base controller's boot came about (register `boot_info`): a
@@ -1075,6 +1136,37 @@ mod tests {
         assert_eq!(get("last_rejection").as_deref(), Some("BadVelocityMarker"));
         assert_eq!(get("last_rejection_subject").as_deref(), Some("0xC8"));
         assert_eq!(get("faults").as_deref(), Some("left_drive_alarm"));
+    }
+
+    #[test]
+    fn the_image_version_is_whole_once_every_part_after_a_state_came() {
+        let mut image = ImageVersion::default();
+        let version = b"0.1.0+412.g7efef4d";
+        let part = |index: u8| {
+            let mut text = [0u8; VERSION_CHUNK];
+            let at = usize::from(index) * VERSION_CHUNK;
+            for (byte, source) in text.iter_mut().zip(version.iter().skip(at)) {
+                *byte = *source;
+            }
+            UpdateReply::Version { part: index, text }
+        };
+        let state = UpdateReply::State {
+            phase: base_core::can::update::Phase::Idle,
+            session: 0,
+            running_slot: 0,
+            windows_written: 0,
+        };
+        image.on_reply(&state);
+        for index in 0..VERSION_CHUNKS - 1 {
+            image.on_reply(&part(index));
+        }
+        assert_eq!(image.version(), None, "a part is missing");
+        image.on_reply(&part(VERSION_CHUNKS - 1));
+        assert_eq!(image.version(), Some("0.1.0+412.g7efef4d"));
+        // A new STATE starts over; the version stays until a whole one replaces it.
+        image.on_reply(&state);
+        image.on_reply(&part(0));
+        assert_eq!(image.version(), Some("0.1.0+412.g7efef4d"));
     }
 
     #[test]

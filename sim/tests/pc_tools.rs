@@ -404,8 +404,10 @@ fn info_tells_versions_mode_faults_and_counters_in_one_shot_also_as_json() {
     let simulator = start_simulator();
     let text = run_ok(&["--channel", &simulator.socketcand().to_string(), "info"]);
     let register_map = format!("register map    {REGMAP_VERSION}");
+    // The image's whole version, from the update's QUERY.
+    let image = format!(", image {}", virtual_robot::app_flash::FACTORY_VERSION);
     for part in [
-        "firmware",
+        image.as_str(),
         register_map.as_str(),
         "mode            Standby",
         "flash           ok",
@@ -424,6 +426,10 @@ fn info_tells_versions_mode_faults_and_counters_in_one_shot_also_as_json() {
     ]);
     let value: serde_json::Value = serde_json::from_str(&json).unwrap();
     assert_eq!(value["regmap_version"], REGMAP_VERSION);
+    assert_eq!(
+        value["firmware_image"],
+        virtual_robot::app_flash::FACTORY_VERSION
+    );
     assert_eq!(value["mode"], "Standby");
     // A fresh flash file is blank: the controller wrote the defaults and says so.
     let flash_fault = value["faults"]

@@ -713,10 +713,7 @@ fn check_image(
     if new == params.running_version && !flags.force {
         return Err((UpdateError::SameVersion, 0));
     }
-    if let (Some(new), Some(running)) = (release(new), release(params.running_version))
-        && new < running
-        && !flags.allow_downgrade
-    {
+    if is_older(new, params.running_version) && !flags.allow_downgrade {
         return Err((UpdateError::Downgrade, 0));
     }
     Ok(info)
@@ -729,6 +726,29 @@ pub fn release(version: &str) -> Option<(u32, u32, u32)> {
     let mut numbers = core.split('.').map(|part| part.parse::<u32>().ok());
     let release = (numbers.next()??, numbers.next()??, numbers.next()??);
     numbers.next().is_none().then_some(release)
+}
+
+/// The build number a stamped build carries after its release: 412 in
+/// `0.1.0+412.g7efef4d` (firmware/build.rs); `None` without one.
+pub fn build_number(version: &str) -> Option<u32> {
+    let (_, build) = version.split_once('+')?;
+    build.split('.').next()?.parse().ok()
+}
+
+/// Whether `new` is older than `running` (docs/protocol.md, "Versions"): the
+/// releases compare as numbers; between two builds of one release the build numbers
+/// decide, when both carry one. Anything else is not older.
+pub fn is_older(new: &str, running: &str) -> bool {
+    match (release(new), release(running)) {
+        (Some(new_release), Some(running_release)) if new_release != running_release => {
+            new_release < running_release
+        }
+        (Some(_), Some(_)) => matches!(
+            (build_number(new), build_number(running)),
+            (Some(new_build), Some(running_build)) if new_build < running_build
+        ),
+        _ => false,
+    }
 }
 
 #[cfg(test)]

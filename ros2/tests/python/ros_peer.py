@@ -171,6 +171,17 @@ def scenarios():
           and values.get("estop_pressed") == "no",
           f"/diagnostics before the e-stop: level {latest.level}, {latest.message!r}")
 
+    # The running image's whole version, from the update's QUERY the node sends each 5 s.
+    def image_version():
+        for array in peer.diagnostics[-1:]:
+            for status in array.status:
+                values = {value.key: value.value for value in status.values}
+                if values.get("firmware_image", "unknown").count(".") >= 2:
+                    return values["firmware_image"]
+        return None
+    peer.wait_for(image_version, 7, "/diagnostics names the firmware image's version")
+    print(f"PASS /diagnostics names the firmware image: {image_version()}", flush=True)
+
     battery = peer.last["battery"]
     peer.wait_for(lambda: peer.last["battery"] is not None, 7, "/battery_state arrives")
     battery = peer.last["battery"]

@@ -619,6 +619,51 @@ fn rollback_rejects_the_trial_image_and_resets() {
     assert_eq!(effects.flash, None);
 }
 
+/// A failed rejection write still resets (the image armed itself at start), and the
+/// PC hears that the write failed.
+#[test]
+fn a_failed_rollback_write_is_reported_and_still_resets() {
+    let mut updater = Updater::new(at(0), true, &params());
+    updater.step(at(1), Event::Command(C::Rollback, AT_REST), &params());
+    let effects = updater.step(at(2), Event::FlashDone(false), &params());
+    assert!(effects.reset);
+    assert!(
+        effects
+            .replies
+            .iter()
+            .any(refused(UpdateError::FlashFailed)),
+        "{effects:?}"
+    );
+    let mut written = Updater::new(at(0), true, &params());
+    written.step(at(1), Event::Command(C::Rollback, AT_REST), &params());
+    let effects = written.step(at(2), Event::FlashDone(true), &params());
+    assert!(
+        !effects
+            .replies
+            .iter()
+            .any(refused(UpdateError::FlashFailed))
+    );
+}
+
+/// The shortest size BEGIN takes is an image's prefix (header, segment header, app
+/// descriptor); one byte less is too short to be an image.
+#[test]
+fn begin_takes_an_image_the_size_of_its_prefix_and_no_shorter() {
+    for (size, refused_too_short) in [
+        (image::PREFIX_LEN as u32, false),
+        (image::PREFIX_LEN as u32 - 1, true),
+    ] {
+        let mut bench = Bench::new();
+        let replies = bench.command(C::Begin {
+            session: SID,
+            size,
+            flags: BeginFlags::default(),
+        });
+        let too_short = replies.iter().any(refused(UpdateError::BadImage));
+        assert_eq!(too_short, refused_too_short, "{size}: {replies:?}");
+    }
+}
+
 #[test]
 fn a_held_image_stays_locked_without_a_deadline_until_a_person_decides() {
     let mut held = Updater::held();
@@ -672,6 +717,45 @@ fn release_numbers_compare_as_versions() {
     assert_eq!(release("1.2"), None);
     assert_eq!(release("abc"), None);
     assert!(release("0.10.0") > release("0.9.9"));
+}
+
+#[test]
+fn between_builds_of_one_release_the_build_number_decides() {
+    assert_eq!(build_number("0.1.0+412.g7efef4d"), Some(412));
+    assert_eq!(build_number("0.1.0+412.g7efef4d.dirty"), Some(412));
+    assert_eq!(build_number("0.1.0+unknown"), None);
+    assert_eq!(build_number("0.1.0"), None);
+    assert!(is_older("0.1.0+398.gabcdef0", "0.1.0+412.g7efef4d"));
+    assert!(!is_older("0.1.0+412.g7efef4d", "0.1.0+398.gabcdef0"));
+    assert!(!is_older("0.1.0+412.g7efef4d.dirty", "0.1.0+412.g7efef4d"));
+    // The release decides first, whatever the build numbers say.
+    assert!(is_older("0.1.9+900.gaaaaaaa", "0.2.0+1.gbbbbbbb"));
+    assert!(!is_older("0.2.0+1.gbbbbbbb", "0.1.9+900.gaaaaaaa"));
+    // Without a build number on both sides, builds of one release are not ordered.
+    assert!(!is_older("0.1.0", "0.1.0+412.g7efef4d"));
+    assert!(!is_older("0.1.0+unknown", "0.1.0+412.g7efef4d"));
+    assert!(!is_older("nightly", "0.1.0"));
+}
+
+#[test]
+fn an_older_build_of_the_running_release_is_a_downgrade() {
+    let running = Params {
+        running_version: "0.2.0+7.g2222222",
+        ..params()
+    };
+    let window_0 = |version: &str| image(version)[..WINDOW_LEN].to_vec();
+    let older = window_0("0.2.0+5.g1111111");
+    let allow_downgrade = BeginFlags {
+        force: false,
+        allow_downgrade: true,
+    };
+    assert_eq!(
+        check_image(&older, BeginFlags::default(), &running).err(),
+        Some((UpdateError::Downgrade, 0))
+    );
+    assert!(check_image(&older, allow_downgrade, &running).is_ok());
+    let newer = window_0("0.2.0+9.g3333333");
+    assert!(check_image(&newer, BeginFlags::default(), &running).is_ok());
 }
 
 #[test]
