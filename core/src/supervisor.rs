@@ -273,6 +273,11 @@ struct Inputs {
     remote: RemoteInput,
     safety_zone: bool,
     estop_pressed: bool,
+    /// The input task has told the e-stop's level since the start (it does once the
+    /// level is sure, see [`Supervisor::estop_known`]).
+    estop_known: bool,
+    /// The same for the safety zone: until then its limit is unknown.
+    zone_known: bool,
     at_rest: bool,
     /// The dead-man let go: CAN velocity is dropped until a drive feedback measures
     /// both wheels at rest (or the drives are set up from scratch).
@@ -315,6 +320,8 @@ impl Supervisor {
                 remote: RemoteInput::NONE,
                 safety_zone: false,
                 estop_pressed: false,
+                estop_known: false,
+                zone_known: false,
                 at_rest: true,
                 can_waits_for_rest: false,
                 motion_locked: false,
@@ -363,22 +370,30 @@ impl Supervisor {
             }
             Event::Estop { pressed } => {
                 self.inputs.estop_pressed = pressed;
+                self.inputs.estop_known = true;
                 if pressed {
                     self.enter_emergency(now, params, &mut effects);
                 } else if let State::Emergency { excited_since_stop } = self.state {
                     self.state = State::AwaitingConfirm { excited_since_stop };
                 }
             }
-            Event::SafetyZone { occupied } => self.inputs.safety_zone = occupied,
+            Event::SafetyZone { occupied } => {
+                self.inputs.safety_zone = occupied;
+                self.inputs.zone_known = true;
+            }
             Event::ConfirmPressed => {
                 if matches!(
                     self.state,
                     State::AwaitingConfirm { .. } | State::Fault { .. }
                 ) {
-                    // The setup leaves the drives de-excited: say so, so nothing
-                    // re-excites them from an old request.
+                    // Only once the stop has ended: the setup de-excites the drives,
+                    // which on a wheel still braking would close its brake while it
+                    // turns. A press during the stop (up to `STOPPED_AFTER_MS`) is
+                    // ignored; the next one counts.
+                    self.update_motion(now, params, &mut effects);
                     if !self.brakes_applied() {
-                        effects.excite = Some(false);
+                        warn!("confirm press ignored: the stop still runs");
+                        return effects;
                     }
                     self.state = State::Recovering;
                     effects.setup_drives = true;
@@ -471,6 +486,14 @@ impl Supervisor {
         self.inputs.estop_pressed
     }
 
+    /// Whether the e-stop's level is known since the start. Until then the feedback
+    /// frames wait, as they do while it is pressed: at boot a contact that chatters
+    /// may show one released sample, and the input task tells a released e-stop
+    /// only after its release time without an active sample.
+    pub fn estop_known(&self) -> bool {
+        self.inputs.estop_known
+    }
+
     /// The dead-man is held, armed or not: the remote has control and CAN velocity is
     /// ignored. Only an armed dead-man drives ([`Supervisor::remote_drives`]); a held
     /// one that is not armed keeps the base stopped.
@@ -514,10 +537,12 @@ impl Supervisor {
         self.inputs.motion_locked
     }
 
-    /// The sources' commands count: the state may drive and no update locks motion.
-    /// (A drive fault still counts during a lock: that is what `may_drive` is for.)
+    /// The sources' commands count: the state may drive, the e-stop's and the zone's
+    /// levels are known, and no update locks motion. (A drive fault still counts during
+    /// a lock: that is what `may_drive` is for.)
     fn commands_count(&self) -> bool {
-        self.may_drive() && !self.inputs.motion_locked
+        let inputs = &self.inputs;
+        self.may_drive() && inputs.estop_known && inputs.zone_known && !inputs.motion_locked
     }
 
     /// Arms the dead-man if the latest report showed it up and commands count now: the
@@ -816,6 +841,8 @@ mod tests {
 
     fn ready() -> Supervisor {
         let mut supervisor = Supervisor::new();
+        supervisor.step(at(0), Event::Estop { pressed: false }, &PARAMS);
+        supervisor.step(at(0), Event::SafetyZone { occupied: false }, &PARAMS);
         supervisor.step(at(0), Event::DrivesReady, &PARAMS);
         supervisor
     }
@@ -915,16 +942,18 @@ mod tests {
     fn remote_held_through_an_emergency_does_not_drive_after_recovery() {
         let mut supervisor = remote_driving_forward();
         assert!(supervisor.remote_in_control());
+        assert!(supervisor.remote_drives());
         supervisor.step(at(20), Event::Estop { pressed: true }, &PARAMS);
         supervisor.step(at(30), Event::Estop { pressed: false }, &PARAMS);
-        supervisor.step(at(40), Event::ConfirmPressed, &PARAMS);
-        let effects = supervisor.step(at(50), Event::DrivesReady, &PARAMS);
+        // The confirm press counts once the stop has ended.
+        supervisor.step(at(20 + STOPPED_AFTER_MS), Event::ConfirmPressed, &PARAMS);
+        let effects = supervisor.step(at(350), Event::DrivesReady, &PARAMS);
         assert_eq!(effects.setpoint, None);
         assert!(!supervisor.remote_drives());
         assert_eq!(supervisor.control(), ControlSource::Remote);
         // Released and pressed again: now it drives.
         supervisor.step(
-            at(60),
+            at(360),
             Event::Remote {
                 dead_man: false,
                 twist: Twist::ZERO,
@@ -932,7 +961,7 @@ mod tests {
             &PARAMS,
         );
         let effects = supervisor.step(
-            at(70),
+            at(370),
             Event::Remote {
                 dead_man: true,
                 twist: FORWARD,
@@ -940,6 +969,79 @@ mod tests {
             &PARAMS,
         );
         assert_eq!(effects.setpoint, setpoint(FORWARD, 350));
+        assert!(supervisor.remote_drives());
+    }
+
+    /// A pad that only reports, its dead-man up, has no control: a CAN drive goes on,
+    /// neither stopped nor made to wait for rest.
+    #[test]
+    fn a_pad_reporting_its_dead_man_up_leaves_a_can_drive_alone() {
+        let mut supervisor = ready();
+        supervisor.step(at(0), Event::CanEnable { refresh: true }, &PARAMS);
+        supervisor.step(at(0), Event::CanVelocity(FORWARD), &PARAMS);
+        for ms in [10, 20, 30] {
+            let released = Event::Remote {
+                dead_man: false,
+                twist: Twist::ZERO,
+            };
+            let effects = supervisor.step(at(ms), released, &PARAMS);
+            assert_eq!(effects.setpoint, None, "at {ms} ms");
+        }
+        assert_eq!(supervisor.control(), ControlSource::Can);
+        let slower = Twist {
+            linear_mm_s: 200,
+            rotation_mrad_s: 0,
+        };
+        supervisor.step(at(40), Event::CanEnable { refresh: true }, &PARAMS);
+        let effects = supervisor.step(at(40), Event::CanVelocity(slower), &PARAMS);
+        assert_eq!(effects.setpoint, setpoint(slower, PARAMS.can_accel));
+    }
+
+    /// What the status frame's e-stop flag shows, and what the feedback frames and
+    /// the commands wait for: the safety inputs' levels as last told, unknown until
+    /// then. At boot nothing drives before the input task told both the e-stop's and
+    /// the zone's level, even with the drives ready.
+    #[test]
+    fn nothing_drives_until_the_estop_and_the_zone_are_told() {
+        let drives_forward = |supervisor: &mut Supervisor, ms: u64| {
+            supervisor.step(at(ms), Event::CanEnable { refresh: true }, &PARAMS);
+            let effects = supervisor.step(at(ms), Event::CanVelocity(FORWARD), &PARAMS);
+            effects.setpoint == setpoint(FORWARD, PARAMS.can_accel)
+        };
+        let mut supervisor = Supervisor::new();
+        supervisor.step(at(0), Event::DrivesReady, &PARAMS);
+        assert!(!supervisor.estop_known());
+        assert!(!drives_forward(&mut supervisor, 0));
+        supervisor.step(at(10), Event::Estop { pressed: false }, &PARAMS);
+        assert!(supervisor.estop_known());
+        assert!(
+            !drives_forward(&mut supervisor, 20),
+            "the zone is not told yet"
+        );
+        supervisor.step(at(30), Event::SafetyZone { occupied: false }, &PARAMS);
+        assert!(drives_forward(&mut supervisor, 40));
+
+        // The other way round: the zone told first.
+        let mut supervisor = Supervisor::new();
+        supervisor.step(at(0), Event::DrivesReady, &PARAMS);
+        supervisor.step(at(10), Event::SafetyZone { occupied: false }, &PARAMS);
+        assert!(
+            !drives_forward(&mut supervisor, 20),
+            "the e-stop is not told yet"
+        );
+        supervisor.step(at(30), Event::Estop { pressed: false }, &PARAMS);
+        assert!(drives_forward(&mut supervisor, 40));
+    }
+
+    #[test]
+    fn the_estop_flag_is_the_level_last_told() {
+        let mut supervisor = ready();
+        assert!(!supervisor.estop_pressed());
+        supervisor.step(at(30), Event::Estop { pressed: true }, &PARAMS);
+        assert!(supervisor.estop_pressed());
+        supervisor.step(at(40), Event::Estop { pressed: false }, &PARAMS);
+        assert!(!supervisor.estop_pressed());
+        assert!(supervisor.estop_known());
     }
 
     #[test]
@@ -1046,6 +1148,8 @@ mod tests {
             },
             &PARAMS,
         );
+        supervisor.step(at(10), Event::Estop { pressed: false }, &PARAMS);
+        supervisor.step(at(10), Event::SafetyZone { occupied: false }, &PARAMS);
         supervisor.step(at(10), Event::DrivesReady, &PARAMS);
         let effects = supervisor.step(
             at(20),
@@ -1092,6 +1196,8 @@ mod tests {
         assert!(!supervisor.faults().left_silent);
         assert_eq!(supervisor.mode(), Mode::Starting);
         assert_eq!(effects, Effects::default());
+        supervisor.step(at(900), Event::Estop { pressed: false }, &PARAMS);
+        supervisor.step(at(900), Event::SafetyZone { occupied: false }, &PARAMS);
         supervisor.step(at(900), Event::DrivesReady, &PARAMS);
         assert_eq!(supervisor.faults(), DriveFaults::default());
         assert_eq!(supervisor.mode(), Mode::Standby);
@@ -1132,6 +1238,8 @@ mod tests {
                 .step(at(10), Event::ConfirmPressed, &PARAMS)
                 .setup_drives
         );
+        supervisor.step(at(20), Event::Estop { pressed: false }, &PARAMS);
+        supervisor.step(at(20), Event::SafetyZone { occupied: false }, &PARAMS);
         supervisor.step(at(20), Event::DrivesReady, &PARAMS);
         assert_eq!(
             supervisor.faults(),
@@ -1160,6 +1268,8 @@ mod tests {
         assert_eq!(effects.setpoint, None);
         assert_eq!(supervisor.mode(), Mode::Fault);
         supervisor.step(at(1_000), Event::ConfirmPressed, &PARAMS);
+        supervisor.step(at(1_500), Event::Estop { pressed: false }, &PARAMS);
+        supervisor.step(at(1_500), Event::SafetyZone { occupied: false }, &PARAMS);
         supervisor.step(at(1_500), Event::DrivesReady, &PARAMS);
         assert_eq!(supervisor.mode(), Mode::Standby);
         assert!(!supervisor.faults().left_implausible);

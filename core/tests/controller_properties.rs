@@ -538,11 +538,15 @@ fn sequence_of(
         prop::collection::vec(parts, 1..=MAX_EVENTS),
     )
         .prop_map(|(ready_at_boot, bluetooth_off, parts)| {
+            // The input task tells the safety inputs' levels at boot (a press or an
+            // occupied zone comes later as an event of its own).
+            let told = [(0, Input::Estop(false)), (0, Input::SafetyZone(false))];
             let boot = ready_at_boot.then_some((0, Input::DrivesReady));
             Sequence {
                 bluetooth_off,
-                events: boot
+                events: told
                     .into_iter()
+                    .chain(boot)
                     .chain(parts.into_iter().flatten())
                     .take(MAX_EVENTS)
                     .collect(),

@@ -362,6 +362,8 @@ fn run(registers: Registers, rows: &[Row]) -> Controller {
     let mut controller = Controller::new(Timestamp::BOOT, registers);
     // The setup's S-OFF was answered; so is every later S-ON and S-OFF, at once.
     controller.set_drive_brakes_confirmed(true);
+    controller.handle(Timestamp::BOOT, Input::Estop(false));
+    controller.handle(Timestamp::BOOT, Input::SafetyZone(false));
     controller.handle(Timestamp::BOOT, Input::DrivesReady);
     let mut drives = HonestDrives::default();
     for (index, (ms, input, checks)) in rows.iter().enumerate() {
@@ -1093,9 +1095,10 @@ fn drive_that_stops_answering_stops_the_other_wheel_and_latches_a_fault() {
             ),
             (110, enable(), &[]),
             (120, velocity(500, 0), &[NoWheels]),
-            (200, Input::Button(true), &[]),
+            // A confirm press counts once the stop has ended (300 ms at estop_decel).
+            (450, Input::Button(true), &[]),
             (
-                300,
+                550,
                 Input::Button(false),
                 &[SetupDrives, Mode(Mode::Recovering)],
             ),
@@ -1103,7 +1106,7 @@ fn drive_that_stops_answering_stops_the_other_wheel_and_latches_a_fault() {
     );
     assert!(
         controller
-            .status(Timestamp::from_millis(300))
+            .status(Timestamp::from_millis(550))
             .faults
             .right_drive_silent
     );
@@ -1127,6 +1130,8 @@ fn drive_alarm_is_reported_and_cleared_by_the_recovery() {
     assert_eq!(status.drive_alarm, 0x84);
     controller.handle(Timestamp::from_millis(10), Input::Button(true));
     controller.handle(Timestamp::from_millis(100), Input::Button(false));
+    controller.handle(Timestamp::from_millis(900), Input::Estop(false));
+    controller.handle(Timestamp::from_millis(900), Input::SafetyZone(false));
     controller.handle(Timestamp::from_millis(900), Input::DrivesReady);
     let status = controller.status(Timestamp::from_millis(900));
     assert!(!status.faults.any());
@@ -1764,6 +1769,9 @@ fn odometry_does_not_jump_when_the_drives_come_back_with_new_counters() {
 #[test]
 fn feedback_frames_carry_pose_battery_and_weight_at_their_periods() {
     let mut controller = Controller::new(Timestamp::BOOT, defaults());
+    // The input task tells the e-stop's level at boot.
+    controller.handle(Timestamp::BOOT, Input::Estop(false));
+    controller.handle(Timestamp::BOOT, Input::SafetyZone(false));
     controller.handle(Timestamp::BOOT, Input::DrivesReady);
     controller.handle(Timestamp::BOOT, Input::BatterySample { voltage_mv: 25_500 });
     for _ in 0..10 {

@@ -29,6 +29,8 @@ fn at(ms: u64) -> Timestamp {
 /// Drives ready, CAN enabled and driving forward since 0 ms.
 fn driving() -> Supervisor {
     let mut supervisor = Supervisor::new();
+    supervisor.step(at(0), Event::Estop { pressed: false }, &PARAMS);
+    supervisor.step(at(0), Event::SafetyZone { occupied: false }, &PARAMS);
     supervisor.step(at(0), Event::DrivesReady, &PARAMS);
     supervisor.step(at(0), Event::CanEnable { refresh: true }, &PARAMS);
     let effects = supervisor.step(
@@ -87,15 +89,32 @@ fn a_drive_fault_de_excites_the_answering_drive_without_feedback() {
     assert!(supervisor.brakes_applied());
 }
 
+/// Found by the whole-robot tester (`confirm-during-a-fault-stop-seed-61-rule-4`): a
+/// confirm press while a stop still braked set the drives up at once, and the setup's
+/// S-OFF closed the brake of a wheel still turning at 24 r/min. A press during the stop
+/// is ignored; one after it recovers, the drives already de-excited.
 #[test]
-fn the_confirm_press_de_excites_before_the_setup() {
-    let mut supervisor = driving();
-    supervisor.step(at(100), Event::Estop { pressed: true }, &PARAMS);
-    supervisor.step(at(150), Event::Estop { pressed: false }, &PARAMS);
-    let effects = supervisor.step(at(200), Event::ConfirmPressed, &PARAMS);
-    assert!(effects.setup_drives);
-    assert_eq!(effects.excite, Some(false));
-    assert!(supervisor.brakes_applied());
-    supervisor.step(at(1_000), Event::DrivesReady, &PARAMS);
-    assert!(supervisor.brakes_applied());
+fn a_confirm_press_counts_only_once_the_stop_has_ended() {
+    for fault in [
+        Event::Estop { pressed: true },
+        Event::DriveSilent(Wheel::Right),
+    ] {
+        let mut supervisor = driving();
+        supervisor.step(at(100), fault, &PARAMS);
+        supervisor.step(at(150), Event::Estop { pressed: false }, &PARAMS);
+        let effects = supervisor.step(at(200), Event::ConfirmPressed, &PARAMS);
+        assert!(
+            !effects.setup_drives,
+            "{fault:?}: confirmed during the stop"
+        );
+        assert_eq!(effects.excite, None, "{fault:?}: S-OFF while braking");
+        assert!(!supervisor.brakes_applied());
+        // The stop's time ends at the press itself: the drives are de-excited first.
+        let effects = supervisor.step(at(100 + STOPPED_AFTER_MS), Event::ConfirmPressed, &PARAMS);
+        assert!(effects.setup_drives, "{fault:?}");
+        assert_eq!(effects.excite, Some(false), "{fault:?}");
+        assert!(supervisor.brakes_applied());
+        supervisor.step(at(1_000), Event::DrivesReady, &PARAMS);
+        assert!(supervisor.brakes_applied());
+    }
 }

@@ -93,18 +93,22 @@ struct DebouncedInput<P> {
     active: ActiveLevel,
     debounce: Debounce,
     report: fn(bool) -> Input,
+    /// The controller has been told this input's level since the start.
+    told: bool,
 }
 
 impl<P: InputPin> DebouncedInput<P> {
-    /// A safety input, starting from the level the pin shows now. A pin that cannot
+    /// A safety input, active from the start: it is told active at its first active
+    /// sample, and released only after `release_ms` without one, at boot as always. One
+    /// released sample proves nothing about a contact that chatters. A pin that cannot
     /// be read counts as active: the safe reading for the e-stop and the zone.
-    fn safety(mut pin: P, active: ActiveLevel, release_ms: u32, report: fn(bool) -> Input) -> Self {
-        let initial = read(&mut pin, active);
+    fn safety(pin: P, active: ActiveLevel, release_ms: u32, report: fn(bool) -> Input) -> Self {
         Self {
             pin,
             active,
-            debounce: Debounce::Safety(SafetyDebouncer::new(initial, release_ms)),
+            debounce: Debounce::Safety(SafetyDebouncer::new(true, release_ms)),
             report,
+            told: false,
         }
     }
 
@@ -121,16 +125,20 @@ impl<P: InputPin> DebouncedInput<P> {
             active,
             debounce: Debounce::Symmetric(Debouncer::new(initial, debounce_ms)),
             report,
+            told: true,
         }
     }
 
+    /// The level to tell the controller after this sample, if any: a change, or the
+    /// first level that is sure since the start.
     fn sample(&mut self) -> Option<Input> {
         let raw = read(&mut self.pin, self.active);
-        self.debounce.update(core_now(), raw).map(self.report)
-    }
-
-    fn current(&self) -> Input {
-        (self.report)(self.debounce.level())
+        let change = self.debounce.update(core_now(), raw);
+        if !self.told && (raw || change.is_some()) {
+            self.told = true;
+            return Some((self.report)(self.debounce.level()));
+        }
+        change.map(self.report)
     }
 }
 
@@ -165,9 +173,8 @@ pub async fn run<E: InputPin, Z: InputPin, B: InputPin>(
         settings.button_debounce_ms,
         Input::Button,
     );
-    // The controller starts knowing nothing: tell it the levels at boot.
-    inputs.send(estop.current()).await;
-    inputs.send(zone.current()).await;
+    // The controller starts knowing nothing: each safety input's level is told once
+    // it is sure (the first active sample, or the release time without one).
     let mut ticker = Ticker::every(Duration::from_micros(u64::from(
         settings.sample_period_us.max(1),
     )));
