@@ -22,6 +22,10 @@ pub const SIM_CHIP: Chip = Chip::Esp32c3;
 pub const PANIC_SUFFIX: &str = "-sim-panic";
 /// A version ending in this never takes a CONFIRM: its trial runs out.
 pub const NO_CONFIRM_SUFFIX: &str = "-sim-noconfirm";
+/// A version ending in this was built with drive settings the firmware refuses: the
+/// drives' own timeout off, their factory value (docs/drives.md, "Settings the
+/// firmware refuses").
+pub const REFUSED_DRIVES_SUFFIX: &str = "-sim-timeout-off";
 
 /// The version of the image a blank simulator flash starts with.
 pub const FACTORY_VERSION: &str = env!("CARGO_PKG_VERSION");
@@ -35,6 +39,8 @@ pub enum Behaviour {
     Healthy,
     PanicsAtBoot,
     NeverConfirms,
+    /// Runs with [`Behaviour::settings`] the firmware refuses.
+    RefusedDriveSettings,
 }
 
 impl Behaviour {
@@ -43,9 +49,20 @@ impl Behaviour {
             Self::PanicsAtBoot
         } else if version.ends_with(NO_CONFIRM_SUFFIX) {
             Self::NeverConfirms
+        } else if version.ends_with(REFUSED_DRIVES_SUFFIX) {
+            Self::RefusedDriveSettings
         } else {
             Self::Healthy
         }
+    }
+
+    /// The board settings this firmware was built with.
+    pub fn settings(self) -> base_runtime::Settings {
+        let mut settings = base_runtime::Settings::DEFAULT;
+        if self == Self::RefusedDriveSettings {
+            settings.drives.drive_comm_timeout_ms = 0;
+        }
+        settings
     }
 }
 
@@ -214,6 +231,18 @@ mod tests {
             Behaviour::of("0.9.0-sim-noconfirm"),
             Behaviour::NeverConfirms
         );
+        assert_eq!(
+            Behaviour::of("0.9.0-sim-timeout-off"),
+            Behaviour::RefusedDriveSettings
+        );
+        assert!(
+            Behaviour::RefusedDriveSettings
+                .settings()
+                .drives
+                .check()
+                .is_err()
+        );
         assert_eq!(Behaviour::of("0.9.0"), Behaviour::Healthy);
+        assert!(Behaviour::Healthy.settings().drives.check().is_ok());
     }
 }

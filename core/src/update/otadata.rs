@@ -352,6 +352,19 @@ mod tests {
         assert_eq!(crc_of(2), 0x55F6_3774);
     }
 
+    /// The power-cut and boot tests write entries with a broken CRC through
+    /// `encode`: it must keep the CRC broken, or they would test a valid entry.
+    #[test]
+    fn an_entry_round_trips_through_its_bytes_a_broken_crc_too() {
+        for crc_ok in [true, false] {
+            let entry = Entry {
+                crc_ok,
+                ..Entry::new(7, OtaState::Valid)
+            };
+            assert_eq!(Entry::decode(&entry.encode()), entry);
+        }
+    }
+
     #[test]
     fn an_entry_has_the_bootloaders_byte_layout() {
         let bytes = Entry::new(1, OtaState::Valid).encode();

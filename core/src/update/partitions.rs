@@ -78,6 +78,12 @@ mod tests {
             assert!(window[0].end() <= window[1].offset, "{window:?} overlap");
         }
         for partition in TABLE {
+            // The range the flash code writes in: exactly the partition's bytes.
+            let range = partition.range();
+            assert_eq!(
+                (range.start, range.len()),
+                (partition.offset, partition.len as usize)
+            );
             assert_eq!(partition.offset % SECTOR_LEN, 0, "{partition:?}");
             assert_eq!(partition.len % SECTOR_LEN, 0, "{partition:?}");
             assert!(partition.end() <= FLASH_SIZE, "{partition:?}");

@@ -205,6 +205,9 @@ pub enum ImageKind {
     PanicsAtBoot,
     /// One that never hears CONFIRM (its trial must run out).
     NeverConfirms,
+    /// One built with drive settings the firmware refuses (the drives' timeout off):
+    /// it must never set the drives up.
+    RefusedDriveSettings,
     /// An image for another chip (refused before any write).
     OtherChip,
     /// The announced SHA-256 does not match (refused at FINISH).

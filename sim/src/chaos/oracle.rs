@@ -17,6 +17,7 @@ use super::event::{PadHands, PadKind, wire};
 use super::registers::{self, Registers, address};
 use super::rules::{Rule, bounds};
 use crate::drives::{MotorOrder, MotorOrderChange};
+use base_core::drives::DriveSettings;
 
 /// Home \[PS\] in a report's buttons (Xbox layout bits, docs/remote.md): with L2, the
 /// pad switches off.
@@ -94,6 +95,11 @@ struct Drive {
     /// Since when it has turned against its command at `AGAINST_RPM` or more, its order
     /// keeping one sign (+1 or -1).
     against_since: Option<(Us, f64)>,
+    /// The earliest moment the check may count from: after the order changed sign, a
+    /// healthy wheel on the commanded ramp needs this long to come round (from the
+    /// old target or the speed it had, whichever is farther, to `AGAINST_RPM` on the
+    /// new side; docs/behaviour.md: "every speed the commanded ramp passed through").
+    against_from: Us,
 }
 
 impl Drive {
@@ -116,6 +122,7 @@ impl Drive {
             order_at: 0,
             reversed_motion: false,
             against_since: None,
+            against_from: 0,
         }
     }
 
@@ -234,6 +241,9 @@ pub struct Oracle {
     /// overrides CAN only if it surely is).
     bluetooth_surely_on: bool,
     bluetooth_may_be_on: bool,
+    /// Why the running firmware's drive settings are ones it must refuse; then it
+    /// never sets the drives up (docs/drives.md, "Settings the firmware refuses").
+    refused_settings: Option<&'static str>,
     drives: [Drive; 2],
     can: CanSource,
     pads: [Pad; 2],
@@ -317,6 +327,7 @@ impl Oracle {
             controller: Controller::Down { since: 0 },
             bluetooth_surely_on: true,
             bluetooth_may_be_on: true,
+            refused_settings: None,
             drives: [Drive::new(), Drive::new()],
             can: CanSource::default(),
             pads: [Pad::default(); 2],
@@ -658,6 +669,12 @@ impl Oracle {
         let order = change.order;
         self.drives[index].order = order;
         self.drives[index].order_at = at;
+        if order.target_rpm != 0.0 && before.target_rpm.signum() != order.target_rpm.signum() {
+            let from = before.target_rpm.abs().max(change.speed_rpm.abs());
+            let rate = order.decel_rpm_per_s.max(1.0);
+            let ramp_us = (from + bounds::AGAINST_RPM) / rate * 1e6;
+            self.drives[index].against_from = at + ramp_us as Us;
+        }
         self.drives[index].excited_since = match (before.excited(), order.excited()) {
             (_, false) => None,
             (false, true) => Some(at),
@@ -690,6 +707,21 @@ impl Oracle {
                     order.powered
                 ),
             );
+        }
+        // Rule 1: a firmware that refuses its drive settings holds the drives, stopped
+        // and de-excited; it never excites one or orders it a speed.
+        if let (Some(refused), Controller::Up { .. }) = (self.refused_settings, self.controller) {
+            let moves = order.target_rpm != 0.0 && order.target_rpm != before.target_rpm;
+            if order.excited() && (!before.excited() || moves) {
+                self.violate(
+                    Rule::OneSourceMoves,
+                    at,
+                    format!(
+                        "the {side} drive was set going (S-ON, {:+.0} r/min) by a firmware whose drive settings must be refused: {refused}",
+                        order.target_rpm,
+                    ),
+                );
+            }
         }
         // Rule 4: the controller's S-OFF closes the brake on a turning wheel.
         if before.excited()
@@ -1607,10 +1639,18 @@ impl Oracle {
     }
 
     /// The firmware's tasks run from `at`. `bluetooth_on`: the boot's panic-loop
-    /// decision; `estop`: the contact is pressed now.
-    pub fn controller_up(&mut self, at: Us, bluetooth_on: bool, estop: bool) {
+    /// decision; `estop`: the contact is pressed now; `drives`: the settings its
+    /// firmware was built with.
+    pub fn controller_up(
+        &mut self,
+        at: Us,
+        bluetooth_on: bool,
+        estop: bool,
+        drives: &DriveSettings,
+    ) {
         self.advance_to(at);
         self.controller = Controller::Up { since: at };
+        self.refused_settings = refused(drives);
         self.bluetooth_surely_on = bluetooth_on;
         self.bluetooth_may_be_on = bluetooth_on;
         if estop {
@@ -1698,7 +1738,7 @@ impl Oracle {
             let Some((since, _)) = drive.against_since else {
                 continue;
             };
-            if at > since + bounds::AGAINST_FOUND_US {
+            if at > since.max(drive.against_from) + bounds::AGAINST_FOUND_US {
                 let side = if index == 0 { "left" } else { "right" };
                 let speed = drive.speed_rpm;
                 self.violate(
@@ -1941,4 +1981,22 @@ impl Oracle {
 enum PeriodKind {
     Position,
     Status,
+}
+
+/// Why the firmware must refuse these drive settings, if it must: the limits of
+/// docs/drives.md ("Settings the firmware refuses"), written here from the document.
+fn refused(drives: &DriveSettings) -> Option<&'static str> {
+    if !(100..=180).contains(&drives.drive_comm_timeout_ms) {
+        Some("the drives' own timeout must be 100 to 180 ms (0 is off)")
+    } else if !(1..=3).contains(&drives.failures_before_loss) {
+        Some("1 to 3 failures before a drive counts as lost")
+    } else if !(10..=30).contains(&drives.reply_timeout_ms) {
+        Some("a reply timeout of 10 to 30 ms")
+    } else if drives.line.baud < 38_400 {
+        Some("at least 38400 baud")
+    } else if drives.line.min_silent_interval_us > 1_750 {
+        Some("a frame gap of at most 1750 µs")
+    } else {
+        None
+    }
 }

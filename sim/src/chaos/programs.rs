@@ -143,6 +143,7 @@ pub fn image_version(session: u8, image: ImageKind) -> String {
     match image {
         ImageKind::PanicsAtBoot => format!("{base}{}", app_flash::PANIC_SUFFIX),
         ImageKind::NeverConfirms => format!("{base}{}", app_flash::NO_CONFIRM_SUFFIX),
+        ImageKind::RefusedDriveSettings => format!("{base}{}", app_flash::REFUSED_DRIVES_SUFFIX),
         _ => base,
     }
 }

@@ -14,9 +14,9 @@ use base_core::controller::Input;
 use base_core::gamepad::{Buttons, Dpad, GamepadState};
 use base_core::remote::Pad;
 use base_core::update::trial::{self, ResetRecord};
+use base_runtime::Hardware;
 use base_runtime::channels::Channels;
 use base_runtime::update::{ResetRequest, UpdateFlash};
-use base_runtime::{Hardware, Settings};
 use embassy_futures::select::{Either, Either4, select, select4};
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::signal::Signal;
@@ -447,10 +447,12 @@ impl World {
             }
             let estop = self.robot.estop.level() == PinState::Low;
             let bluetooth_on = bluetooth == base_core::panic_loop::Bluetooth::On;
-            self.observe(|oracle, at| oracle.controller_up(at, bluetooth_on, estop));
+            let settings = behaviour.settings();
+            self.observe(|oracle, at| {
+                oracle.controller_up(at, bluetooth_on, estop, &settings.drives)
+            });
             self.up.set(true);
             self.register_flash.probe.firmware_running.set(true);
-            let settings = Settings::DEFAULT;
             let version = booted.version.clone();
             let config = base_runtime::update::UpdateConfig {
                 chip: app_flash::SIM_CHIP,
