@@ -114,6 +114,7 @@ use core::cell::RefCell;
 
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::signal::Signal;
+use embassy_time::{Duration, Timer};
 use embedded_storage_async::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
 use heapless::Vec;
 use sequential_storage::cache::Cache;
@@ -867,11 +868,18 @@ impl<F: NorFlash> RegisterStore<F> {
     }
 }
 
+/// How long the store task waits before it writes a batch again that the flash failed:
+/// the flash fault shows meanwhile, and a flash that fails for good is tried at this
+/// pace, not in a loop.
+pub const RETRY_FAILED_BATCH: Duration = Duration::from_secs(5);
+
 /// The store task: waits for pending register changes, applies each batch and reports
 /// any failure as [`Input::FlashFault`], and a changed erase count as
 /// [`Input::FlashErases`]. The store itself retries a write that reads back wrong
-/// ([`RegisterStore::write`]); a write that still fails keeps the controller running on
-/// the value in RAM, and the address is written again with its next change.
+/// ([`RegisterStore::write`]); a batch that still fails keeps the controller running on
+/// the values in RAM and goes back to pending ([`PendingWrites::put_back`]), to be
+/// written again [`RETRY_FAILED_BATCH`] later at rest: dropped, a reset before the
+/// register's next change would lose the value with nothing left to say so.
 ///
 /// Flash is written only while the base is at rest (drives de-excited): on the chip a
 /// sector erase masks interrupts for up to 400 ms, which must never freeze the control
@@ -888,6 +896,8 @@ pub async fn run<F: NorFlash>(
         let batch = pending.take_at_rest().await;
         if store.apply(&batch).await.is_err() {
             faults.send(Input::FlashFault).await;
+            pending.put_back(&batch);
+            Timer::after(RETRY_FAILED_BATCH).await;
         }
         if store.erases() != erases {
             erases = store.erases();
@@ -988,6 +998,26 @@ impl PendingWrites {
     }
 
     /// Values wait for the flash: recorded (in force in RAM) but not yet written.
+    /// A batch the flash failed is pending again: each value that was not changed since
+    /// (a newer one stays), and the restore of the defaults it held. A restore recorded
+    /// since voids the whole batch, as it voids every earlier write.
+    pub fn put_back(&self, batch: &PendingBatch) {
+        self.state.lock(|state| {
+            let mut state = state.borrow_mut();
+            if state.restore_defaults {
+                return;
+            }
+            state.restore_defaults = batch.restore_defaults;
+            for &(address, value) in &batch.writes {
+                let slot = usize::from(address);
+                if slot < 64 && state.marks & (1 << slot) == 0 {
+                    state.marks |= 1 << slot;
+                    state.values[slot] = value;
+                }
+            }
+        });
+    }
+
     pub fn persist_pending(&self) -> bool {
         self.state.lock(|state| {
             let state = state.borrow();
@@ -1217,6 +1247,31 @@ mod pending_tests {
         assert!(wait.as_mut().poll(&mut cx).is_ready(), "at rest: flash");
         let mut at_rest_already = core::pin::pin!(pending.wait_at_rest());
         assert!(at_rest_already.as_mut().poll(&mut cx).is_ready());
+    }
+
+    /// Found by the whole-robot tester (`register-lost-after-failed-writes-…`): a batch
+    /// the flash failed was dropped, and a reset before the register's next change
+    /// lost the value with no fault left to show.
+    #[test]
+    fn a_failed_batch_is_pending_again_under_the_values_changed_since() {
+        let pending = PendingWrites::new();
+        pending.record(&persist(&[(33, 445), (11, 500)], false));
+        let failed = block_on(pending.take_at_rest());
+        pending.record(&persist(&[(11, 900)], false));
+        pending.put_back(&failed);
+        assert!(pending.persist_pending());
+        let again = block_on(pending.take_at_rest());
+        assert_eq!(again.writes[..], [(11, 900), (33, 445)]);
+
+        // A restore recorded since voids the failed batch, as it voids any earlier write.
+        pending.record(&persist(&[], true));
+        pending.put_back(&again);
+        let after_restore = block_on(pending.take_at_rest());
+        assert!(after_restore.restore_defaults);
+        assert!(after_restore.writes.is_empty());
+        // A failed restore is done again first.
+        pending.put_back(&after_restore);
+        assert!(block_on(pending.take_at_rest()).restore_defaults);
     }
 
     #[test]
