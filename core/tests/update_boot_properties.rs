@@ -2,7 +2,9 @@
 //! write, images that panic or never confirm, images the bootloader refuses, and both
 //! bootloaders: an image always boots, a new image runs its trial at most once unless
 //! it confirmed, and what runs is always the image confirmed last: a confirmed image
-//! keeps booting until the next confirmed one.
+//! keeps booting until the next confirmed one. Images that die before their first
+//! write, or never write at all, show what only a bootloader with rollback can take
+//! back (docs/flashing.md, "What cannot be rolled back").
 
 use base_core::update::boot::{Bootloader, boot};
 use base_core::update::otadata::{ERASED_ENTRY, Entry, OtaData, SectorWrite, Slot};
@@ -12,7 +14,14 @@ use proptest::prelude::*;
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Behaviour {
     Healthy,
+    /// Panics (or hangs until the watchdog) after its arming write.
     PanicsAtBoot,
+    /// Panics before its arming write: in `esp_hal::init` or the startup code before
+    /// `main`, the only code the firmware runs before it arms.
+    PanicsBeforeArming,
+    /// Never writes otadata: an image built before the update code existed. It runs
+    /// unlocked until the next reset.
+    NeverArms,
     NeverConfirms,
     /// Written completely and activated, but the bootloader refuses to load it (built
     /// for another chip or eFuse revision, a header it rejects).
@@ -122,6 +131,12 @@ impl Robot {
             }
             self.running = slot;
             let image = self.images[slot.index()];
+            match image.behaviour {
+                // Nothing of it reaches otadata.
+                Behaviour::PanicsBeforeArming => continue,
+                Behaviour::NeverArms => return true,
+                _ => {}
+            }
             let start = on_start(&self.otadata, slot);
             // The image's first write (arming a trial, recording itself on blank
             // otadata, setting aside a refused image's entry), cut like any other.
@@ -156,6 +171,9 @@ impl Robot {
                         continue;
                     }
                     Behaviour::Refused => unreachable!("the bootloader never starts it"),
+                    Behaviour::PanicsBeforeArming | Behaviour::NeverArms => {
+                        unreachable!("it does not get this far")
+                    }
                 }
             }
             return true;
@@ -194,18 +212,25 @@ impl Robot {
     }
 }
 
-fn behaviour() -> impl Strategy<Value = Behaviour> {
-    prop_oneof![
-        Just(Behaviour::Healthy),
-        Just(Behaviour::PanicsAtBoot),
-        Just(Behaviour::NeverConfirms),
-        Just(Behaviour::Refused)
-    ]
+/// The images an update may bring with `bootloader`. One that dies before its arming
+/// write only a bootloader with rollback takes back: with espflash's it starts again
+/// and again (see the test below), which the property would report as nothing booting.
+fn behaviour(bootloader: Bootloader) -> impl Strategy<Value = Behaviour> {
+    let mut behaviours = vec![
+        Behaviour::Healthy,
+        Behaviour::PanicsAtBoot,
+        Behaviour::NeverConfirms,
+        Behaviour::Refused,
+    ];
+    if bootloader == Bootloader::Rollback {
+        behaviours.push(Behaviour::PanicsBeforeArming);
+    }
+    proptest::sample::select(behaviours)
 }
 
-fn step() -> impl Strategy<Value = Step> {
+fn step(bootloader: Bootloader) -> impl Strategy<Value = Step> {
     prop_oneof![
-        (behaviour(), proptest::option::of(0u8..6))
+        (behaviour(bootloader), proptest::option::of(0u8..6))
             .prop_map(|(behaviour, cut)| Step::Update { behaviour, cut }),
         proptest::option::of(0u8..4).prop_map(|cut| Step::PowerCycle { cut }),
     ]
@@ -216,8 +241,10 @@ proptest! {
 
     #[test]
     fn an_image_always_boots_and_a_trial_never_runs_twice(
-        steps in proptest::collection::vec(step(), 1..24),
-        rollback_bootloader in any::<bool>(),
+        (bootloader, steps) in prop_oneof![Just(Bootloader::Plain), Just(Bootloader::Rollback)]
+            .prop_flat_map(|bootloader| {
+                (Just(bootloader), proptest::collection::vec(step(bootloader), 1..24))
+            }),
     ) {
         // Fresh from USB: otadata erased, our image in ota_0.
         let mut robot = Robot {
@@ -226,7 +253,7 @@ proptest! {
                 Image { id: 0, intact: true, behaviour: Behaviour::Healthy },
                 Image { id: u32::MAX, intact: false, behaviour: Behaviour::Healthy },
             ],
-            bootloader: if rollback_bootloader { Bootloader::Rollback } else { Bootloader::Plain },
+            bootloader,
             running: Slot::Ota0,
             next_id: 0,
             unconfirmed_trial_runs: Default::default(),
@@ -352,5 +379,50 @@ fn a_refused_image_then_an_update_that_fails_its_trial_goes_back_to_the_confirme
                 "{bootloader:?}, {failing:?}"
             );
         }
+    }
+}
+
+/// The firmware arms first thing after `esp_hal::init`; what dies before that, or an
+/// image without the update code, only the rollback bootloader takes back: it marks a
+/// new image pending at its first start and gives up on it at the next.
+#[test]
+fn with_the_rollback_bootloader_an_image_that_never_arms_goes_back_at_the_next_reset() {
+    let mut robot = fresh_robot(Bootloader::Rollback);
+    assert!(robot.update(Behaviour::PanicsBeforeArming));
+    assert!(robot.boot_until_running());
+    assert_eq!(robot.images[robot.running.index()].id, 0);
+    assert_eq!(
+        on_start(&robot.otadata, robot.running).role,
+        StartRole::Confirmed
+    );
+
+    assert!(robot.update(Behaviour::NeverArms));
+    assert!(robot.boot_until_running());
+    // It runs once, unlocked (it knows nothing of trials), until a reset.
+    assert_eq!(robot.images[robot.running.index()].id, 2);
+    assert!(robot.boot_until_running());
+    assert_eq!(robot.images[robot.running.index()].id, 0);
+    assert_eq!(
+        on_start(&robot.otadata, robot.running).role,
+        StartRole::Confirmed
+    );
+}
+
+/// The limit docs/flashing.md states: espflash's bootloader starts the active entry
+/// whatever its state, so an image that dies before its arming write starts again at
+/// every reset, and one without the update code keeps running. Only USB brings the
+/// robot back.
+#[test]
+fn with_espflashs_bootloader_an_image_that_never_arms_keeps_starting() {
+    let mut robot = fresh_robot(Bootloader::Plain);
+    assert!(robot.update(Behaviour::PanicsBeforeArming));
+    assert!(!robot.boot_until_running(), "it panics at every start");
+    assert_eq!(robot.running, Slot::Ota1);
+
+    let mut robot = fresh_robot(Bootloader::Plain);
+    assert!(robot.update(Behaviour::NeverArms));
+    for _ in 0..3 {
+        assert!(robot.boot_until_running());
+        assert_eq!(robot.images[robot.running.index()].id, 1);
     }
 }

@@ -56,15 +56,18 @@ static FLASH: StaticCell<SharedFlash> = StaticCell::new();
 #[esp_rtos::main]
 async fn main(_spawner: embassy_executor::Spawner) {
     // The radio wants the fastest clock.
-    let peripherals = esp_hal::init(esp_hal::Config::default().with_cpu_clock(CpuClock::max()));
+    let mut peripherals =
+        esp_hal::init(esp_hal::Config::default().with_cpu_clock(CpuClock::max()));
+    // First of all, before anything that can fail: esp_hal::init stopped the
+    // bootloader's watchdog, so ours guards the start from here, and a new image arms
+    // its trial, so that a panic or a hang anywhere below boots the previous image.
+    watchdog::guard_start(peripherals.RTC_TIMER.reborrow());
+    let armed = update::arm_first(peripherals.FLASH.reborrow()).await;
     esp_alloc::heap_allocator!(size: HEAP_SIZE);
     let reset_reason = esp_hal::system::reset_reason();
     // A software reset is the panic handler's (see `custom_halt`).
     let bluetooth = panic_record::at_boot(board::reset_by_software(reset_reason));
     let mut board = board::take(peripherals);
-    // esp_hal::init stopped the bootloader's watchdog: ours guards everything from here,
-    // the new image's trial first of all (a hang before the arming write below would
-    // otherwise leave the robot hanging instead of rolling back).
     let watchdog = LivenessWatchdog::start(board.rtc, board.status_led);
     esp_rtos::start(
         TimerGroup::new(board.timg0).timer0,
@@ -93,25 +96,22 @@ async fn main(_spawner: embassy_executor::Spawner) {
             );
         }
     }
-    let running_slot = base_controller_firmware::update::running_slot(&mut board.flash);
     let shared_flash = FLASH.init(SharedFlash::new(BlockingAsync::new(board.flash)));
     let (flash, flash_range) = flash::partition(shared_flash, flash::REGISTERS, registers);
     let (bond_flash, bond_range) = flash::partition(shared_flash, flash::BONDS, bonds);
 
-    // Updates over CAN. A new image arms its trial before any task runs (the watchdog
-    // already guards it); the record of an update's reset before this boot becomes
-    // `boot_info`. Without an app slot (a board still on the old partition table)
-    // there are no updates.
+    // Updates over CAN, with what the arming found (above); the record of an update's
+    // reset before this boot becomes `boot_info`. Without an app slot (a board still
+    // on the old partition table) there are no updates.
     let mut update_flash = None;
     let mut update_reset = UpdateReset::None;
-    if let Some(slot) = running_slot {
+    if let Some((slot, started)) = armed {
         let whole = embassy_embedded_hal::flash::partition::Partition::new(
             shared_flash,
             0,
             base_core::update::partitions::FLASH_SIZE,
         );
-        let mut flash = base_runtime::update::UpdateFlash::new(whole, slot);
-        let started = base_runtime::update::arm(&mut flash).await;
+        let flash = base_runtime::update::UpdateFlash::new(whole, slot);
         base_runtime::update::report_start(&started);
         CHANNELS.update.lock_at_start(&started);
         update_reset = update::boot_cause(&started, slot);

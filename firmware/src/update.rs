@@ -10,9 +10,13 @@ use base_core::update::image::Chip;
 use base_core::update::otadata::Slot;
 use base_core::update::partitions;
 use base_core::update::trial::{self, ResetRecord};
-use base_runtime::update::{ResetRequest, Started};
+use base_runtime::update::{ResetRequest, Started, UpdateFlash};
+use embassy_embedded_hal::adapter::BlockingAsync;
 use esp_bootloader_esp_idf::partitions::{PARTITION_TABLE_MAX_LEN, read_partition_table};
+use esp_hal::peripherals::FLASH;
 use esp_storage::FlashStorage;
+
+use crate::board;
 
 /// The chip images for this build must be made for.
 #[cfg(feature = "esp32")]
@@ -24,13 +28,26 @@ pub const CHIP: Chip = Chip::Esp32c6;
 
 /// The slot the bootloader started, or `None` when the image runs from elsewhere (a
 /// board still on the old partition table): then no update is offered.
-pub fn running_slot(flash: &mut FlashStorage<'_>) -> Option<Slot> {
+fn running_slot(flash: &mut FlashStorage<'_>) -> Option<Slot> {
     let mut buffer = [0u8; PARTITION_TABLE_MAX_LEN];
     let table = read_partition_table(flash, &mut buffer).ok()?;
     let booted = table.booted_partition().ok()??;
     [Slot::Ota0, Slot::Ota1]
         .into_iter()
         .find(|&slot| partitions::slot(slot).offset == booted.offset())
+}
+
+/// The image's first flash write, straight after `esp_hal::init` and the watchdog and
+/// before anything else that can fail (the board's setup, the heap, the scheduler, the
+/// partition lookups): a new image arms its trial here, so that a panic or a hang
+/// anywhere later boots the previous image (docs/flashing.md says what still cannot
+/// be rolled back). The flash is borrowed for this alone, blocking, with nothing else
+/// running. `None` on a board without app slots: no updates there.
+pub async fn arm_first(flash: FLASH<'_>) -> Option<(Slot, Started)> {
+    let mut storage = board::flash_storage(flash);
+    let slot = running_slot(&mut storage)?;
+    let mut whole = UpdateFlash::new(BlockingAsync::new(&mut storage), slot);
+    Some((slot, base_runtime::update::arm(&mut whole).await))
 }
 
 /// The reset-cause record ([`ResetRecord`]) in RTC fast RAM: kept across software and

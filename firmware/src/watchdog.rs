@@ -17,14 +17,27 @@ pub struct LivenessWatchdog {
     status_led: Output<'static>,
 }
 
+/// Arms the watchdog straight after `esp_hal::init` (which stops the bootloader's):
+/// a hang anywhere in the start, the image's arming write first of all, resets the
+/// chip within [`TIMEOUT`]. The RTC block is borrowed only for this; the watchdog
+/// keeps running until [`LivenessWatchdog::start`] takes it over.
+pub fn guard_start(rtc: RTC_TIMER<'_>) {
+    arm(&mut Rtc::new(rtc).rwdt);
+}
+
+fn arm(rwdt: &mut Rwdt) {
+    rwdt.set_timeout(RwdtStage::Stage0, TIMEOUT);
+    rwdt.set_stage_action(RwdtStage::Stage0, RwdtStageAction::ResetSystem);
+    rwdt.enable();
+    rwdt.feed();
+}
+
 impl LivenessWatchdog {
-    /// Arms the watchdog; from here on it must be fed within [`TIMEOUT`].
+    /// Takes the watchdog over (arming it again, fed); from here on it must be fed
+    /// within [`TIMEOUT`].
     pub fn start(rtc: RTC_TIMER<'static>, status_led: AnyPin<'static>) -> Self {
         let mut rwdt = Rtc::new(rtc).rwdt;
-        rwdt.set_timeout(RwdtStage::Stage0, TIMEOUT);
-        rwdt.set_stage_action(RwdtStage::Stage0, RwdtStageAction::ResetSystem);
-        rwdt.enable();
-        rwdt.feed();
+        arm(&mut rwdt);
         Self {
             rwdt,
             status_led: Output::new(status_led, Level::High, OutputConfig::default()),

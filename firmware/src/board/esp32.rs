@@ -12,7 +12,7 @@
 //! pads can connect beside BLE pads: see [`bt_dual_mode`].
 
 use esp_hal::analog::adc::{Adc, AdcConfig, Attenuation};
-use esp_hal::peripherals::{GPIO34, Peripherals};
+use esp_hal::peripherals::{FLASH, GPIO34, Peripherals};
 use esp_hal::rtc_cntl::SocResetReason;
 use esp_storage::FlashStorage;
 
@@ -58,13 +58,17 @@ pub fn take(p: Peripherals) -> Board {
         pc_switch: p.GPIO23.into(),
         status_led: p.GPIO22.into(),
         bt: p.BT,
-        // The second core is not started, but a flash write must never run while it
-        // fetches from flash: park it if it ever runs.
-        flash: FlashStorage::new(p.FLASH).multicore_auto_park(),
+        flash: flash_storage(p.FLASH),
         rtc: p.RTC_TIMER,
         timg0: p.TIMG0,
         scheduler_interrupt: p.FROM_CPU_INTR0,
     }
+}
+
+/// The flash, set up for this chip. The second core is not started, but a flash write
+/// must never run while it fetches from flash: park it if it ever runs.
+pub fn flash_storage(flash: FLASH<'_>) -> FlashStorage<'_> {
+    FlashStorage::new(flash).multicore_auto_park()
 }
 
 /// Whether a watchdog caused the last reset.

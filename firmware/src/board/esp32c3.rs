@@ -10,7 +10,7 @@
 //! which keeps the strap high.
 
 use esp_hal::analog::adc::{Adc, AdcCalCurve, AdcConfig, Attenuation};
-use esp_hal::peripherals::{ADC1, GPIO0, Peripherals};
+use esp_hal::peripherals::{FLASH, ADC1, GPIO0, Peripherals};
 use esp_hal::rtc_cntl::SocResetReason;
 use esp_storage::FlashStorage;
 
@@ -48,11 +48,16 @@ pub fn take(p: Peripherals) -> Board {
         pc_switch: p.GPIO7.into(),
         status_led: p.GPIO9.into(),
         bt: p.BT,
-        flash: FlashStorage::new(p.FLASH),
+        flash: flash_storage(p.FLASH),
         rtc: p.RTC_TIMER,
         timg0: p.TIMG0,
         scheduler_interrupt: p.FROM_CPU_INTR0,
     }
+}
+
+/// The flash: one core, nothing to park.
+pub fn flash_storage(flash: FLASH<'_>) -> FlashStorage<'_> {
+    FlashStorage::new(flash)
 }
 
 /// Whether a watchdog (any of the chip's four) caused the last reset.

@@ -4,7 +4,7 @@
 //! log and probe-rs), GPIO16/17 (UART0), and the strapping pins GPIO4, 5, 8, 9 and 15.
 
 use esp_hal::analog::adc::{Adc, AdcCalCurve, AdcConfig, Attenuation};
-use esp_hal::peripherals::{ADC1, GPIO0, Peripherals};
+use esp_hal::peripherals::{FLASH, ADC1, GPIO0, Peripherals};
 use esp_hal::rtc_cntl::SocResetReason;
 use esp_storage::FlashStorage;
 
@@ -42,11 +42,16 @@ pub fn take(p: Peripherals) -> Board {
         pc_switch: p.GPIO21.into(),
         status_led: p.GPIO6.into(),
         bt: p.BT,
-        flash: FlashStorage::new(p.FLASH),
+        flash: flash_storage(p.FLASH),
         rtc: p.RTC_TIMER,
         timg0: p.TIMG0,
         scheduler_interrupt: p.FROM_CPU_INTR0,
     }
+}
+
+/// The flash: one core, nothing to park.
+pub fn flash_storage(flash: FLASH<'_>) -> FlashStorage<'_> {
+    FlashStorage::new(flash)
 }
 
 /// Whether a watchdog (any of the chip's four) caused the last reset.

@@ -16,7 +16,7 @@ compile_error!(
 mod chip;
 pub mod panic_record;
 
-pub use chip::{Battery, CHIP, reset_by_software, reset_by_watchdog, take};
+pub use chip::{Battery, CHIP, flash_storage, reset_by_software, reset_by_watchdog, take};
 
 use base_core::battery::VoltageDivider;
 use base_runtime::{ActiveLevel, InputSettings};
