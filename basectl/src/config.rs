@@ -15,7 +15,8 @@ use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::Path;
 
-use base_core::registers::{Access, Reg, RegisterInfo, TABLE};
+use base_core::registers::saved_maps::{self, SavedMapError};
+use base_core::registers::{ADDRESS_COUNT, Access, REGMAP_VERSION, Reg, RegisterInfo, TABLE};
 use serde_json::{Value, json};
 
 use crate::base::{Base, Error};
@@ -180,6 +181,72 @@ pub fn parse(text: &str) -> Result<ConfigFile, Error> {
     })
 }
 
+/// Brings a file saved under an older register map to `controller_map`, today's
+/// (`saved_maps` in the core says what differs between maps), and says what it did.
+/// Refused: a file from a newer map, and any other map than the controller's when the
+/// controller's is not the one this basectl knows.
+pub fn bring_to_map(
+    file: &mut ConfigFile,
+    controller_map: u16,
+    out: &mut dyn Write,
+) -> Result<(), Error> {
+    let saved_map = file.regmap_version;
+    if saved_map == controller_map {
+        return Ok(());
+    }
+    let refused = |why: &str| {
+        Error::InvalidInput(format!(
+            "the file was saved from register map {saved_map}, the controller has register \
+             map {controller_map}: {why}; nothing was written"
+        ))
+    };
+    if controller_map != REGMAP_VERSION {
+        return Err(refused(&format!(
+            "this basectl knows register map {REGMAP_VERSION} only"
+        )));
+    }
+    let mut values = [None; ADDRESS_COUNT];
+    for (&address, &value) in &file.values {
+        values[usize::from(address)] = Some(value);
+    }
+    let upgrade = saved_maps::upgrade(saved_map, &mut values).map_err(|error| match error {
+        SavedMapError::NoSuchMap => refused("there is no register map 0"),
+        SavedMapError::Newer(_) => refused("a newer map's registers may mean what it cannot know"),
+    })?;
+    file.values = (0..)
+        .zip(values)
+        .filter_map(|(address, value)| Some((address, value?)))
+        .collect();
+    file.regmap_version = controller_map;
+    writeln!(
+        out,
+        "the file was saved from register map {saved_map}; brought to map {controller_map}:"
+    )?;
+    if upgrade.offset_from_weight_offset {
+        writeln!(
+            out,
+            "  weight_offset_hi, weight_offset_lo from weight_offset (the full scale offset \
+             it names)"
+        )?;
+    }
+    let newer: Vec<&str> = writable()
+        .filter(|register| {
+            Reg::from_address(register.address)
+                .is_some_and(|reg| saved_maps::kept_since(reg) > saved_map)
+                && !file.values.contains_key(&register.address)
+        })
+        .map(|register| register.name)
+        .collect();
+    if !newer.is_empty() {
+        writeln!(
+            out,
+            "  not saved under map {saved_map}: {}",
+            newer.join(", ")
+        )?;
+    }
+    Ok(())
+}
+
 /// The order to write `changes` in so that every state on the way keeps the rules
 /// (`current` is the controller's state); `Err` names the rules the end state breaks.
 pub fn plan(
@@ -233,15 +300,9 @@ pub fn plan(
 pub fn load(base: &mut Base, path: &Path, dry_run: bool, out: &mut dyn Write) -> Result<(), Error> {
     let text = std::fs::read_to_string(path)
         .map_err(|error| Error::InvalidInput(format!("cannot read {}: {error}", path.display())))?;
-    let file = parse(&text)?;
+    let mut file = parse(&text)?;
     let [firmware, regmap] = base.read_registers([Reg::FwVersion, Reg::RegmapVersion])?;
-    if file.regmap_version != regmap {
-        return Err(Error::InvalidInput(format!(
-            "the file was saved from register map {}, the controller has register map {regmap}: \
-             names and ranges may differ; nothing was written",
-            file.regmap_version
-        )));
-    }
+    bring_to_map(&mut file, regmap, out)?;
     if let Some(saved) = &file.firmware_version
         && *saved != version_text(firmware)
     {
@@ -357,6 +418,54 @@ mod tests {
         ] {
             assert!(error.contains(part), "{part:?} in {error}");
         }
+    }
+
+    fn file(map: u16, registers: &str) -> ConfigFile {
+        parse(&format!(
+            r#"{{"basectl_config": 1, "regmap_version": {map}, "registers": [{registers}]}}"#
+        ))
+        .unwrap()
+    }
+
+    #[test]
+    fn a_file_from_an_older_map_is_brought_to_todays_and_says_what_changed() {
+        let mut old = file(2, r#"{"name": "weight_offset", "value": 31000}"#);
+        let mut out = Vec::new();
+        bring_to_map(&mut old, REGMAP_VERSION, &mut out).unwrap();
+        let said = String::from_utf8(out).unwrap();
+        assert_eq!(old.regmap_version, REGMAP_VERSION);
+        assert_eq!(
+            old.values,
+            BTreeMap::from([(19, 31_000), (44, 0), (45, 31_000)])
+        );
+        assert!(
+            said.contains("weight_offset_hi, weight_offset_lo from weight_offset"),
+            "{said}"
+        );
+        assert!(
+            said.contains("not saved under map 2: stop_decel, sec_motor_vel"),
+            "{said}"
+        );
+    }
+
+    #[test]
+    fn a_file_from_a_newer_map_or_for_a_map_basectl_does_not_know_is_refused() {
+        let mut out = Vec::new();
+        let mut newer = file(REGMAP_VERSION + 1, r#"{"name": "rad_r", "value": 150}"#);
+        let error = bring_to_map(&mut newer, REGMAP_VERSION, &mut out).unwrap_err();
+        assert!(
+            error.to_string().contains("a newer map's registers"),
+            "{error}"
+        );
+        let mut older = file(2, r#"{"name": "rad_r", "value": 150}"#);
+        let error = bring_to_map(&mut older, REGMAP_VERSION - 1, &mut out).unwrap_err();
+        assert!(
+            error.to_string().contains(&format!(
+                "this basectl knows register map {REGMAP_VERSION} only"
+            )),
+            "{error}"
+        );
+        assert!(out.is_empty(), "nothing said before a refusal");
     }
 
     #[test]

@@ -7,6 +7,7 @@
 //! basectl binary; so the test binary runs basectl's `main` in a child process of
 //! itself (see [`basectl_child`]), the same function `basectl`'s `main.rs` calls.
 
+use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader, Write};
 use std::process::{Child, Command, Output, Stdio};
 use std::sync::Arc;
@@ -15,7 +16,8 @@ use std::sync::mpsc::{Receiver, channel};
 use std::thread;
 use std::time::{Duration, Instant};
 
-use base_core::registers::REGMAP_VERSION;
+use base_core::registers::saved_maps;
+use base_core::registers::{Access, REGMAP_VERSION, Reg, RegisterInfo, TABLE};
 use virtual_robot::process::SimulatorProcess;
 
 const CHILD_ARGS: &str = "BASECTL_TEST_CHILD_ARGS";
@@ -367,6 +369,109 @@ fn config_save_then_factory_reset_then_config_load_restores_every_register() {
         "{error}"
     );
     assert_eq!(run_ok(&with(&["--json", "reg", "dump"])), before);
+}
+
+/// A value of `register` other than its default that its range allows, one step away.
+fn not_default(register: &RegisterInfo) -> u16 {
+    [
+        register.default.wrapping_add(1),
+        register.default.wrapping_sub(1),
+    ]
+    .into_iter()
+    .chain(register.min..=register.max)
+    .find(|&value| value != register.default && register.accepts(value))
+    .expect("a register with one value only is not read-write")
+}
+
+/// The saved values of a `config save` file, by address.
+fn saved_values(text: &str) -> BTreeMap<u8, u16> {
+    let document: serde_json::Value = serde_json::from_str(text).expect("JSON");
+    document["registers"]
+        .as_array()
+        .expect("a register list")
+        .iter()
+        .map(|entry| {
+            let address = entry["address"].as_u64().unwrap();
+            let value = entry["value"].as_u64().unwrap();
+            (
+                u8::try_from(address).unwrap(),
+                u16::try_from(value).unwrap(),
+            )
+        })
+        .collect()
+}
+
+/// A file `config save` of an older basectl wrote under each earlier register map,
+/// every register of that map away from its default: loaded on today's controller,
+/// every value is kept, the full scale offset comes from `weight_offset` where the
+/// map had no 44/45, and the registers the map did not have keep their values.
+#[test]
+fn config_files_saved_under_every_older_register_map_load_and_keep_every_value() {
+    let simulator = start_simulator();
+    let socketcand = simulator.socketcand().to_string();
+    let with = |args: &[&str]| -> Vec<String> {
+        ["--channel", socketcand.as_str()]
+            .iter()
+            .chain(args)
+            .map(|arg| (*arg).to_owned())
+            .collect()
+    };
+    let file = simulator.directory().join("old.json");
+    let file = file.to_str().unwrap();
+    let saved = simulator.directory().join("saved.json");
+    let saved = saved.to_str().unwrap();
+    for map in 1..REGMAP_VERSION {
+        run_ok(&with(&["reg", "restore", "--yes"]));
+        let in_map: Vec<&RegisterInfo> = TABLE
+            .iter()
+            .filter(|register| register.access == Access::ReadWrite)
+            .filter(|register| {
+                Reg::from_address(register.address)
+                    .is_some_and(|reg| saved_maps::kept_since(reg) <= map)
+            })
+            .collect();
+        let entries: Vec<serde_json::Value> = in_map
+            .iter()
+            .map(|register| {
+                serde_json::json!({
+                    "name": register.name,
+                    "address": register.address,
+                    "value": not_default(register),
+                    "unit": register.unit,
+                })
+            })
+            .collect();
+        let document = serde_json::json!({
+            "basectl_config": 1, "firmware_version": "0.1", "regmap_version": map,
+            "registers": entries,
+        });
+        std::fs::write(file, document.to_string()).unwrap();
+
+        let loaded = run_ok(&with(&["config", "load", file]));
+        assert!(
+            loaded.contains(&format!(
+                "saved from register map {map}; brought to map {REGMAP_VERSION}"
+            )),
+            "{loaded}"
+        );
+        run_ok(&with(&["config", "save", saved]));
+        let now = saved_values(&std::fs::read_to_string(saved).unwrap());
+        let weight_offset = not_default(Reg::WeightOffset.info());
+        for register in TABLE.iter().filter(|r| r.access == Access::ReadWrite) {
+            let address = register.address;
+            let expected = match Reg::from_address(address) {
+                Some(Reg::WeightOffsetHi) if map < 4 => 0,
+                Some(Reg::WeightOffsetLo) if map < 4 => weight_offset,
+                Some(reg) if saved_maps::kept_since(reg) > map => register.default,
+                _ => not_default(register),
+            };
+            assert_eq!(
+                now[&address], expected,
+                "map {map}: {} after the load\n{loaded}",
+                register.name
+            );
+        }
+    }
 }
 
 #[test]

@@ -15,6 +15,7 @@
 
 mod record;
 mod remote_info;
+pub mod saved_maps;
 mod table;
 
 pub use record::{
@@ -453,9 +454,9 @@ impl Registers {
                 report.rejected = report.rejected.saturating_add(1);
                 from_store &= !words;
             }
-            let legacy = registers.get(Reg::WeightOffset);
-            registers.values[usize::from(Reg::WeightOffsetHi.address())] = 0;
-            registers.values[usize::from(Reg::WeightOffsetLo.address())] = legacy;
+            let [high, low] = saved_maps::offset_words_from(registers.get(Reg::WeightOffset));
+            registers.values[usize::from(Reg::WeightOffsetHi.address())] = high;
+            registers.values[usize::from(Reg::WeightOffsetLo.address())] = low;
         }
 
         // Restoring a rule's registers can only break a rule sharing one of them, so
