@@ -56,8 +56,7 @@ static FLASH: StaticCell<SharedFlash> = StaticCell::new();
 #[esp_rtos::main]
 async fn main(_spawner: embassy_executor::Spawner) {
     // The radio wants the fastest clock.
-    let mut peripherals =
-        esp_hal::init(esp_hal::Config::default().with_cpu_clock(CpuClock::max()));
+    let mut peripherals = esp_hal::init(esp_hal::Config::default().with_cpu_clock(CpuClock::max()));
     // First of all, before anything that can fail: esp_hal::init stopped the
     // bootloader's watchdog, so ours guards the start from here, and a new image arms
     // its trial, so that a panic or a hang anywhere below boots the previous image.

@@ -294,6 +294,15 @@ fn monitor_a_python_logger_register_commands_and_a_calibration_run_at_once() {
     );
 }
 
+/// basectl's arguments `args` on the simulator's socketcand server at `socketcand`.
+fn on_channel(socketcand: &str, args: &[&str]) -> Vec<String> {
+    ["--channel", socketcand]
+        .iter()
+        .chain(args)
+        .map(|arg| (*arg).to_owned())
+        .collect()
+}
+
 /// basectl's stdout after a successful run.
 fn run_ok(args: &[impl AsRef<str>]) -> String {
     let args: Vec<&str> = args.iter().map(AsRef::as_ref).collect();
@@ -312,13 +321,7 @@ fn run_ok(args: &[impl AsRef<str>]) -> String {
 fn config_save_then_factory_reset_then_config_load_restores_every_register() {
     let simulator = start_simulator();
     let socketcand = simulator.socketcand().to_string();
-    let with = |args: &[&str]| -> Vec<String> {
-        ["--channel", socketcand.as_str()]
-            .iter()
-            .chain(args)
-            .map(|arg| (*arg).to_owned())
-            .collect()
-    };
+    let with = |args: &[&str]| on_channel(&socketcand, args);
     // A commissioned robot: values away from the defaults, the battery limits both
     // above the default full voltage (so they must be written in the right order).
     for (register, value) in [
@@ -409,13 +412,7 @@ fn saved_values(text: &str) -> BTreeMap<u8, u16> {
 fn config_files_saved_under_every_older_register_map_load_and_keep_every_value() {
     let simulator = start_simulator();
     let socketcand = simulator.socketcand().to_string();
-    let with = |args: &[&str]| -> Vec<String> {
-        ["--channel", socketcand.as_str()]
-            .iter()
-            .chain(args)
-            .map(|arg| (*arg).to_owned())
-            .collect()
-    };
+    let with = |args: &[&str]| on_channel(&socketcand, args);
     let file = simulator.directory().join("old.json");
     let file = file.to_str().unwrap();
     let saved = simulator.directory().join("saved.json");
@@ -816,13 +813,7 @@ fn register_reader(address: String, stop: Arc<AtomicBool>) -> thread::JoinHandle
 fn config_save_and_load_finish_exact_while_two_other_programs_read_registers() {
     let simulator = start_simulator();
     let socketcand = simulator.socketcand().to_string();
-    let with = |args: &[&str]| -> Vec<String> {
-        ["--channel", socketcand.as_str()]
-            .iter()
-            .chain(args)
-            .map(|arg| (*arg).to_owned())
-            .collect()
-    };
+    let with = |args: &[&str]| on_channel(&socketcand, args);
     run_ok(&with(&["reg", "set", "rad_r", "150"]));
     let quiet_file = simulator.directory().join("quiet.json");
     let quiet_file = quiet_file.to_str().unwrap();

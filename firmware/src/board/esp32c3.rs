@@ -10,7 +10,7 @@
 //! which keeps the strap high.
 
 use esp_hal::analog::adc::{Adc, AdcCalCurve, AdcConfig, Attenuation};
-use esp_hal::peripherals::{FLASH, ADC1, GPIO0, Peripherals};
+use esp_hal::peripherals::{ADC1, FLASH, GPIO0, Peripherals};
 use esp_hal::rtc_cntl::SocResetReason;
 use esp_storage::FlashStorage;
 

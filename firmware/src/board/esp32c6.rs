@@ -4,7 +4,7 @@
 //! log and probe-rs), GPIO16/17 (UART0), and the strapping pins GPIO4, 5, 8, 9 and 15.
 
 use esp_hal::analog::adc::{Adc, AdcCalCurve, AdcConfig, Attenuation};
-use esp_hal::peripherals::{FLASH, ADC1, GPIO0, Peripherals};
+use esp_hal::peripherals::{ADC1, FLASH, GPIO0, Peripherals};
 use esp_hal::rtc_cntl::SocResetReason;
 use esp_storage::FlashStorage;
 
