@@ -97,9 +97,18 @@ struct Drive {
     against_since: Option<(Us, f64)>,
     /// The earliest moment the check may count from: after the order changed sign, a
     /// healthy wheel on the commanded ramp needs this long to come round (from the
-    /// old target or the speed it had, whichever is farther, to `AGAINST_RPM` on the
-    /// new side; docs/behaviour.md: "every speed the commanded ramp passed through").
+    /// old target, the speed it had or where the commanded ramp had got to, whichever
+    /// is farther, to `AGAINST_RPM` on the new side; docs/behaviour.md: "every speed
+    /// the commanded ramp passed through").
     against_from: Us,
+    /// Where the commanded ramps had got to when the order last changed (r/min in the
+    /// order's direction) and when: each order from the moment it came, at its rate,
+    /// from where the one before had got to, never corrected by the shaft's speed, as
+    /// the controller's own model has it (core/src/plausibility.rs, `Commanded`). A
+    /// reversed shaft leaves that model behind: after a stop and a new order, the
+    /// ramp may still be far on the old side while the shaft is near zero.
+    ramp_rpm: f64,
+    ramp_at: Us,
 }
 
 impl Drive {
@@ -123,6 +132,24 @@ impl Drive {
             reversed_motion: false,
             against_since: None,
             against_from: 0,
+            ramp_rpm: 0.0,
+            ramp_at: 0,
+        }
+    }
+
+    /// Where the commanded ramp is at `at`: on from `ramp_rpm` towards the order's
+    /// target at its rate; zero while the drive is de-excited (the controller ramps to
+    /// zero before it lets go, and sets its model standing when it sets the drives up).
+    fn ramp_rpm_at(&self, at: Us) -> f64 {
+        if !self.order.excited() {
+            return 0.0;
+        }
+        let step = self.order.decel_rpm_per_s * at.saturating_sub(self.ramp_at) as f64 / 1e6;
+        let target = self.order.target_rpm;
+        if self.ramp_rpm < target {
+            (self.ramp_rpm + step).min(target)
+        } else {
+            (self.ramp_rpm - step).max(target)
         }
     }
 
@@ -666,11 +693,26 @@ impl Oracle {
 
     fn order(&mut self, at: Us, index: usize, change: &MotorOrderChange) {
         let before = self.drives[index].order;
+        let ramp = self.drives[index].ramp_rpm_at(at);
         let order = change.order;
         self.drives[index].order = order;
         self.drives[index].order_at = at;
-        if order.target_rpm != 0.0 && before.target_rpm.signum() != order.target_rpm.signum() {
-            let from = before.target_rpm.abs().max(change.speed_rpm.abs());
+        self.drives[index].ramp_rpm = if order.excited() { ramp } else { 0.0 };
+        self.drives[index].ramp_at = at;
+        // Where the commanded ramp had got to, not a stop's zero target nor a reversed
+        // shaft's speed, is where the command comes round from: a PC that withdraws and
+        // drives the other way a moment later turns round a ramp still far on the old
+        // side, however near zero the reversed shaft already is (seed 126: the ramp at
+        // 450 r/min, the shaft at 40; the controller judges by the ramp).
+        let ramp_comes_round = ramp * order.target_rpm < 0.0;
+        if order.target_rpm != 0.0
+            && (before.target_rpm.signum() != order.target_rpm.signum() || ramp_comes_round)
+        {
+            let from = before
+                .target_rpm
+                .abs()
+                .max(change.speed_rpm.abs())
+                .max(ramp.abs());
             let rate = order.decel_rpm_per_s.max(1.0);
             let ramp_us = (from + bounds::AGAINST_RPM) / rate * 1e6;
             self.drives[index].against_from = at + ramp_us as Us;
@@ -1531,6 +1573,14 @@ impl Oracle {
                 let index = usize::from(slave.saturating_sub(1)).min(1);
                 self.drives[index].feedback_lie = active;
                 self.drives[index].feedback_at = Some(at);
+                // The command did not change, only the direction the shaft takes it in:
+                // the order (already turned round, the drives log it first) and the
+                // commanded ramp are in the shaft's direction, so the ramp turns round too.
+                if self.drives[index].reversed_motion != active {
+                    let ramp = self.drives[index].ramp_rpm_at(at);
+                    self.drives[index].ramp_rpm = -ramp;
+                    self.drives[index].ramp_at = at;
+                }
                 self.drives[index].reversed_motion = active;
                 self.drives[index].against_since = None;
             }
