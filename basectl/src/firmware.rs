@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 
 use base_core::can::update::{
     BeginFlags, DATA_BYTES, DataFrame, Phase, Step, UpdateCommand, UpdateError, UpdateReply,
-    VERSION_CHUNK, VERSION_CHUNKS,
+    VersionAssembler,
 };
 use base_core::can::{Command, RawFrame};
 use base_core::can::{ControlSource, Mode};
@@ -98,9 +98,8 @@ pub fn query(bus: &mut dyn Bus, timeout: Duration) -> Result<Running, Error> {
     bus.send(&UpdateCommand::Query.encode())?;
     let deadline = Instant::now() + timeout;
     let mut state = None;
-    let mut text = [0u8; VERSION_CHUNK * VERSION_CHUNKS as usize];
-    let mut parts = 0u8;
-    while state.is_none() || parts != (1 << VERSION_CHUNKS) - 1 {
+    let mut version = VersionAssembler::default();
+    loop {
         match receive_reply(bus, deadline)? {
             None => {
                 return Err(Error::NoReply {
@@ -113,23 +112,25 @@ pub fn query(bus: &mut dyn Bus, timeout: Duration) -> Result<Running, Error> {
                 session,
                 running_slot,
                 ..
-            }) => state = Some((phase, session, running_slot)),
-            Some(UpdateReply::Version { part, text: chunk }) if part < VERSION_CHUNKS => {
-                let at = usize::from(part) * VERSION_CHUNK;
-                text[at..at + VERSION_CHUNK].copy_from_slice(&chunk);
-                parts |= 1 << part;
+            }) => {
+                state = Some((phase, session, running_slot));
+                version.restart();
+            }
+            Some(UpdateReply::Version { part, text }) => {
+                if let (Some((phase, session, slot)), Some(whole)) =
+                    (state, version.add(part, &text))
+                {
+                    return Ok(Running {
+                        phase,
+                        session,
+                        slot,
+                        version: String::from_utf8_lossy(whole).into_owned(),
+                    });
+                }
             }
             Some(_) => {}
         }
     }
-    let (phase, session, slot) = state.expect("loop ends with a state");
-    let end = text.iter().position(|&b| b == 0).unwrap_or(text.len());
-    Ok(Running {
-        phase,
-        session,
-        slot,
-        version: String::from_utf8_lossy(&text[..end]).into_owned(),
-    })
 }
 
 fn refused(step: &str, error: UpdateError, detail: u8) -> Error {

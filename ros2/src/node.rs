@@ -9,7 +9,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use base_core::can::update::{UpdateCommand, UpdateReply, VERSION_CHUNK, VERSION_CHUNKS};
+use base_core::can::update::{UpdateCommand, UpdateReply, VersionAssembler};
 use base_core::can::{Command, Mode, RawFrame, Rejection, Report, Status};
 use base_core::registers::{BLE_OFF_AFTER_HOST_STOPS, BootInfo, Reg, UpdateReset};
 use basectl::bus::{Bus, BusError};
@@ -878,37 +878,20 @@ pub struct BridgeCounts {
 
 /// The running image's version from the update's replies: every STATE is followed by
 /// the version in parts, whoever asked (docs/protocol.md, "Firmware update").
-#[derive(Debug)]
+#[derive(Debug, Default)]
 struct ImageVersion {
-    text: [u8; VERSION_CHUNK * VERSION_CHUNKS as usize],
-    /// The parts seen since the last STATE, one bit each.
-    parts: u8,
+    parts: VersionAssembler,
+    /// The last whole version: it stays until a whole one replaces it.
     version: Option<String>,
-}
-
-impl Default for ImageVersion {
-    fn default() -> Self {
-        Self {
-            text: [0; VERSION_CHUNK * VERSION_CHUNKS as usize],
-            parts: 0,
-            version: None,
-        }
-    }
 }
 
 impl ImageVersion {
     fn on_reply(&mut self, reply: &UpdateReply) {
         match reply {
-            UpdateReply::State { .. } => self.parts = 0,
-            UpdateReply::Version { part, text } if *part < VERSION_CHUNKS => {
-                let at = usize::from(*part) * VERSION_CHUNK;
-                self.text[at..at + VERSION_CHUNK].copy_from_slice(text);
-                self.parts |= 1 << part;
-                if self.parts == (1 << VERSION_CHUNKS) - 1 {
-                    let end = self.text.iter().position(|&b| b == 0);
-                    let text = &self.text[..end.unwrap_or(self.text.len())];
-                    self.version = Some(String::from_utf8_lossy(text).into_owned());
-                    self.parts = 0;
+            UpdateReply::State { .. } => self.parts.restart(),
+            UpdateReply::Version { part, text } => {
+                if let Some(whole) = self.parts.add(*part, text) {
+                    self.version = Some(String::from_utf8_lossy(whole).into_owned());
                 }
             }
             _ => {}
@@ -1094,6 +1077,7 @@ pub fn diagnose(status: &Status, hardware_id: &str, counts: BridgeCounts) -> Dia
 #[cfg(test)]
 mod tests {
     use super::*;
+    use base_core::can::update::{VERSION_CHUNK, VERSION_CHUNKS};
     use base_core::can::{Faults, StatusFlags};
 
     #[test]

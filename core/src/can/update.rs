@@ -33,6 +33,46 @@ pub const VERSION_CHUNK: usize = 6;
 /// Version replies that carry the whole 32-byte version text.
 pub const VERSION_CHUNKS: u8 = 6;
 
+/// The running version from its version replies: a STATE starts them, each reply
+/// carries one part, and the text is whole once every part came, NUL padding cut.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct VersionAssembler {
+    text: [u8; VERSION_CHUNK * VERSION_CHUNKS as usize],
+    /// The parts seen since the last restart, one bit each.
+    parts: u8,
+}
+
+impl Default for VersionAssembler {
+    fn default() -> Self {
+        Self {
+            text: [0; VERSION_CHUNK * VERSION_CHUNKS as usize],
+            parts: 0,
+        }
+    }
+}
+
+impl VersionAssembler {
+    /// A STATE came: its version parts follow.
+    pub fn restart(&mut self) {
+        self.parts = 0;
+    }
+
+    /// Takes part `part`; the whole text once every part since the last restart came.
+    pub fn add(&mut self, part: u8, chunk: &[u8; VERSION_CHUNK]) -> Option<&[u8]> {
+        if part >= VERSION_CHUNKS {
+            return None;
+        }
+        let at = usize::from(part) * VERSION_CHUNK;
+        self.text[at..at + VERSION_CHUNK].copy_from_slice(chunk);
+        self.parts |= 1 << part;
+        if self.parts != (1 << VERSION_CHUNKS) - 1 {
+            return None;
+        }
+        let end = self.text.iter().position(|&b| b == 0);
+        Some(&self.text[..end.unwrap_or(self.text.len())])
+    }
+}
+
 /// BEGIN flags (byte 5).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -518,6 +558,41 @@ impl UpdateReply {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_version_is_whole_only_once_every_part_since_the_last_state_came() {
+        let version = b"0.1.0+412.g7efef4d";
+        let part = |index: u8| {
+            let mut text = [0u8; VERSION_CHUNK];
+            let at = usize::from(index) * VERSION_CHUNK;
+            for (byte, source) in text.iter_mut().zip(version.iter().skip(at)) {
+                *byte = *source;
+            }
+            text
+        };
+        let mut assembler = VersionAssembler::default();
+        for index in 0..VERSION_CHUNKS - 1 {
+            assert_eq!(assembler.add(index, &part(index)), None);
+        }
+        assert_eq!(
+            assembler.add(VERSION_CHUNKS, &part(0)),
+            None,
+            "no such part"
+        );
+        assembler.restart();
+        assert_eq!(
+            assembler.add(VERSION_CHUNKS - 1, &part(VERSION_CHUNKS - 1)),
+            None
+        );
+        for index in 0..VERSION_CHUNKS - 1 {
+            assembler.add(index, &part(index));
+        }
+        assert_eq!(
+            assembler.add(0, &part(0)),
+            Some(&version[..]),
+            "whole, the NUL padding cut"
+        );
+    }
 
     #[test]
     fn every_command_survives_encode_and_decode() {
