@@ -15,6 +15,7 @@ fn main() {
     );
     println!("cargo:rustc-env=BASE_FIRMWARE_VERSION={version}");
     println!("cargo:rerun-if-env-changed=BASE_FIRMWARE_VERSION");
+    write_update_trust();
 
     let arch = std::env::var("CARGO_CFG_TARGET_ARCH").unwrap_or_default();
     if arch == "xtensa" {
@@ -35,6 +36,49 @@ fn main() {
     // embedded-test's macro looks at this cfg.
     println!("cargo::rustc-check-cfg=cfg(rust_analyzer)");
     println!("cargo:rerun-if-env-changed=CAN_BITRATE_KBIT");
+}
+
+/// `OUT_DIR/update_trust.rs` (included by `src/update.rs`): the public keys whose
+/// signed images an update may activate, from `BASE_UPDATE_KEY` (PEM files, as
+/// `basectl firmware keygen` writes them, separated by `:`; none: a development build,
+/// which takes unsigned images), and the image's security version from
+/// `BASE_SECURITY_VERSION` (0 to 255, default 0), which goes into its app descriptor.
+fn write_update_trust() {
+    println!("cargo:rerun-if-env-changed=BASE_UPDATE_KEY");
+    println!("cargo:rerun-if-env-changed=BASE_SECURITY_VERSION");
+    let keys: Vec<[u8; 32]> = std::env::var("BASE_UPDATE_KEY")
+        .unwrap_or_default()
+        .split(':')
+        .filter(|path| !path.is_empty())
+        .map(|path| {
+            println!("cargo:rerun-if-changed={path}");
+            let text = std::fs::read_to_string(path)
+                .unwrap_or_else(|error| panic!("BASE_UPDATE_KEY {path}: {error}"));
+            let key = ed25519_compact::PublicKey::from_pem(&text)
+                .and_then(|key| key.validate().map(|()| key))
+                .unwrap_or_else(|error| {
+                    panic!("BASE_UPDATE_KEY {path}: not an ed25519 public key in PEM: {error}")
+                });
+            *key
+        })
+        .collect();
+    let security_version: u32 = match std::env::var("BASE_SECURITY_VERSION") {
+        Ok(text) => text
+            .parse()
+            .ok()
+            .filter(|version| *version <= 255)
+            .unwrap_or_else(|| panic!("BASE_SECURITY_VERSION {text:?}: a number from 0 to 255")),
+        Err(_) => 0,
+    };
+    let out = std::path::PathBuf::from(std::env::var("OUT_DIR").expect("cargo sets it"));
+    let code = format!(
+        "/// The public keys of signed images an update may activate.\n\
+         pub const UPDATE_KEYS: &[[u8; 32]] = &{keys:?};\n\
+         /// This image's security version: no update goes below it unless its owner\n\
+         /// signed the downgrade.\n\
+         pub const SECURITY_VERSION: u32 = {security_version};\n"
+    );
+    std::fs::write(out.join("update_trust.rs"), code).expect("OUT_DIR is writable");
 }
 
 /// The version the image carries (its app descriptor, QUERY's VERSION, `basectl

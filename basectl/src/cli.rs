@@ -13,6 +13,7 @@ use crate::drive::{self, Speeds};
 use crate::heartbeat;
 use crate::monitor::{self, Until};
 use crate::registers;
+use crate::signing;
 use crate::{config, firmware, info, log};
 
 /// Commissioning of the base controller over CAN: monitor, drive, registers and the
@@ -142,6 +143,21 @@ pub enum FirmwareCommand {
         #[arg(long)]
         save_registers: Option<std::path::PathBuf>,
     },
+    /// Make a new owner's key for signed images: the secret key in KEY (readable by
+    /// you only), the public key in KEY.pub (docs/flashing.md, "Signed images").
+    Keygen { key: std::path::PathBuf },
+    /// Sign the image IN with the secret key and write the signed image to OUT.
+    Sign {
+        /// The secret key (PKCS#8 PEM, from `keygen` or `openssl genpkey -algorithm ed25519`).
+        #[arg(long)]
+        key: std::path::PathBuf,
+        input: std::path::PathBuf,
+        output: std::path::PathBuf,
+        /// Let this image go below the running image's security version: the owner's
+        /// explicit downgrade.
+        #[arg(long)]
+        allow_security_downgrade: bool,
+    },
     /// Keep the image on trial.
     Confirm,
     /// Reject the image on trial: the previous one starts.
@@ -268,8 +284,18 @@ pub fn run(cli: Cli, out: &mut dyn Write) -> Result<(), Error> {
     if let CliCommand::Reg(RegCommand::List) = cli.command {
         return Ok(registers::list(out)?);
     }
-    if let CliCommand::Firmware(FirmwareCommand::Check { file }) = &cli.command {
-        return firmware::check(file, cli.json, out);
+    match &cli.command {
+        CliCommand::Firmware(FirmwareCommand::Check { file }) => {
+            return firmware::check(file, cli.json, out);
+        }
+        CliCommand::Firmware(FirmwareCommand::Keygen { key }) => return signing::keygen(key, out),
+        CliCommand::Firmware(FirmwareCommand::Sign {
+            key,
+            input,
+            output,
+            allow_security_downgrade,
+        }) => return signing::sign(key, input, output, *allow_security_downgrade, out),
+        _ => {}
     }
     // Argument errors first: nothing is sent for a command that cannot run.
     let register_value = match &cli.command {
@@ -303,7 +329,9 @@ pub fn run(cli: Cli, out: &mut dyn Write) -> Result<(), Error> {
         let bus = bus.as_mut();
         return match command {
             FirmwareCommand::Info => firmware::info(bus, timeout, cli.json, out),
-            FirmwareCommand::Check { .. } => unreachable!("checked above, without a bus"),
+            FirmwareCommand::Check { .. }
+            | FirmwareCommand::Keygen { .. }
+            | FirmwareCommand::Sign { .. } => unreachable!("run above, without a bus"),
             FirmwareCommand::Update {
                 file,
                 yes,

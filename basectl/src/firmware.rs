@@ -23,12 +23,14 @@ use base_core::update::partitions::SLOT_LEN;
 use base_core::update::session::{
     DIGEST_PARTS, SUB_BLOCK, WINDOW_LEN, is_older, window_count, window_crc, window_len,
 };
+use base_core::update::signature::{self, PublicKey, SignatureError, Trust};
 use serde_json::json;
 use sha2::{Digest, Sha256};
 
 use crate::base::{Base, Error};
 use crate::bus::{Bus, exit};
 use crate::config;
+use crate::signing::key_id;
 
 use base_core::update::PROJECT;
 
@@ -45,7 +47,57 @@ pub struct ImageFile {
     pub bytes: Vec<u8>,
     pub chip: Chip,
     pub version: String,
+    /// The app descriptor's `secure_version`.
+    pub security_version: u32,
+    pub signed: Signed,
     pub sha256: [u8; 32],
+}
+
+/// Who signed an image file, as far as the file itself tells: whether the controller
+/// trusts that key only the controller knows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Signed {
+    No,
+    /// Signed, and the signature matches the image and flags.
+    By {
+        key: PublicKey,
+        downgrade: bool,
+    },
+    /// A signature block whose signature does not match: changed after signing.
+    Broken,
+}
+
+impl Signed {
+    fn of(bytes: &[u8]) -> Self {
+        let mut whole = image::WholeImageCheck::new();
+        whole.feed(bytes);
+        let (Some(digest), Some(block)) = (whole.digest(), signature::block_after(&whole)) else {
+            return Self::No;
+        };
+        match signature::check(Trust::Keys(&[block.key]), Some(&block), digest, 0, 0) {
+            Ok(_) => Self::By {
+                key: block.key,
+                downgrade: block.allows_downgrade(),
+            },
+            Err(_) => Self::Broken,
+        }
+    }
+
+    fn describe(&self) -> String {
+        match self {
+            Self::No => "unsigned".into(),
+            Self::By { key, downgrade } => format!(
+                "signed with key {}{}",
+                key_id(key),
+                if *downgrade {
+                    ", allowed below the running security version"
+                } else {
+                    ""
+                }
+            ),
+            Self::Broken => "signature BROKEN (changed after signing)".into(),
+        }
+    }
 }
 
 /// The offline check: an app image of this project, for a chip we build for, that
@@ -67,6 +119,8 @@ pub fn check_file(path: &Path) -> Result<ImageFile, Error> {
     Ok(ImageFile {
         chip,
         version: info.version.as_str().to_owned(),
+        security_version: info.security_version,
+        signed: Signed::of(&bytes),
         sha256: Sha256::digest(&bytes).into(),
         bytes,
     })
@@ -79,6 +133,23 @@ pub struct Running {
     pub session: u8,
     pub slot: u8,
     pub version: String,
+    /// Only signed images activate (a controller before signed images: false).
+    pub signatures_required: bool,
+    pub security_version: u8,
+}
+
+impl Running {
+    /// What `info` says about updates: loud for a development build.
+    pub fn trust_text(&self) -> String {
+        if self.signatures_required {
+            format!(
+                "signed images only (security version {})",
+                self.security_version
+            )
+        } else {
+            "DEVELOPMENT BUILD: updates over CAN accept unsigned images".into()
+        }
+    }
 }
 
 fn receive_reply(bus: &mut dyn Bus, deadline: Instant) -> Result<Option<UpdateReply>, Error> {
@@ -111,20 +182,32 @@ pub fn query(bus: &mut dyn Bus, timeout: Duration) -> Result<Running, Error> {
                 phase,
                 session,
                 running_slot,
+                signatures_required,
+                security_version,
                 ..
             }) => {
-                state = Some((phase, session, running_slot));
+                state = Some((
+                    phase,
+                    session,
+                    running_slot,
+                    signatures_required,
+                    security_version,
+                ));
                 version.restart();
             }
             Some(UpdateReply::Version { part, text }) => {
-                if let (Some((phase, session, slot)), Some(whole)) =
-                    (state, version.add(part, &text))
+                if let (
+                    Some((phase, session, slot, signatures_required, security_version)),
+                    Some(whole),
+                ) = (state, version.add(part, &text))
                 {
                     return Ok(Running {
                         phase,
                         session,
                         slot,
                         version: String::from_utf8_lossy(whole).into_owned(),
+                        signatures_required,
+                        security_version,
                     });
                 }
             }
@@ -134,10 +217,18 @@ pub fn query(bus: &mut dyn Bus, timeout: Duration) -> Result<Running, Error> {
 }
 
 fn refused(step: &str, error: UpdateError, detail: u8) -> Error {
-    let detail = if error == UpdateError::BadImage {
-        format!(" (image check {detail})")
-    } else {
-        String::new()
+    let detail = match error {
+        UpdateError::BadImage => format!(" (image check {detail})"),
+        UpdateError::Untrusted => match detail {
+            1 => " (the image is not signed: `basectl firmware sign`)".into(),
+            2 => " (signed with a key this controller does not trust)".into(),
+            _ => " (the signature does not match the image: changed after signing)".into(),
+        },
+        UpdateError::SecurityDowngrade => format!(
+            " (below the running security version {detail}: the owner signs a downgrade with \
+             `basectl firmware sign --allow-security-downgrade`)"
+        ),
+        _ => String::new(),
     };
     Error::Aborted(format!(
         "the base controller refused {step}: {}{detail}",
@@ -374,6 +465,37 @@ fn health_check(
     Err(last)
 }
 
+/// Why a controller that requires signatures will refuse `file` at FINISH, known
+/// before a byte is sent; `None` when it may pass (only the controller knows its keys).
+fn untrusted_here(file: &ImageFile, running: &Running) -> Option<String> {
+    if !running.signatures_required {
+        return None;
+    }
+    let error = match file.signed {
+        Signed::No => SignatureError::NotSigned,
+        Signed::Broken => SignatureError::BadSignature,
+        Signed::By { downgrade, .. } => {
+            let floor = u32::from(running.security_version);
+            if file.security_version >= floor || downgrade {
+                return None;
+            }
+            SignatureError::SecurityDowngrade
+        }
+    };
+    Some(match error {
+        SignatureError::NotSigned => {
+            "it takes only signed images: sign it with `basectl firmware sign --key KEY IN OUT`"
+                .into()
+        }
+        SignatureError::SecurityDowngrade => format!(
+            "its security version {} is below the running {}: only an image the owner signed \
+             with --allow-security-downgrade goes below",
+            file.security_version, running.security_version
+        ),
+        _ => "its signature does not match the image: it was changed after signing".into(),
+    })
+}
+
 pub fn update(
     bus: &mut dyn Bus,
     plan: &UpdatePlan,
@@ -396,6 +518,12 @@ pub fn update(
             ));
         }
     }
+    if let Some(why) = untrusted_here(&file, &running) {
+        return Err(Error::InvalidInput(format!(
+            "{}: the controller would refuse it: {why}",
+            plan.file.display()
+        )));
+    }
     if is_older(&file.version, &running.version) && !plan.allow_downgrade {
         return Err(Error::InvalidInput(format!(
             "{} is older than the running {}: --allow-downgrade",
@@ -411,13 +539,17 @@ pub fn update(
     if !plan.json {
         writeln!(
             out,
-            "firmware {} (slot {}) -> {} ({}, {} KiB)",
+            "firmware {} (slot {}) -> {} ({}, {} KiB, {})",
             running.version,
             running.slot,
             file.version,
             file.chip.name(),
-            file.bytes.len() / 1024
+            file.bytes.len() / 1024,
+            file.signed.describe()
         )?;
+        if !running.signatures_required {
+            writeln!(out, "warning: {}", running.trust_text())?;
+        }
     }
     if !plan.yes && !ask_yes("update now? [y/N] ")? {
         return Err(Error::Aborted("not updated".into()));
@@ -636,12 +768,15 @@ pub fn info(
                 "slot": running.slot,
                 "phase": format!("{:?}", running.phase),
                 "on_trial": running.phase == Phase::OnTrial,
+                "signatures_required": running.signatures_required,
+                "security_version": running.security_version,
             })
         )?;
     } else {
         writeln!(out, "firmware   {}", running.version)?;
         writeln!(out, "slot       ota_{}", running.slot)?;
         writeln!(out, "update     {:?}", running.phase)?;
+        writeln!(out, "updates    {}", running.trust_text())?;
     }
     Ok(())
 }
@@ -658,18 +793,37 @@ pub fn check(path: &Path, json_output: bool, out: &mut dyn Write) -> Result<(), 
                 "chip": file.chip.name(),
                 "bytes": file.bytes.len(),
                 "sha256": digest,
-                "ok": true,
+                "security_version": file.security_version,
+                "signed_by": match file.signed {
+                    Signed::By { key, .. } => Some(key.iter().map(|b| format!("{b:02x}")).collect::<String>()),
+                    _ => None,
+                },
+                "signature_broken": file.signed == Signed::Broken,
+                "ok": file.signed != Signed::Broken,
             })
         )?;
     } else {
         writeln!(
             out,
-            "{}: firmware {} for {}, {} bytes, sha256 {digest}: ok",
+            "{}: firmware {} for {}, security version {}, {} bytes, sha256 {digest}, {}: {}",
             path.display(),
             file.version,
             file.chip.name(),
-            file.bytes.len()
+            file.security_version,
+            file.bytes.len(),
+            file.signed.describe(),
+            if file.signed == Signed::Broken {
+                "REFUSED"
+            } else {
+                "ok"
+            }
         )?;
+    }
+    if file.signed == Signed::Broken {
+        return Err(Error::InvalidInput(format!(
+            "{}: the signature does not match the image",
+            path.display()
+        )));
     }
     Ok(())
 }

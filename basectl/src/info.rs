@@ -130,9 +130,8 @@ pub fn info(base: &mut Base, json_output: bool, out: &mut dyn Write) -> Result<(
     let bluetooth = bluetooth_state(base)?;
     // The whole version the image carries (its build stamp); a firmware without the
     // update does not answer QUERY.
-    let image = firmware::query(base.bus(), IMAGE_QUERY_TIMEOUT)
-        .ok()
-        .map(|running| running.version);
+    let running = firmware::query(base.bus(), IMAGE_QUERY_TIMEOUT).ok();
+    let image = running.as_ref().map(|running| running.version.clone());
     let status = base.next_status()?;
     // The battery report comes every volt_time (5 s by default): wait for one.
     let listen = (Duration::from_millis(u64::from(volt_time)) + Duration::from_millis(500))
@@ -157,6 +156,8 @@ pub fn info(base: &mut Base, json_output: bool, out: &mut dyn Write) -> Result<(
         let object = json!({
             "firmware_version": version_text(firmware),
             "firmware_image": image,
+            "update_signatures_required": running.as_ref().map(|running| running.signatures_required),
+            "security_version": running.as_ref().map(|running| running.security_version),
             "regmap_version": regmap,
             "mode": format!("{:?}", status.mode),
             "control": format!("{:?}", status.control),
@@ -199,6 +200,9 @@ pub fn info(base: &mut Base, json_output: bool, out: &mut dyn Write) -> Result<(
     writeln!(out, "firmware        {}{image}", version_text(firmware))?;
     writeln!(out, "register map    {regmap}")?;
     writeln!(out, "boot            {}", boot_text(boot_info))?;
+    if let Some(running) = &running {
+        writeln!(out, "updates         {}", running.trust_text())?;
+    }
     writeln!(
         out,
         "mode            {:?} (control: {:?})",

@@ -18,3 +18,4 @@ pub mod monitor;
 pub mod registers;
 pub mod rejection;
 pub mod rules;
+pub mod signing;

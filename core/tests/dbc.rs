@@ -796,6 +796,8 @@ fn update_cases() -> Vec<Case> {
                 session: 7,
                 running_slot: 1,
                 windows_written: 0x0102,
+                signatures_required: phase == Phase::OnTrial,
+                security_version: 9,
             },
             vec![
                 ("UpdateReplyKind", named("State")),
@@ -803,6 +805,11 @@ fn update_cases() -> Vec<Case> {
                 ("StateSession", value(7)),
                 ("RunningSlot", value(1)),
                 ("WindowsWritten", value(0x0102)),
+                (
+                    "SignaturesRequired",
+                    value(u8::from(phase == Phase::OnTrial)),
+                ),
+                ("SecurityVersion", value(9)),
             ],
         ));
     }

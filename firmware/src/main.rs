@@ -41,7 +41,7 @@ esp_bootloader_esp_idf::esp_app_desc!(
     esp_bootloader_esp_idf::MMU_PAGE_SIZE,
     0,
     u16::MAX,
-    esp_bootloader_esp_idf::SECURE_VERSION
+    update::SECURITY_VERSION
 );
 
 /// The heap the radio's driver allocates from (nothing else allocates). trouble's
@@ -197,6 +197,8 @@ async fn main(_spawner: embassy_executor::Spawner) {
             chip: update::CHIP,
             project: base_runtime::update::PROJECT,
             version: env!("BASE_FIRMWARE_VERSION"),
+            security_version: update::SECURITY_VERSION,
+            trust: update::TRUST,
             trial_deadline_ms: base_runtime::update::TRIAL_DEADLINE_MS,
         };
         let reset = base_runtime::update::run(

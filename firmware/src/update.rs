@@ -9,6 +9,7 @@ use base_core::registers::UpdateReset;
 use base_core::update::image::Chip;
 use base_core::update::otadata::Slot;
 use base_core::update::partitions;
+use base_core::update::signature::Trust;
 use base_core::update::trial::{self, ResetRecord};
 use base_runtime::update::{ResetRequest, Started, UpdateFlash};
 use embassy_embedded_hal::adapter::BlockingAsync;
@@ -25,6 +26,18 @@ pub const CHIP: Chip = Chip::Esp32;
 pub const CHIP: Chip = Chip::Esp32c3;
 #[cfg(feature = "esp32c6")]
 pub const CHIP: Chip = Chip::Esp32c6;
+
+// `UPDATE_KEYS` and `SECURITY_VERSION`, from `BASE_UPDATE_KEY` and
+// `BASE_SECURITY_VERSION` at build time (firmware/build.rs).
+include!(concat!(env!("OUT_DIR"), "/update_trust.rs"));
+
+/// Which images an update may activate: only those signed by a key the build was
+/// given, or any image in a development build (no key given).
+pub const TRUST: Trust<'static> = if UPDATE_KEYS.is_empty() {
+    Trust::Development
+} else {
+    Trust::Keys(UPDATE_KEYS)
+};
 
 /// The slot the bootloader started, or `None` when the image runs from elsewhere (a
 /// board still on the old partition table): then no update is offered.

@@ -99,4 +99,25 @@ mod tests {
             defmt::assert_eq!(received.is_some(), accepted, "ID {=u16:#x}", raw);
         }
     }
+
+    /// How long the ed25519 check FINISH makes for a build with a key takes on this
+    /// chip (docs/flashing.md quotes it), and that it passes a good signature and
+    /// refuses a changed one.
+    #[test]
+    fn an_image_signature_is_checked_and_timed() {
+        use base_core::update::signature::{self, Trust};
+        let secret = [7; 32];
+        let digest = [0x5A; 32];
+        let keys = [signature::public_key(&secret)];
+        let block = signature::sign_digest(&digest, &secret, 0);
+        let started = Instant::now();
+        let verdict = signature::check(Trust::Keys(&keys), Some(&block), &digest, 0, 0);
+        let took = started.elapsed();
+        defmt::assert!(verdict.is_ok());
+        defmt::info!("ed25519 check at FINISH: {=u64} us", took.as_micros());
+        let mut changed = digest;
+        changed[0] ^= 1;
+        let verdict = signature::check(Trust::Keys(&keys), Some(&block), &changed, 0, 0);
+        defmt::assert!(verdict.is_err());
+    }
 }

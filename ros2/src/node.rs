@@ -791,6 +791,7 @@ impl<'a> State<'a> {
             key: "firmware_image".to_owned(),
             value: self.image.version().unwrap_or("unknown").to_owned(),
         });
+        add_update_trust(&mut diagnostic, self.image.trust);
         add_bluetooth_state(&mut diagnostic, self.bluetooth_off);
         self.add_odometry_figures(&mut diagnostic);
         self.publish_diagnostic(ros, diagnostic);
@@ -883,12 +884,32 @@ struct ImageVersion {
     parts: VersionAssembler,
     /// The last whole version: it stays until a whole one replaces it.
     version: Option<String>,
+    /// From the last STATE: whether updates must be signed, and the running security
+    /// version.
+    trust: Option<UpdateTrust>,
+}
+
+/// What the last STATE said about the update's signatures.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct UpdateTrust {
+    pub signatures_required: bool,
+    pub security_version: u8,
 }
 
 impl ImageVersion {
     fn on_reply(&mut self, reply: &UpdateReply) {
         match reply {
-            UpdateReply::State { .. } => self.parts.restart(),
+            UpdateReply::State {
+                signatures_required,
+                security_version,
+                ..
+            } => {
+                self.parts.restart();
+                self.trust = Some(UpdateTrust {
+                    signatures_required: *signatures_required,
+                    security_version: *security_version,
+                });
+            }
             UpdateReply::Version { part, text } => {
                 if let Some(whole) = self.parts.add(*part, text) {
                     self.version = Some(String::from_utf8_lossy(whole).into_owned());
@@ -943,6 +964,32 @@ pub fn add_boot_info(diagnostic: &mut DiagnosticStatus, boot_info: Option<BootIn
             )
         }
     }
+}
+
+/// Whether the controller activates only signed images: a development build, which
+/// takes any image over CAN, is a warning (docs/flashing.md, "Signed images").
+/// `None` (no STATE heard yet) says nothing.
+pub fn add_update_trust(diagnostic: &mut DiagnosticStatus, trust: Option<UpdateTrust>) {
+    let Some(trust) = trust else {
+        return;
+    };
+    let signatures = if trust.signatures_required {
+        "required"
+    } else {
+        diagnostic.level = diagnostic.level.max(DIAGNOSTIC_WARN);
+        diagnostic
+            .message
+            .push_str("; development build: updates over CAN accept unsigned images");
+        "not required (development build)"
+    };
+    diagnostic.values.push(KeyValue {
+        key: "update_signatures".to_owned(),
+        value: signatures.to_owned(),
+    });
+    diagnostic.values.push(KeyValue {
+        key: "security_version".to_owned(),
+        value: trust.security_version.to_string(),
+    });
 }
 
 /// Register `bluetooth_off` (36): a remote that is off is a warning, with the way to
@@ -1139,6 +1186,8 @@ mod tests {
             session: 0,
             running_slot: 0,
             windows_written: 0,
+            signatures_required: true,
+            security_version: 1,
         };
         image.on_reply(&state);
         for index in 0..VERSION_CHUNKS - 1 {
@@ -1151,6 +1200,42 @@ mod tests {
         image.on_reply(&state);
         image.on_reply(&part(0));
         assert_eq!(image.version(), Some("0.1.0+412.g7efef4d"));
+    }
+
+    #[test]
+    fn a_development_build_is_a_warning_and_a_signed_one_is_not() {
+        let status = Status {
+            mode: Mode::Standby,
+            ..Status::default()
+        };
+        let level = diagnose(&status, "base", BridgeCounts::default()).level;
+        assert!(level < DIAGNOSTIC_WARN);
+        let mut signed = diagnose(&status, "base", BridgeCounts::default());
+        let trust = UpdateTrust {
+            signatures_required: true,
+            security_version: 3,
+        };
+        add_update_trust(&mut signed, Some(trust));
+        assert_eq!(signed.level, level);
+        let value = |diagnostic: &DiagnosticStatus, key: &str| {
+            let pair = diagnostic.values.iter().find(|pair| pair.key == key);
+            pair.map(|pair| pair.value.clone())
+        };
+        assert_eq!(value(&signed, "security_version").as_deref(), Some("3"));
+        let mut development = diagnose(&status, "base", BridgeCounts::default());
+        add_update_trust(
+            &mut development,
+            Some(UpdateTrust {
+                signatures_required: false,
+                ..trust
+            }),
+        );
+        assert_eq!(development.level, DIAGNOSTIC_WARN);
+        assert!(development.message.contains("development build"));
+        assert_eq!(
+            value(&development, "update_signatures").as_deref(),
+            Some("not required (development build)")
+        );
     }
 
     #[test]

@@ -1,19 +1,34 @@
 //! Writes a synthetic firmware image for the simulator: a valid ESP app image for its
 //! chip whose version chooses what the virtual firmware does after an update
-//! (`-sim-panic`: panics at boot; `-sim-noconfirm`: never takes a CONFIRM).
+//! (`-sim-panic`: panics at boot; `-sim-noconfirm`: never takes a CONFIRM), with the
+//! security version given (0 when not). Sign it with `basectl firmware sign`.
 //!
-//! `cargo run -p virtual-robot --example sim_image -- VERSION FILE [KIB]`
+//! `cargo run -p virtual-robot --example sim_image -- [--security-version N] VERSION FILE [KIB]`
 
 use std::process::ExitCode;
 
-use virtual_robot::app_flash::{TYPICAL_PAYLOAD, sim_image};
+use base_runtime::update::PROJECT;
+use virtual_robot::app_flash::{SIM_CHIP, TYPICAL_PAYLOAD, secured_image};
+
+const USAGE: &str = "usage: sim_image [--security-version N] VERSION FILE [KIB]";
 
 fn main() -> ExitCode {
-    let args: Vec<String> = std::env::args().skip(1).collect();
+    let mut args: Vec<String> = std::env::args().skip(1).collect();
+    let mut security_version = 0;
+    if args.first().map(String::as_str) == Some("--security-version") {
+        match args.get(1).map(|n| n.parse::<u32>()) {
+            Some(Ok(n)) => security_version = n,
+            _ => {
+                eprintln!("--security-version needs a number\n{USAGE}");
+                return ExitCode::FAILURE;
+            }
+        }
+        args.drain(..2);
+    }
     let (version, path) = match args.as_slice() {
         [version, path] | [version, path, _] => (version, path),
         _ => {
-            eprintln!("usage: sim_image VERSION FILE [KIB]");
+            eprintln!("{USAGE}");
             return ExitCode::FAILURE;
         }
     };
@@ -25,11 +40,14 @@ fn main() -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
-    let image = sim_image(version, payload);
+    let image = secured_image(SIM_CHIP, PROJECT, version, security_version, payload);
     if let Err(error) = std::fs::write(path, &image) {
         eprintln!("{path}: {error}");
         return ExitCode::FAILURE;
     }
-    println!("{path}: firmware {version}, {} bytes", image.len());
+    println!(
+        "{path}: firmware {version}, security version {security_version}, {} bytes",
+        image.len()
+    );
     ExitCode::SUCCESS
 }

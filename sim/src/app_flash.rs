@@ -70,9 +70,22 @@ impl Behaviour {
 /// descriptor naming `project` and `version`, then `payload_len` bytes of filler, the
 /// XOR checksum and the appended SHA-256, as `espflash save-image` lays them out.
 pub fn synthetic_image(chip: Chip, project: &str, version: &str, payload_len: usize) -> Vec<u8> {
+    secured_image(chip, project, version, 0, payload_len)
+}
+
+/// [`synthetic_image`] with the app descriptor's `secure_version` (the security
+/// version signed updates must not go below).
+pub fn secured_image(
+    chip: Chip,
+    project: &str,
+    version: &str,
+    security_version: u32,
+    payload_len: usize,
+) -> Vec<u8> {
     const DESC_LEN: usize = 256;
     let mut data = vec![0u8; DESC_LEN];
     data[0..4].copy_from_slice(&image::APP_DESC_MAGIC.to_le_bytes());
+    data[4..8].copy_from_slice(&security_version.to_le_bytes());
     let text = |data: &mut [u8], at: usize, text: &str| {
         let len = text.len().min(31);
         data[at..at + len].copy_from_slice(&text.as_bytes()[..len]);
@@ -111,6 +124,8 @@ pub fn sim_image(version: &str, payload_len: usize) -> Vec<u8> {
 pub struct Booted {
     pub slot: Slot,
     pub version: String,
+    /// The app descriptor's `secure_version`: the floor for the next update.
+    pub security_version: u32,
 }
 
 async fn read_slot<F: NorFlash>(flash: &mut F, slot: Slot) -> Vec<u8> {
@@ -122,12 +137,12 @@ async fn read_slot<F: NorFlash>(flash: &mut F, slot: Slot) -> Vec<u8> {
     bytes
 }
 
-/// The slot's image as the bootloader checks it: `Some(version)` when it would load.
-pub async fn slot_image<F: NorFlash>(flash: &mut F, slot: Slot) -> Option<String> {
+/// The slot's image as the bootloader checks it: `Some` when it would load.
+pub async fn slot_image<F: NorFlash>(flash: &mut F, slot: Slot) -> Option<ImageInfo> {
     let bytes = read_slot(flash, slot).await;
     let info = ImageInfo::parse(&bytes, SIM_CHIP, PROJECT).ok()?;
     image::verify_whole(&bytes, SLOT_LEN as usize).ok()?;
-    Some(info.version.as_str().to_owned())
+    Some(info)
 }
 
 /// A blank flash gets the factory image in `ota_0` and an erased otadata, as a USB
@@ -158,20 +173,22 @@ pub async fn install_factory_image<F: NorFlash>(flash: &mut F) -> bool {
 pub async fn boot<F: NorFlash + Clone>(flash: &mut F) -> Option<Booted> {
     let mut otadata_flash = UpdateFlash::new(flash.clone(), Slot::Ota0);
     let otadata = otadata_flash.read_otadata().await.ok()?;
-    let mut versions = [None, None];
+    let mut images = [None, None];
     for slot in [Slot::Ota0, Slot::Ota1] {
-        versions[slot.index()] = slot_image(flash, slot).await;
+        images[slot.index()] = slot_image(flash, slot).await;
     }
-    let image_ok = [versions[0].is_some(), versions[1].is_some()];
+    let image_ok = [images[0].is_some(), images[1].is_some()];
     let outcome = boot::boot(&otadata, image_ok, Bootloader::Plain);
     for write in &outcome.writes {
         // A failed write here only changes what the next boot sees, as on the chip.
         let _ = otadata_flash.write_otadata(*write).await;
     }
     let slot = outcome.started?;
+    let info = images[slot.index()]?;
     Some(Booted {
         slot,
-        version: versions[slot.index()].take()?,
+        version: info.version.as_str().to_owned(),
+        security_version: info.security_version,
     })
 }
 

@@ -146,6 +146,8 @@ impl VirtualRobot {
             chip: crate::app_flash::SIM_CHIP,
             project: base_runtime::update::PROJECT,
             version: crate::app_flash::FACTORY_VERSION,
+            security_version: 0,
+            trust: base_core::update::signature::Trust::Development,
             trial_deadline_ms: base_runtime::update::TRIAL_DEADLINE_MS,
         };
         let firmware = async {

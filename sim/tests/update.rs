@@ -13,11 +13,13 @@ use base_core::update::PROJECT;
 use base_core::update::image::Chip;
 use base_core::update::partitions;
 use base_core::update::session::DIGEST_PARTS;
+use base_core::update::signature;
 use basectl::base::{Base, Error};
 use basectl::bus::{Bus, BusError, SocketcandBus};
 use basectl::firmware::{self, UpdatePlan};
+use basectl::signing;
 use sha2::{Digest, Sha256};
-use virtual_robot::app_flash::{self, FACTORY_VERSION, sim_image};
+use virtual_robot::app_flash::{self, FACTORY_VERSION, secured_image, sim_image};
 use virtual_robot::process::SimulatorProcess;
 
 const TIMEOUT: Duration = Duration::from_millis(500);
@@ -646,5 +648,217 @@ fn during_an_update_session_the_estop_and_status_work_and_motion_is_refused() {
     assert_eq!(
         status.last_rejection,
         base_core::can::Rejection::UpdateInProgress.code()
+    );
+}
+
+/// A controller built with the owner's key (`--update-key`), and the owner's key files
+/// (the secret key in `owner.key`).
+fn start_with_owner_key() -> (SimulatorProcess, tempfile::TempDir) {
+    let keys = tempfile::tempdir().unwrap();
+    let owner = keys.path().join("owner.key");
+    signing::keygen(&owner, &mut Vec::new()).unwrap();
+    let simulator = SimulatorProcess::launch(env!("CARGO_BIN_EXE_virtual-base-controller"))
+        .arg("--update-key")
+        .arg(signing::public_key_path(&owner))
+        .start()
+        .expect("the simulator starts");
+    simulator
+        .wait_for_line("boot: firmware", Duration::from_secs(10))
+        .expect("the factory image boots");
+    (simulator, keys)
+}
+
+/// An image with this version and security version, signed with `key` when given.
+fn signed_file(
+    simulator: &SimulatorProcess,
+    version: &str,
+    security_version: u32,
+    key: Option<&std::path::Path>,
+    allow_security_downgrade: bool,
+) -> PathBuf {
+    let plain = simulator.directory().join(format!("{version}.bin"));
+    let image = secured_image(
+        app_flash::SIM_CHIP,
+        PROJECT,
+        version,
+        security_version,
+        TEST_PAYLOAD,
+    );
+    std::fs::write(&plain, image).unwrap();
+    let Some(key) = key else {
+        return plain;
+    };
+    let signed = simulator.directory().join(format!("{version}.signed.bin"));
+    signing::sign(
+        key,
+        &plain,
+        &signed,
+        allow_security_downgrade,
+        &mut Vec::new(),
+    )
+    .unwrap();
+    signed
+}
+
+/// BEGIN, DIGEST, every window and FINISH, as a client without basectl's own checks
+/// would send them: FINISH's answer.
+fn finish_raw(bus: &mut dyn Bus, image: &[u8]) -> UpdateReply {
+    let session = 0x3C;
+    let flags = BeginFlags {
+        force: true,
+        allow_downgrade: true,
+    };
+    let size = image.len() as u32;
+    bus.send(
+        &UpdateCommand::Begin {
+            session,
+            size,
+            flags,
+        }
+        .encode(),
+    )
+    .unwrap();
+    let digest = Sha256::digest(image);
+    for part in 0..DIGEST_PARTS {
+        let at = usize::from(part) * 4;
+        let bytes = digest[at..at + 4].try_into().unwrap();
+        bus.send(
+            &UpdateCommand::Digest {
+                session,
+                part,
+                bytes,
+            }
+            .encode(),
+        )
+        .unwrap();
+    }
+    firmware::transfer(bus, session, image, |_, _, _| {}).expect("every window is written");
+    bus.send(&UpdateCommand::Finish { session }.encode())
+        .unwrap();
+    loop {
+        let reply = receive_reply(bus, Duration::from_secs(5)).expect("FINISH is answered");
+        if let UpdateReply::Done { .. } | UpdateReply::Refused { .. } = reply {
+            // A client that goes no further ends its session.
+            bus.send(&UpdateCommand::Abort { session }.encode())
+                .unwrap();
+            return reply;
+        }
+    }
+}
+
+fn untrusted(error: UpdateError, detail: u8) -> UpdateReply {
+    UpdateReply::Refused {
+        opcode: 0x05,
+        error,
+        detail,
+        session: 0x3C,
+    }
+}
+
+#[test]
+fn a_controller_with_a_key_activates_only_images_its_owner_signed() {
+    let (simulator, keys) = start_with_owner_key();
+    let owner = keys.path().join("owner.key");
+    let stranger = keys.path().join("stranger.key");
+    signing::keygen(&stranger, &mut Vec::new()).unwrap();
+    let mut bus = connect(&simulator);
+    standby(&mut bus);
+    let running = firmware::query(&mut bus, TIMEOUT).unwrap();
+    assert!(running.signatures_required);
+    assert_eq!(running.security_version, 0);
+
+    // basectl refuses an unsigned image before it sends a byte, and the controller
+    // refuses it by itself too, as it does a stranger's and a forged one.
+    let unsigned = signed_file(&simulator, "0.2.0", 0, None, false);
+    let error =
+        firmware::update(&mut bus, &plan(unsigned.clone()), TIMEOUT, &mut Vec::new()).unwrap_err();
+    assert!(error.to_string().contains("only signed images"), "{error}");
+    let strangers = signed_file(&simulator, "0.2.1", 0, Some(&stranger), false);
+    let mut forged =
+        std::fs::read(signed_file(&simulator, "0.2.2", 0, Some(&owner), false)).unwrap();
+    // The block's flags, after the magic and the key: a downgrade claimed.
+    let flags_at = forged.len() - signature::BLOCK_LEN + 40;
+    forged[flags_at] ^= 1;
+    for (name, image, refusal) in [
+        (
+            "unsigned",
+            std::fs::read(&unsigned).unwrap(),
+            untrusted(UpdateError::Untrusted, 1),
+        ),
+        (
+            "a stranger's",
+            std::fs::read(&strangers).unwrap(),
+            untrusted(UpdateError::Untrusted, 2),
+        ),
+        ("forged", forged, untrusted(UpdateError::Untrusted, 3)),
+    ] {
+        standby(&mut bus);
+        assert_eq!(finish_raw(&mut bus, &image), refusal, "{name}");
+        let running = firmware::query(&mut bus, TIMEOUT).unwrap();
+        assert_eq!(
+            (running.version.as_str(), running.phase),
+            (FACTORY_VERSION, Phase::Idle),
+            "{name}: nothing was activated"
+        );
+    }
+
+    // The owner's image raises the security version to 2.
+    let raised = signed_file(&simulator, "0.3.0", 2, Some(&owner), false);
+    let mut out = Vec::new();
+    firmware::update(&mut bus, &plan(raised), TIMEOUT, &mut out).unwrap();
+    let report: serde_json::Value = serde_json::from_slice(&out).unwrap();
+    assert_eq!(report["outcome"], "confirmed");
+    standby(&mut bus);
+    let running = firmware::query(&mut bus, TIMEOUT).unwrap();
+    assert_eq!(
+        (running.version.as_str(), running.security_version),
+        ("0.3.0", 2)
+    );
+
+    // Below it, the owner's signature alone is not enough: a signed downgrade is.
+    let older = signed_file(&simulator, "0.4.0", 1, Some(&owner), false);
+    let error =
+        firmware::update(&mut bus, &plan(older.clone()), TIMEOUT, &mut Vec::new()).unwrap_err();
+    assert!(
+        error.to_string().contains("security version 1 is below"),
+        "{error}"
+    );
+    assert_eq!(
+        finish_raw(&mut bus, &std::fs::read(&older).unwrap()),
+        untrusted(UpdateError::SecurityDowngrade, 2)
+    );
+    let downgrade = signed_file(&simulator, "0.4.1", 1, Some(&owner), true);
+    standby(&mut bus);
+    let mut out = Vec::new();
+    firmware::update(&mut bus, &plan(downgrade), TIMEOUT, &mut out).unwrap();
+    let report: serde_json::Value = serde_json::from_slice(&out).unwrap();
+    assert_eq!(report["outcome"], "confirmed");
+    standby(&mut bus);
+    let running = firmware::query(&mut bus, TIMEOUT).unwrap();
+    assert_eq!(
+        (running.version.as_str(), running.security_version),
+        ("0.4.1", 1)
+    );
+}
+
+#[test]
+fn a_development_build_says_so_and_takes_an_unsigned_image() {
+    let simulator = start();
+    let mut bus = connect(&simulator);
+    standby(&mut bus);
+    let mut out = Vec::new();
+    firmware::info(&mut bus, TIMEOUT, false, &mut out).unwrap();
+    let text = String::from_utf8(out).unwrap();
+    assert!(
+        text.contains("DEVELOPMENT BUILD: updates over CAN accept unsigned images"),
+        "{text}"
+    );
+    let unsigned = signed_file(&simulator, "0.2.0", 0, None, false);
+    assert_eq!(
+        finish_raw(&mut bus, &std::fs::read(unsigned).unwrap()),
+        UpdateReply::Done {
+            session: 0x3C,
+            step: base_core::can::update::Step::Finished
+        }
     );
 }

@@ -212,10 +212,16 @@ pub enum UpdateError {
     NotFinished = 20,
     /// A command while a window is being written: wait for its reply.
     Writing = 21,
+    /// FINISH: the image is not signed by a key this controller trusts (detail: 1 not
+    /// signed, 2 another key, 3 the signature does not match).
+    Untrusted = 22,
+    /// FINISH: below the running image's security version, and the owner did not sign
+    /// a downgrade (detail: the running security version, up to 255).
+    SecurityDowngrade = 23,
 }
 
 impl UpdateError {
-    pub const ALL: [UpdateError; 21] = [
+    pub const ALL: [UpdateError; 23] = [
         Self::Busy,
         Self::NotAtRest,
         Self::ControlActive,
@@ -237,6 +243,8 @@ impl UpdateError {
         Self::Malformed,
         Self::NotFinished,
         Self::Writing,
+        Self::Untrusted,
+        Self::SecurityDowngrade,
     ];
 
     pub const fn code(self) -> u8 {
@@ -270,6 +278,8 @@ impl UpdateError {
             Self::Malformed => "Malformed",
             Self::NotFinished => "NotFinished",
             Self::Writing => "Writing",
+            Self::Untrusted => "Untrusted",
+            Self::SecurityDowngrade => "SecurityDowngrade",
         }
     }
 }
@@ -307,13 +317,18 @@ impl Step {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum UpdateReply {
-    /// `81 phase sid slot windows(2, LE)`: the answer to QUERY; `slot` is the running
-    /// slot (0, 1, or 0xFF when not started from an app slot).
+    /// `81 phase sid slot windows(2, LE) trust security`: the answer to QUERY; `slot`
+    /// is the running slot (0, 1, or 0xFF when not started from an app slot); `trust`
+    /// bit 0: only signed images activate; `security` the running image's security
+    /// version (255 for any above). Controllers before signed images sent six bytes:
+    /// decoded as unsigned accepted, security version 0, as they were.
     State {
         phase: Phase,
         session: u8,
         running_slot: u8,
         windows_written: u16,
+        signatures_required: bool,
+        security_version: u8,
     },
     /// `82 part text(6)`: bytes `6 * part ..` of the running version, NUL-padded.
     Version { part: u8, text: [u8; VERSION_CHUNK] },
@@ -475,6 +490,8 @@ impl UpdateReply {
                 session: byte(2)?,
                 running_slot: byte(3)?,
                 windows_written: word(4)?,
+                signatures_required: data.get(6).is_some_and(|trust| trust & 1 != 0),
+                security_version: data.get(7).copied().unwrap_or(0),
             },
             REPLY_VERSION => {
                 let mut text = [0; VERSION_CHUNK];
@@ -518,11 +535,22 @@ impl UpdateReply {
                 session,
                 running_slot,
                 windows_written,
+                signatures_required,
+                security_version,
             } => {
                 let [w0, w1] = windows_written.to_le_bytes();
                 RawFrame::from_array(
                     at,
-                    [REPLY_STATE, phase as u8, session, running_slot, w0, w1],
+                    [
+                        REPLY_STATE,
+                        phase as u8,
+                        session,
+                        running_slot,
+                        w0,
+                        w1,
+                        u8::from(signatures_required),
+                        security_version,
+                    ],
                 )
             }
             Self::Version { part, text } => {
@@ -641,6 +669,8 @@ mod tests {
                 session: 9,
                 running_slot: 1,
                 windows_written: 150,
+                signatures_required: true,
+                security_version: 3,
             },
             UpdateReply::Version {
                 part: 2,
@@ -674,6 +704,21 @@ mod tests {
                 Ok(Some(reply))
             );
         }
+    }
+
+    #[test]
+    fn a_state_from_a_controller_before_signed_images_reads_as_accepting_any_image() {
+        assert_eq!(
+            UpdateReply::decode(id::UPDATE_REPLY, &[0x81, 0, 0, 1, 0, 0]),
+            Ok(Some(UpdateReply::State {
+                phase: Phase::Idle,
+                session: 0,
+                running_slot: 1,
+                windows_written: 0,
+                signatures_required: false,
+                security_version: 0,
+            }))
+        );
     }
 
     #[test]

@@ -6,6 +6,8 @@
 
 use sha2::{Digest, Sha256};
 
+use super::signature;
+
 /// The image header's first byte.
 pub const IMAGE_MAGIC: u8 = 0xE9;
 /// The app descriptor's first word.
@@ -117,6 +119,9 @@ pub struct ImageInfo {
     pub segments: u8,
     /// Whether the image tool appended a SHA-256 of the image.
     pub hash_appended: bool,
+    /// The app descriptor's `secure_version`: the anti-rollback floor an image may
+    /// raise (`update::signature`).
+    pub security_version: u32,
     pub version: DescText<32>,
     pub project: DescText<32>,
 }
@@ -152,6 +157,7 @@ impl ImageInfo {
             chip,
             segments,
             hash_appended: prefix[23] == 1,
+            security_version: u32::from_le_bytes([desc[4], desc[5], desc[6], desc[7]]),
             version: text(16),
             project: text(48),
         };
@@ -193,7 +199,8 @@ enum Part {
     Checksum,
     /// The appended SHA-256 of everything before it.
     Digest,
-    /// Padding after the digest (the flash tool's alignment): not checked.
+    /// What follows the digest (padding, or a signature block): not the bootloader's
+    /// business; kept when it is short enough to be a signature block.
     Trailer,
     Refused(ImageError),
 }
@@ -214,6 +221,9 @@ pub struct WholeImageCheck {
     hasher: Sha256,
     /// Bytes up to the end of the digest.
     image_len: usize,
+    /// The first bytes after the digest, and how many came in all.
+    trailer: [u8; signature::BLOCK_LEN],
+    trailer_len: usize,
 }
 
 impl Default for WholeImageCheck {
@@ -234,6 +244,8 @@ impl WholeImageCheck {
             checksum: CHECKSUM_SEED,
             hasher: Sha256::new(),
             image_len: 0,
+            trailer: [0; signature::BLOCK_LEN],
+            trailer_len: 0,
         }
     }
 
@@ -251,8 +263,10 @@ impl WholeImageCheck {
                 Part::Trailer | Part::Refused(_) => bytes.len(),
             };
             let (now, rest) = bytes.split_at(taken);
-            if !matches!(self.part, Part::Digest | Part::Trailer | Part::Refused(_)) {
-                self.hasher.update(now);
+            match self.part {
+                Part::Digest | Part::Refused(_) => {}
+                Part::Trailer => self.keep_trailer(now),
+                _ => self.hasher.update(now),
             }
             self.seen += taken;
             self.advance(now);
@@ -266,6 +280,13 @@ impl WholeImageCheck {
         self.held[self.held_len..self.held_len + taken].copy_from_slice(&bytes[..taken]);
         self.held_len += taken;
         taken
+    }
+
+    fn keep_trailer(&mut self, bytes: &[u8]) {
+        let room = self.trailer.len().saturating_sub(self.trailer_len);
+        let kept = bytes.len().min(room);
+        self.trailer[self.trailer_len..self.trailer_len + kept].copy_from_slice(&bytes[..kept]);
+        self.trailer_len += bytes.len();
     }
 
     /// The part after `bytes`, the last ones taken from the current part.
@@ -326,6 +347,20 @@ impl WholeImageCheck {
         }
     }
 
+    /// The SHA-256 appended to an image that passed the checks so far, once it has
+    /// arrived.
+    pub fn digest(&self) -> Option<&[u8; SHA256_LEN]> {
+        matches!(self.part, Part::Trailer).then_some(&self.held)
+    }
+
+    /// The bytes after the appended SHA-256, when there are at most a signature
+    /// block's worth (more is not a signed image).
+    pub fn trailer(&self) -> Option<&[u8]> {
+        let short_enough = self.trailer_len <= self.trailer.len();
+        (matches!(self.part, Part::Trailer) && short_enough)
+            .then(|| &self.trailer[..self.trailer_len])
+    }
+
     /// The verdict once every byte was fed: the image's length without trailing
     /// padding, or the first check it failed.
     pub fn finish(&self) -> Result<usize, ImageError> {
@@ -377,6 +412,28 @@ pub fn synthetic_image(
     image.push(checksum);
     let digest = Sha256::digest(&image);
     image.extend_from_slice(&digest);
+    image
+}
+
+/// Makes a [`synthetic_image`] whose bytes were changed pass the bootloader's checks
+/// again (its XOR checksum and appended SHA-256), as a forger would, for the tests.
+#[cfg(test)]
+pub fn reseal(image: &mut [u8]) {
+    let data_len = u32::from_le_bytes([image[28], image[29], image[30], image[31]]) as usize;
+    let digest_at = image.len() - SHA256_LEN;
+    let data = &image[24 + SEGMENT_HEADER_LEN..24 + SEGMENT_HEADER_LEN + data_len];
+    let checksum = data.iter().fold(CHECKSUM_SEED, |sum, byte| sum ^ byte);
+    image[digest_at - 1] = checksum;
+    let digest = Sha256::digest(&image[..digest_at]);
+    image[digest_at..].copy_from_slice(&digest);
+}
+
+/// A [`synthetic_image`] with the app descriptor's `secure_version` set, for the tests.
+#[cfg(test)]
+pub fn with_security_version(mut image: std::vec::Vec<u8>, version: u32) -> std::vec::Vec<u8> {
+    let at = 24 + SEGMENT_HEADER_LEN + 4;
+    image[at..at + 4].copy_from_slice(&version.to_le_bytes());
+    reseal(&mut image);
     image
 }
 

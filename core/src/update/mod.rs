@@ -18,4 +18,5 @@ pub mod image;
 pub mod otadata;
 pub mod partitions;
 pub mod session;
+pub mod signature;
 pub mod trial;

@@ -34,6 +34,7 @@ use heapless::Vec;
 use sha2::{Digest, Sha256};
 
 use super::image::{self, Chip, ImageInfo, WholeImageCheck};
+use super::signature::{self, SignatureError, Trust};
 use crate::can::update::{
     BeginFlags, DATA_BYTES, DataFrame, Phase, Step, UpdateCommand, UpdateError, UpdateReply,
     VERSION_CHUNK, VERSION_CHUNKS,
@@ -106,6 +107,11 @@ pub struct Params<'a> {
     pub slot_len: u32,
     /// How long an image on trial waits for CONFIRM before it rejects itself.
     pub trial_deadline_ms: u64,
+    /// Which images may be activated.
+    pub trust: Trust<'a>,
+    /// The running image's security version: no image below it activates unless its
+    /// owner signed the downgrade.
+    pub running_security_version: u32,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -190,6 +196,8 @@ struct Transfer {
     hasher: Sha256,
     /// The bootloader's checks, over the windows as they are written.
     image_check: WholeImageCheck,
+    /// The image's security version, from window 0.
+    security_version: u32,
     windows_written: u16,
     window: WindowRx,
     last_heard: Timestamp,
@@ -336,7 +344,7 @@ impl Updater {
             | UpdateCommand::Abort { session } => match self.session() {
                 None => effects.refuse(opcode, UpdateError::NoSession, 0),
                 Some(owner) if owner != session => effects.refuse(opcode, UpdateError::Busy, 0),
-                Some(_) => self.session_command(now, command, effects),
+                Some(_) => self.session_command(now, command, params, effects),
             },
         }
     }
@@ -361,6 +369,8 @@ impl Updater {
             session,
             running_slot: params.running_slot,
             windows_written,
+            signatures_required: !params.trust.accepts_unsigned(),
+            security_version: params.running_security_version.min(255) as u8,
         });
         let version = params.running_version.as_bytes();
         for part in 0..VERSION_CHUNKS {
@@ -414,6 +424,7 @@ impl Updater {
             digest_parts: 0,
             hasher: Sha256::new(),
             image_check: WholeImageCheck::new(),
+            security_version: 0,
             windows_written: 0,
             window: WindowRx::Waiting,
             last_heard: now,
@@ -425,7 +436,13 @@ impl Updater {
     }
 
     /// A command from the session's own PC.
-    fn session_command(&mut self, now: Timestamp, command: UpdateCommand, effects: &mut Effects) {
+    fn session_command(
+        &mut self,
+        now: Timestamp,
+        command: UpdateCommand,
+        params: &Params<'_>,
+        effects: &mut Effects,
+    ) {
         let opcode = command.opcode();
         if let UpdateCommand::Abort { session } = command {
             if matches!(self.state, State::Activating { .. }) {
@@ -502,6 +519,17 @@ impl Updater {
                         if let Err(error) = transfer.image_check.finish() {
                             self.state = State::Idle;
                             return effects.refuse(opcode, UpdateError::BadImage, error.code());
+                        }
+                        if let Err(error) = check_signature(transfer, params) {
+                            self.state = State::Idle;
+                            let (error, detail) = match error {
+                                SignatureError::SecurityDowngrade => (
+                                    UpdateError::SecurityDowngrade,
+                                    params.running_security_version.min(255) as u8,
+                                ),
+                                _ => (UpdateError::Untrusted, error.code()),
+                            };
+                            return effects.refuse(opcode, error, detail);
                         }
                         self.state = State::Finished {
                             session,
@@ -602,12 +630,15 @@ impl Updater {
             transfer.window = WindowRx::Waiting;
             return effects.refuse(0x04, UpdateError::BadCrc, 0);
         }
-        if index == 0
-            && let Err((error, detail)) = check_image(window, transfer.flags, params)
-        {
-            // Refused before anything is written.
-            self.state = State::Idle;
-            return effects.refuse(0x04, error, detail);
+        if index == 0 {
+            match check_image(window, transfer.flags, params) {
+                Ok(info) => transfer.security_version = info.security_version,
+                Err((error, detail)) => {
+                    // Refused before anything is written.
+                    self.state = State::Idle;
+                    return effects.refuse(0x04, error, detail);
+                }
+            }
         }
         transfer.hasher.update(window);
         transfer.image_check.feed(window);
@@ -717,6 +748,23 @@ fn check_image(
         return Err((UpdateError::Downgrade, 0));
     }
     Ok(info)
+}
+
+/// Whether the trust lets the finished image activate: its signature block (the
+/// bytes after its appended SHA-256) and its security version.
+fn check_signature(transfer: &Transfer, params: &Params<'_>) -> Result<(), SignatureError> {
+    let digest = transfer
+        .image_check
+        .digest()
+        .ok_or(SignatureError::NotSigned)?;
+    signature::check(
+        params.trust,
+        signature::block_after(&transfer.image_check).as_ref(),
+        digest,
+        transfer.security_version,
+        params.running_security_version,
+    )
+    .map(|_| ())
 }
 
 /// `major.minor.patch` of a version like `0.3.1` or `0.3.1-rc1`; `None` when it has

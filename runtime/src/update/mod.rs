@@ -25,6 +25,7 @@ use base_core::update::image::Chip;
 use base_core::update::otadata::{ENTRY_LEN, OtaData, PROGRAM_ORDER, SectorWrite, Slot};
 use base_core::update::partitions::{self, Partition};
 use base_core::update::session::{Event, FlashOp, MotionGate, Params, Updater};
+use base_core::update::signature::Trust;
 use base_core::update::trial::{self, ResetRecord, Start, StartRole};
 
 use crate::can::FrameQueue;
@@ -267,6 +268,10 @@ pub struct UpdateConfig<'a> {
     pub chip: Chip,
     pub project: &'a str,
     pub version: &'a str,
+    /// The app descriptor's `secure_version` of the running image.
+    pub security_version: u32,
+    /// Which images an update may activate (the keys the build carries).
+    pub trust: Trust<'a>,
     pub trial_deadline_ms: u64,
 }
 
@@ -375,6 +380,8 @@ pub async fn run<F: NorFlash>(
         running_slot: flash.running.index() as u8,
         slot_len: partitions::SLOT_LEN,
         trial_deadline_ms: config.trial_deadline_ms,
+        trust: config.trust,
+        running_security_version: config.security_version,
     };
     let mut updater = if started.held() {
         Updater::held()

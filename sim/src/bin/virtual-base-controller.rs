@@ -16,6 +16,7 @@ usage: virtual-base-controller [--link PATH | --no-link]
          [--socketcand ADDR:PORT | --no-socketcand] [--socketcan IF]
          [--flash PATH] [--hci tcp:HOST:PORT] [--demo [--stay]]
          [--swap-drive-addresses] [--reverse-drive 1|2]
+         [--update-key FILE]...
 
   --link PATH      symbolic link to the serial port (default
                    {DEFAULT_LINK});
@@ -45,6 +46,11 @@ usage: virtual-base-controller [--link PATH | --no-link]
                    at the other value: it turns against its command (the
                    controller stops the base; `basectl commission wheels`
                    names it)
+  --update-key FILE
+                   activate only update images signed by this key (the .pub
+                   file of `basectl firmware keygen`; repeat for more keys),
+                   as a build made with BASE_UPDATE_KEY does; without it the
+                   firmware is a development build that takes unsigned images
   --help           this text
 
 Connect (any number at once through socketcand, one at a time through SLCAN):
@@ -79,6 +85,7 @@ fn parse_options(mut args: impl Iterator<Item = String>) -> Result<Option<Option
         hci: None,
         swap_drive_addresses: false,
         reversed_drive: None,
+        update_keys: Vec::new(),
     };
     let mut stay = false;
     while let Some(arg) = args.next() {
@@ -108,6 +115,11 @@ fn parse_options(mut args: impl Iterator<Item = String>) -> Result<Option<Option
                     "2" => Some(2),
                     other => return Err(format!("--reverse-drive {other:?}: 1 or 2")),
                 };
+            }
+            "--update-key" => {
+                let path = args.next().ok_or("--update-key needs a file")?;
+                let key = simulator::read_public_key(path.as_ref())?;
+                options.update_keys.push(key);
             }
             "--hci" => {
                 let spec = args.next().ok_or("--hci needs tcp:HOST:PORT")?;

@@ -13,6 +13,7 @@ use std::task::{Poll, Waker};
 use base_core::controller::Input;
 use base_core::gamepad::{Buttons, Dpad, GamepadState};
 use base_core::remote::Pad;
+use base_core::update::signature::Trust;
 use base_core::update::trial::{self, ResetRecord};
 use base_runtime::Hardware;
 use base_runtime::channels::Channels;
@@ -458,6 +459,8 @@ impl World {
                 chip: app_flash::SIM_CHIP,
                 project: base_runtime::update::PROJECT,
                 version: &version,
+                security_version: booted.security_version,
+                trust: Trust::Development,
                 trial_deadline_ms: base_runtime::update::TRIAL_DEADLINE_MS,
             };
             let firmware = embassy_futures::join::join(

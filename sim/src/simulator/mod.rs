@@ -64,6 +64,30 @@ pub struct Options {
     /// (`--reverse-drive SLAVE`): it turns against its command, for the feedback
     /// check and the wheel commissioning check to find.
     pub reversed_drive: Option<u8>,
+    /// The public keys the firmware trusts for updates (`--update-key FILE`); none: a
+    /// development build, which activates unsigned images.
+    pub update_keys: Vec<base_core::update::signature::PublicKey>,
+}
+
+impl Options {
+    /// Which images an update may activate, as a build with these keys would.
+    pub fn trust(&self) -> base_core::update::signature::Trust<'_> {
+        use base_core::update::signature::Trust;
+        if self.update_keys.is_empty() {
+            Trust::Development
+        } else {
+            Trust::Keys(&self.update_keys)
+        }
+    }
+}
+
+/// The public key in a PEM file (`basectl firmware keygen`'s `.pub`, or openssl's
+/// `pkey -pubout` of an ed25519 key).
+pub fn read_public_key(path: &std::path::Path) -> Result<[u8; 32], String> {
+    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    ed25519_compact::PublicKey::from_pem(&text)
+        .and_then(|key| key.validate().map(|()| *key))
+        .map_err(|e| format!("{}: not an ed25519 public key in PEM: {e}", path.display()))
 }
 
 /// Whether the simulator drives a path by itself.
@@ -319,6 +343,8 @@ async fn controller(
             chip: app_flash::SIM_CHIP,
             project: base_runtime::update::PROJECT,
             version: &booted.version,
+            security_version: booted.security_version,
+            trust: options.trust(),
             trial_deadline_ms: base_runtime::update::TRIAL_DEADLINE_MS,
         };
         let update = base_runtime::update::run(

@@ -19,6 +19,8 @@ fn params() -> Params<'static> {
         running_slot: 0,
         slot_len: 0x1F_0000,
         trial_deadline_ms: 60_000,
+        trust: Trust::Development,
+        running_security_version: 0,
     }
 }
 
@@ -36,6 +38,7 @@ fn image(version: &str) -> StdVec<u8> {
 
 /// A PC side driving the updater, and a flash that records what was written where.
 struct Bench {
+    params: Params<'static>,
     updater: Updater,
     now: u64,
     slot: StdVec<u8>,
@@ -45,8 +48,13 @@ struct Bench {
 
 impl Bench {
     fn new() -> Self {
+        Self::with(params())
+    }
+
+    fn with(params: Params<'static>) -> Self {
         Self {
-            updater: Updater::new(at(0), false, &params()),
+            params,
+            updater: Updater::new(at(0), false, &params),
             now: 0,
             slot: std::vec![0xFF; 0x1F_0000],
             written: StdVec::new(),
@@ -57,7 +65,7 @@ impl Bench {
     /// One event; a flash operation it asks for is done at once, as the update task does.
     fn step(&mut self, event: Event) -> StdVec<UpdateReply> {
         self.now += 1;
-        let mut effects = self.updater.step(at(self.now), event, &params());
+        let mut effects = self.updater.step(at(self.now), event, &self.params);
         let mut replies: StdVec<UpdateReply> = effects.replies.iter().copied().collect();
         while let Some(op) = effects.flash.take() {
             if let FlashOp::WriteWindow { offset } = op {
@@ -66,9 +74,11 @@ impl Bench {
                 self.slot[at..at + window.len()].copy_from_slice(&window);
                 self.written.push(offset);
             }
-            effects =
-                self.updater
-                    .step(at(self.now), Event::FlashDone(!self.flash_fails), &params());
+            effects = self.updater.step(
+                at(self.now),
+                Event::FlashDone(!self.flash_fails),
+                &self.params,
+            );
             replies.extend(effects.replies.iter().copied());
         }
         replies
@@ -917,4 +927,143 @@ fn refusals_on_the_wire_name_the_session_they_answer() {
     bench.command(C::Abort { session: SID });
     let confirm = bench.command(C::Confirm);
     assert_eq!(wire(confirm), [std::vec![0xFF, 0x08, 0x11, 0x00, 0x00]]);
+}
+
+const OWNER_SECRET: [u8; 32] = [0x0A; 32];
+
+/// A controller built with the owner's key, running security version 2.
+fn signed_params() -> Params<'static> {
+    let keys: &'static [signature::PublicKey] =
+        std::boxed::Box::leak(std::boxed::Box::new([signature::public_key(&OWNER_SECRET)]));
+    Params {
+        trust: Trust::Keys(keys),
+        running_security_version: 2,
+        ..params()
+    }
+}
+
+fn signed_by(image: &[u8], secret: &[u8; 32], flags: u32) -> StdVec<u8> {
+    let (len, block) = signature::sign(image, secret, flags).unwrap();
+    [&image[..len], &block.to_bytes()[..]].concat()
+}
+
+/// BEGIN, every window, FINISH: FINISH's replies.
+fn finish_after_transfer(params: Params<'static>, file: &[u8]) -> StdVec<UpdateReply> {
+    let mut bench = Bench::with(params);
+    assert_eq!(
+        bench.begin(file, BeginFlags::default()),
+        [done(Step::Begun)]
+    );
+    let replies = bench.transfer(file);
+    assert!(
+        !replies
+            .iter()
+            .any(|r| matches!(r, UpdateReply::Refused { .. })),
+        "refused during the transfer: {replies:?}"
+    );
+    let finish = bench.command(C::Finish { session: SID });
+    if finish != [done(Step::Finished)] {
+        assert!(!bench.updater.locks_motion(), "a refusal ends the session");
+    }
+    finish
+}
+
+fn refused_at_finish(error: UpdateError, detail: u8) -> StdVec<UpdateReply> {
+    std::vec![UpdateReply::Refused {
+        opcode: 0x05,
+        error,
+        detail,
+        session: SID,
+    }]
+}
+
+#[test]
+fn a_build_with_a_key_activates_only_images_its_owner_signed() {
+    let at_floor = image::with_security_version(image("0.3.0"), 2);
+    let stranger = [0x0B; 32];
+    let mut forged = signed_by(&at_floor, &OWNER_SECRET, 0);
+    let image_len = at_floor.len();
+    forged[3 * WINDOW_LEN] ^= 0x01;
+    image::reseal(&mut forged[..image_len]);
+    for (name, file, expected) in [
+        (
+            "signed by the owner",
+            signed_by(&at_floor, &OWNER_SECRET, 0),
+            std::vec![done(Step::Finished)],
+        ),
+        (
+            "unsigned",
+            at_floor.clone(),
+            refused_at_finish(UpdateError::Untrusted, 1),
+        ),
+        (
+            "signed by another key",
+            signed_by(&at_floor, &stranger, 0),
+            refused_at_finish(UpdateError::Untrusted, 2),
+        ),
+        (
+            "a byte changed after signing",
+            forged,
+            refused_at_finish(UpdateError::Untrusted, 3),
+        ),
+    ] {
+        assert_eq!(
+            finish_after_transfer(signed_params(), &file),
+            expected,
+            "{name}"
+        );
+    }
+}
+
+#[test]
+fn below_the_security_version_only_a_downgrade_the_owner_signed_activates() {
+    let older = image::with_security_version(image("0.3.0"), 1);
+    assert_eq!(
+        finish_after_transfer(signed_params(), &signed_by(&older, &OWNER_SECRET, 0)),
+        refused_at_finish(UpdateError::SecurityDowngrade, 2)
+    );
+    assert_eq!(
+        finish_after_transfer(
+            signed_params(),
+            &signed_by(&older, &OWNER_SECRET, signature::DOWNGRADE)
+        ),
+        [done(Step::Finished)]
+    );
+    let newer = image::with_security_version(image("0.3.0"), 3);
+    assert_eq!(
+        finish_after_transfer(signed_params(), &signed_by(&newer, &OWNER_SECRET, 0)),
+        [done(Step::Finished)]
+    );
+}
+
+#[test]
+fn a_development_build_activates_unsigned_images_of_any_security_version() {
+    let older = image::with_security_version(image("0.3.0"), 1);
+    let development = Params {
+        running_security_version: 2,
+        ..params()
+    };
+    assert_eq!(
+        finish_after_transfer(development, &older),
+        [done(Step::Finished)]
+    );
+}
+
+#[test]
+fn query_says_whether_signatures_are_required_and_the_security_version() {
+    for (params, required) in [(params(), false), (signed_params(), true)] {
+        let mut bench = Bench::with(params);
+        let state = bench.command(C::Query)[0];
+        assert_eq!(
+            state,
+            UpdateReply::State {
+                phase: Phase::Idle,
+                session: 0,
+                running_slot: 0,
+                windows_written: 0,
+                signatures_required: required,
+                security_version: params.running_security_version as u8,
+            }
+        );
+    }
 }
