@@ -38,6 +38,10 @@ def pytest_addoption(parser):
     parser.addoption("--update-image", default=None, metavar="NEXT.bin",
                      help="robot only: a firmware image newer than the one the robot runs, "
                           "for the update scenarios (the simulator's are made by sim_image)")
+    parser.addoption("--update-key", default=None, metavar="KEY",
+                     help="robot only: the secret key (PEM) of a robot built with "
+                          "BASE_UPDATE_KEY=KEY.pub; the update images are signed with it "
+                          "(the simulator gets a throwaway key of its own)")
     parser.addoption("--update-bad-image", default=None, metavar="BAD.bin",
                      help="robot only: a newer image that fails on the robot (panics at "
                           "start, or fails the health check), for the rollback scenario")
@@ -46,7 +50,8 @@ def pytest_addoption(parser):
 class Simulator:
     """The simulator as a subprocess: its SLCAN port and its console."""
 
-    def __init__(self, workdir):
+    def __init__(self, workdir, update_key):
+        self.update_key = update_key
         self.link = workdir / "slcan"
         self.flash = workdir / "flash.bin"
         self.log = open(workdir / "simulator.log", "w")
@@ -57,7 +62,7 @@ class Simulator:
             self.link.unlink()
         self.process = subprocess.Popen(
             [str(SIMULATOR), "--link", str(self.link), "--flash", str(self.flash),
-             "--socketcand", "127.0.0.1:0"],
+             "--socketcand", "127.0.0.1:0", "--update-key", f"{self.update_key}.pub"],
             stdin=subprocess.PIPE, stdout=self.log, stderr=subprocess.STDOUT, text=True)
         for _ in range(100):
             if self.link.exists():
@@ -115,10 +120,29 @@ SIM_IMAGE = ROOT / "target" / "debug" / "examples" / "sim_image"
 SIM_IMAGE_KIB = 64
 
 
+# basectl signs the images (`firmware sign`) and makes the simulator's key (`keygen`).
+BASECTL = ROOT / "target" / "debug" / "basectl"
+
+
+def basectl(*args):
+    if not BASECTL.exists():
+        subprocess.run(["cargo", "build", "-q", "-p", "basectl"], cwd=ROOT, check=True)
+    subprocess.run([str(BASECTL), *map(str, args)], check=True, capture_output=True)
+
+
+def sign(path, key):
+    """The image file at `path` signed with the secret key `key`, as bytes."""
+    signed = path.with_suffix(".signed.bin")
+    basectl("firmware", "sign", "--key", key, path, signed)
+    return signed.read_bytes()
+
+
 @dataclass
 class Image:
     version: str
     data: bytes
+    # The image as built, before it was signed.
+    unsigned: bytes = None
 
 
 def image_version(data):
@@ -143,8 +167,9 @@ def next_version(running):
 class SimulatorImages:
     """Images the simulator's virtual firmware runs: the version chooses what it does."""
 
-    def __init__(self, workdir):
+    def __init__(self, workdir, key):
         self.workdir = workdir
+        self.key = key
 
     def _make(self, version):
         if not SIM_IMAGE.exists():
@@ -153,7 +178,7 @@ class SimulatorImages:
         path = self.workdir / f"{version}.bin"
         subprocess.run([str(SIM_IMAGE), version, str(path), str(SIM_IMAGE_KIB)],
                        check=True, capture_output=True)
-        return Image(version, path.read_bytes())
+        return Image(version, sign(path, self.key), unsigned=path.read_bytes())
 
     def healthy(self, client):
         return self._make(next_version(client.query().version))
@@ -173,8 +198,12 @@ class RobotImages:
         path = self.config.getoption(option)
         if path is None:
             pytest.skip(f"needs {what}: pass {option} {file}")
-        data = pathlib.Path(path).read_bytes()
-        return Image(image_version(data), data)
+        path = pathlib.Path(path)
+        data = path.read_bytes()
+        key = self.config.getoption("--update-key")
+        if key is None:
+            return Image(image_version(data), data, unsigned=data)
+        return Image(image_version(data), sign(path, key), unsigned=data)
 
     def healthy(self, client):
         return self._load("--update-image", "NEXT.bin", "a firmware image newer than the robot's")
@@ -186,17 +215,26 @@ class RobotImages:
 
 
 @pytest.fixture(scope="session")
-def update_images(request, tmp_path_factory):
+def update_images(request, tmp_path_factory, simulator_key):
     """`healthy(client)` and `failing(client)`: the update scenarios' images for the
-    base `client` reaches (a robot's come from the options: skipped, before any frame is
-    sent, when the option is missing)."""
+    base `client` reaches, signed with the owner's key when there is one (a robot's come
+    from the options: skipped, before any frame is sent, when the option is missing)."""
     if request.config.getoption("--can-interface") is not None:
         return RobotImages(request.config)
-    return SimulatorImages(tmp_path_factory.mktemp("images"))
+    return SimulatorImages(tmp_path_factory.mktemp("images"), simulator_key)
 
 
 @pytest.fixture(scope="session")
-def connection(request):
+def simulator_key(tmp_path_factory):
+    """A throwaway owner's key for the simulator, which trusts it (`--update-key`): the
+    suite runs against a controller that takes only signed images, as a robot should."""
+    key = tmp_path_factory.mktemp("keys") / "owner.key"
+    basectl("firmware", "keygen", key)
+    return key
+
+
+@pytest.fixture(scope="session")
+def connection(request, simulator_key):
     interface = request.config.getoption("--can-interface")
     if interface is not None:
         bus = can.Bus(interface=interface, channel=request.config.getoption("--can-channel"),
@@ -209,7 +247,7 @@ def connection(request):
         subprocess.run(["cargo", "build", "-q", "-p", "virtual-robot",
                         "--bin", "virtual-base-controller"], cwd=ROOT, check=True)
     with tempfile.TemporaryDirectory(prefix="hil-") as workdir:
-        simulator = Simulator(pathlib.Path(workdir))
+        simulator = Simulator(pathlib.Path(workdir), simulator_key)
         simulator.start()
         base = BaseController(simulator.open_bus())
         yield base, SimulatorOperator(simulator, base)

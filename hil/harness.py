@@ -160,6 +160,8 @@ class Running:
     slot: int
     windows: int
     version: str
+    signatures_required: bool = False
+    security_version: int = 0
 
 
 class UpdateRefused(AssertionError):
@@ -240,7 +242,9 @@ class UpdateClient:
                 parts[reply.part] = reply.text
         text = b"".join(parts[part] for part in range(6)).split(b"\0")[0]
         return Running(phase=p.PHASES[state.phase], session=state.session, slot=state.slot,
-                       windows=state.windows, version=text.decode())
+                       windows=state.windows, version=text.decode(),
+                       signatures_required=state.signatures_required,
+                       security_version=state.security_version)
 
     def wait_for_running(self, version, phase, timeout=30.0):
         """Polls QUERY until `version` runs in `phase` (across the controller's reset)."""

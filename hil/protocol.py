@@ -237,7 +237,8 @@ UPDATE_ERRORS = {
     6: "OutOfOrder", 7: "Duplicate", 8: "BadCrc", 9: "WrongWindow", 10: "BadImage",
     11: "Downgrade", 12: "SameVersion", 13: "TooLarge", 14: "DigestMismatch",
     15: "Incomplete", 16: "FlashFailed", 17: "NotOnTrial", 18: "TimedOut",
-    19: "Malformed", 20: "NotFinished", 21: "Writing",
+    19: "Malformed", 20: "NotFinished", 21: "Writing", 22: "Untrusted",
+    23: "SecurityDowngrade",
 }
 ERROR_CODES = {name: code for code, name in UPDATE_ERRORS.items()}
 
@@ -309,6 +310,10 @@ class UpdateReply:
     phase: int = None
     slot: int = None
     windows: int = None
+    # STATE bytes 6 and 7: only signed images activate; the running security version
+    # (0 and 0 from a firmware that sends six bytes, as it behaved).
+    signatures_required: bool = None
+    security_version: int = None
     part: int = None
     text: bytes = None
     window: int = None
@@ -332,7 +337,9 @@ def parse_update_reply(data):
     kind = data[0]
     if kind == 0x81 and len(data) >= 6:
         return UpdateReply("state", phase=data[1], session=data[2], slot=data[3],
-                           windows=int.from_bytes(data[4:6], "little"))
+                           windows=int.from_bytes(data[4:6], "little"),
+                           signatures_required=len(data) > 6 and bool(data[6] & 1),
+                           security_version=data[7] if len(data) > 7 else 0)
     if kind == 0x82 and len(data) >= 2:
         return UpdateReply("version", part=data[1], text=data[2:8].ljust(6, b"\x00"))
     if kind == 0x83 and len(data) >= 6:

@@ -3,8 +3,9 @@ docs/protocol.md ("Firmware update (ext)"): a healthy update is confirmed and su
 a reset, a failing image is rolled back, the update and driving exclude each other,
 and bad frames on the wire get their documented answers.
 
-Against the simulator the images are made by the `sim_image` example (64 KiB);
-against a robot they come from `--update-image` and `--update-bad-image`.
+Against the simulator the images are made by the `sim_image` example (64 KiB) and
+signed with a throwaway key the simulator trusts; against a robot they come from
+`--update-image` and `--update-bad-image`, signed with `--update-key` when given.
 """
 import hashlib
 import random
@@ -382,6 +383,39 @@ def test_an_image_the_bootloader_would_refuse_is_refused_at_finish(
         activate = client.command(p.update_activate(client.session), p.DONE_ACTIVATED)
         assert (activate.kind, activate.error) == (
             "refused", p.ERROR_CODES["NoSession"]), f"{name}: {activate}"
+        after = client.query()
+        assert (after.phase, after.version, after.slot) == (
+            "idle", before.version, before.slot), f"{name}: {after}"
+
+
+def test_only_a_signed_image_passes_finish_on_a_controller_that_requires_signatures(
+        base, client, update_images):
+    """The image as built, unsigned, is refused at FINISH (Untrusted, detail 1), and
+    so is the signed one with its flags changed (detail 3); the signed image itself
+    passes. A development build takes any image: the scenario needs a build with a key."""
+    before = client.query()
+    if not before.signatures_required:
+        pytest.skip("the controller is a development build: it takes unsigned images")
+    image = update_images.healthy(client)
+    forged = bytearray(image.data)
+    forged[len(forged) - 108 + 40] ^= 0x01  # the block's flags: a downgrade claimed
+    cases = [("unsigned", image.unsigned, 1), ("forged", bytes(forged), 3),
+             ("signed", image.data, None)]
+    base.wait_until_at_rest()
+    for name, data, detail in cases:
+        begun = client.begin(len(data), p.BEGIN_FORCE | p.BEGIN_ALLOW_DOWNGRADE)
+        assert begun.kind == "done", f"{name}: {begun}"
+        client.send_digest(data)
+        for index in range(p.window_count(len(data))):
+            written = client.send_window(index, p.window_bytes(data, index))
+            assert written is not None and written.kind == "written", f"{name}: {written}"
+        finish = client.command(p.update_finish(client.session), p.DONE_FINISHED)
+        if detail is None:
+            assert finish.kind == "done", f"{name}: {finish}"
+            client.command(p.update_abort(client.session), p.DONE_ABORTED)
+        else:
+            assert (finish.kind, finish.opcode, finish.error, finish.detail) == (
+                "refused", p.OP_FINISH, p.ERROR_CODES["Untrusted"], detail), f"{name}: {finish}"
         after = client.query()
         assert (after.phase, after.version, after.slot) == (
             "idle", before.version, before.slot), f"{name}: {after}"
