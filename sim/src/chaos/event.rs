@@ -212,6 +212,14 @@ pub enum ImageKind {
     OtherChip,
     /// The announced SHA-256 does not match (refused at FINISH).
     WrongDigest,
+    /// A newer image nobody signed: the controller trusts the owner's key, so FINISH
+    /// must refuse it and it must never boot.
+    Unsigned,
+    /// Signed, by a key the controller does not trust.
+    SignedByStranger,
+    /// Signed by the owner, then its signature block's flags changed (a downgrade
+    /// claimed).
+    Forged,
 }
 
 /// What the PC does after the transfer (or instead of finishing it).

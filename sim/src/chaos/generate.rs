@@ -329,12 +329,15 @@ fn flood(plan: &mut Plan, t: u64) -> u64 {
 
 fn update_session(plan: &mut Plan, t: u64) -> u64 {
     let session = plan.range(1, 255) as u8;
-    let image = match plan.range(0, 20) {
+    let image = match plan.range(0, 23) {
         0..=9 => ImageKind::Healthy,
         10..=12 => ImageKind::PanicsAtBoot,
         13..=14 => ImageKind::NeverConfirms,
         15..=16 => ImageKind::OtherChip,
         17 => ImageKind::RefusedDriveSettings,
+        18 => ImageKind::Unsigned,
+        19 => ImageKind::SignedByStranger,
+        20 => ImageKind::Forged,
         _ => ImageKind::WrongDigest,
     };
     let windows = plan.range(1, 6) as u8;

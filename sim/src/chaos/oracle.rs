@@ -1657,6 +1657,14 @@ impl Oracle {
             return;
         };
         self.note(at, format!("boot: firmware {version}"));
+        if super::programs::untrusted(version) {
+            self.violate(
+                Rule::StoreAndBoot,
+                at,
+                format!("the bootloader started firmware {version}, which no key the controller trusts signed"),
+            );
+            return;
+        }
         let activated = self.images.activated.clone();
         let on_trial = activated.as_deref() == Some(version)
             && self.images.boots_since_activation == 0

@@ -8,6 +8,7 @@ use super::event::{Event, ImageKind, SessionEnd, SpeedPattern, StreamEnd, wire};
 use super::world::World;
 use crate::app_flash;
 use crate::runtime::now;
+use base_core::update::signature::{self, PublicKey};
 
 /// Runs one program event to its end.
 pub async fn run(world: &World, event: &Event) {
@@ -144,8 +145,34 @@ pub fn image_version(session: u8, image: ImageKind) -> String {
         ImageKind::PanicsAtBoot => format!("{base}{}", app_flash::PANIC_SUFFIX),
         ImageKind::NeverConfirms => format!("{base}{}", app_flash::NO_CONFIRM_SUFFIX),
         ImageKind::RefusedDriveSettings => format!("{base}{}", app_flash::REFUSED_DRIVES_SUFFIX),
+        ImageKind::Unsigned => format!("{base}-unsigned"),
+        ImageKind::SignedByStranger => format!("{base}-stranger"),
+        ImageKind::Forged => format!("{base}-forged"),
         _ => base,
     }
+}
+
+/// Whether a version is one of the images no trusted key signed: it must never boot.
+pub fn untrusted(version: &str) -> bool {
+    ["-unsigned", "-stranger", "-forged"]
+        .iter()
+        .any(|suffix| version.ends_with(suffix))
+}
+
+/// The owner's key the tester's controller trusts, and a stranger's.
+const OWNER_SECRET: [u8; 32] = [0x5C; 32];
+const STRANGER_SECRET: [u8; 32] = [0x5D; 32];
+
+/// The public keys the tester's controller is built with.
+pub fn trusted_keys() -> &'static [PublicKey] {
+    static KEYS: std::sync::LazyLock<[PublicKey; 1]> =
+        std::sync::LazyLock::new(|| [signature::public_key(&OWNER_SECRET)]);
+    &*KEYS
+}
+
+fn signed(image: &[u8], secret: &[u8; 32]) -> Vec<u8> {
+    let (len, block) = signature::sign(image, secret, 0).expect("a well-formed image");
+    [&image[..len], &block.to_bytes()[..]].concat()
 }
 
 fn image_bytes(session: u8, image: ImageKind, windows: u8) -> Vec<u8> {
@@ -154,7 +181,7 @@ fn image_bytes(session: u8, image: ImageKind, windows: u8) -> Vec<u8> {
     let payload = (usize::from(windows) * WINDOW)
         .saturating_sub(WINDOW / 2)
         .max(512);
-    match image {
+    let bytes = match image {
         ImageKind::OtherChip => app_flash::synthetic_image(
             base_core::update::image::Chip::Esp32c6,
             base_runtime::update::PROJECT,
@@ -162,6 +189,17 @@ fn image_bytes(session: u8, image: ImageKind, windows: u8) -> Vec<u8> {
             payload,
         ),
         _ => app_flash::sim_image(&version, payload),
+    };
+    match image {
+        ImageKind::Unsigned => bytes,
+        ImageKind::SignedByStranger => signed(&bytes, &STRANGER_SECRET),
+        ImageKind::Forged => {
+            let mut forged = signed(&bytes, &OWNER_SECRET);
+            let flags_at = forged.len() - signature::BLOCK_LEN + 40;
+            forged[flags_at] ^= 1;
+            forged
+        }
+        _ => signed(&bytes, &OWNER_SECRET),
     }
 }
 

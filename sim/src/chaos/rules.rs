@@ -26,7 +26,8 @@ pub enum Rule {
     BrakesAndFlash,
     /// The register store never loses a value silently (a reboot reads what was
     /// written, or reports the flash fault); every boot finds an image; only the
-    /// confirmed image or, once, the one just activated boots.
+    /// confirmed image or, once, the one just activated boots, and never one that no
+    /// trusted key signed.
     StoreAndBoot,
     /// Periodic frames come on time, the pose moves while the wheels do, the
     /// controller never panics or starves its watchdog, every fault the status frame

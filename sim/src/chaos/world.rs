@@ -460,7 +460,7 @@ impl World {
                 project: base_runtime::update::PROJECT,
                 version: &version,
                 security_version: booted.security_version,
-                trust: Trust::Development,
+                trust: Trust::Keys(super::programs::trusted_keys()),
                 trial_deadline_ms: base_runtime::update::TRIAL_DEADLINE_MS,
             };
             let firmware = embassy_futures::join::join(
