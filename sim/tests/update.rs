@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use base_core::can::update::{BeginFlags, Phase, UpdateCommand, UpdateError, UpdateReply};
 use base_core::can::{Command, ControlSource, Mode, RawFrame, Report};
-use base_core::registers::{BootInfo, Reg, UpdateReset};
+use base_core::registers::{Access, BootInfo, Reg, TABLE, UpdateReset};
 use base_core::update::PROJECT;
 use base_core::update::image::Chip;
 use base_core::update::partitions;
@@ -861,4 +861,73 @@ fn a_development_build_says_so_and_takes_an_unsigned_image() {
             step: base_core::can::update::Step::Finished
         }
     );
+}
+
+/// Every read-write register, read over CAN.
+fn register_values(bus: &mut dyn Bus) -> Vec<(&'static str, u16)> {
+    let mut base = Base::new(bus, TIMEOUT);
+    TABLE
+        .iter()
+        .filter(|register| register.access == Access::ReadWrite)
+        .map(|register| (register.name, base.read_register(register.address).unwrap()))
+        .collect()
+}
+
+#[test]
+fn every_register_away_from_its_default_survives_an_update_and_a_rollback() {
+    let simulator = start();
+    let mut bus = connect(&simulator);
+    standby(&mut bus);
+    {
+        let mut base = Base::new(&mut bus, TIMEOUT);
+        for register in TABLE.iter().filter(|r| r.access == Access::ReadWrite) {
+            // One step from the default; a step a rule between two registers refuses
+            // (the battery limits) leaves that register at its default.
+            let step = [
+                register.default.wrapping_add(1),
+                register.default.wrapping_sub(1),
+            ]
+            .into_iter()
+            .find(|&value| register.accepts(value));
+            if let Some(value) = step {
+                let _ = base.write_register(register, value);
+            }
+        }
+    }
+    let before = register_values(&mut bus);
+    let defaults = TABLE
+        .iter()
+        .filter(|register| register.access == Access::ReadWrite)
+        .filter(|register| before.contains(&(register.name, register.default)))
+        .count();
+    assert!(
+        defaults <= 2,
+        "most registers left their defaults: {before:?}"
+    );
+    // The store is written at standstill, 5 s after the last change.
+    std::thread::sleep(Duration::from_secs(6));
+    let mut out = Vec::new();
+    firmware::update(
+        &mut bus,
+        &plan(image_file(&simulator, "0.2.0")),
+        TIMEOUT,
+        &mut out,
+    )
+    .unwrap();
+    standby(&mut bus);
+    assert_eq!(
+        register_values(&mut bus),
+        before,
+        "after the update to 0.2.0"
+    );
+    let failing = image_file(&simulator, "0.3.0-sim-panic");
+    let error = firmware::update(&mut bus, &plan(failing), TIMEOUT, &mut Vec::new()).unwrap_err();
+    assert!(error.to_string().contains("did not start"), "{error}");
+    standby(&mut bus);
+    assert_eq!(
+        firmware::query(&mut bus, TIMEOUT).unwrap().version,
+        "0.2.0",
+        "rolled back"
+    );
+    assert_eq!(register_values(&mut bus), before, "after the rollback");
 }
