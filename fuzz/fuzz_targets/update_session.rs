@@ -3,6 +3,8 @@
 //! passing, in any order, on a controller that starts idle or with an image on trial.
 //! One op also sends a whole window of chosen bytes with its right CRC, so the
 //! window's write, its flash failure and the header checks of window 0 are reached.
+//! The controller is a development build or one that trusts a key (and has a
+//! security version), so FINISH's signature checks run on whatever follows the image.
 //! Nothing may panic, every reply must encode and decode back to itself, a window is
 //! only ever written inside the slot at a window boundary, and motion is locked
 //! whenever a session or trial runs.
@@ -14,6 +16,7 @@ use base_core::update::image::Chip;
 use base_core::update::session::{
     Event, FlashOp, MotionGate, Params, Updater, WINDOW_LEN, frame_count, window_crc,
 };
+use base_core::update::signature::{PublicKey, Trust};
 use libfuzzer_sys::fuzz_target;
 
 const COMMAND_ID: u16 = 0x2E8;
@@ -21,7 +24,11 @@ const DATA_ID: u16 = 0x2EC;
 /// A small slot, so that BEGINs of any size are refused as too large too.
 const SLOT_LEN: u32 = 64 * 1024;
 
-fn params() -> Params<'static> {
+/// The key a keyed build trusts: any 32 bytes do, a signature the fuzzer makes up
+/// fails either way.
+const TRUSTED: [PublicKey; 1] = [[0x11; 32]];
+
+fn params(build: u8) -> Params<'static> {
     Params {
         chip: Chip::Esp32c3,
         project: "base-controller",
@@ -29,6 +36,12 @@ fn params() -> Params<'static> {
         running_slot: 0,
         slot_len: SLOT_LEN,
         trial_deadline_ms: 120_000,
+        trust: if build & 2 == 0 {
+            Trust::Development
+        } else {
+            Trust::Keys(&TRUSTED)
+        },
+        running_security_version: u32::from(build >> 4),
     }
 }
 
@@ -36,7 +49,7 @@ fuzz_target!(|input: &[u8]| {
     let [on_trial, ops @ ..] = input else {
         return;
     };
-    let params = params();
+    let params = params(*on_trial);
     let mut now = 0u64;
     let mut updater = Updater::new(Timestamp::from_millis(now), on_trial & 1 == 1, &params);
     let mut ops = ops.iter().copied();
@@ -81,7 +94,12 @@ fuzz_target!(|input: &[u8]| {
                     index,
                     crc: window_crc(&bytes),
                 };
-                step(&mut updater, &mut now, Event::Command(window, AT_REST), &params);
+                step(
+                    &mut updater,
+                    &mut now,
+                    Event::Command(window, AT_REST),
+                    &params,
+                );
                 for seq in 0..frame_count(len) {
                     let frame = DataFrame {
                         seq: seq as u8,
@@ -124,7 +142,10 @@ fn step(updater: &mut Updater, now: &mut u64, event: Event, params: &Params<'_>)
     if let Some(FlashOp::WriteWindow { offset }) = effects.flash {
         let len = updater.window().len() as u32;
         assert_eq!(offset % WINDOW_LEN as u32, 0, "a window starts at a sector");
-        assert!(len > 0 && offset + len <= SLOT_LEN, "a window stays in the slot");
+        assert!(
+            len > 0 && offset + len <= SLOT_LEN,
+            "a window stays in the slot"
+        );
     }
     assert_eq!(
         updater.locks_motion(),
