@@ -353,6 +353,18 @@ def checksum_offset(image):
     return at | 0xF
 
 
+def transfer_and_finish(client, name, data):
+    """BEGIN (forced, any version), the digest and every window of `data`, then FINISH:
+    FINISH's answer."""
+    begun = client.begin(len(data), p.BEGIN_FORCE | p.BEGIN_ALLOW_DOWNGRADE)
+    assert begun.kind == "done", f"{name}: {begun}"
+    client.send_digest(data)
+    for index in range(p.window_count(len(data))):
+        written = client.send_window(index, p.window_bytes(data, index))
+        assert written is not None and written.kind == "written", f"{name}: {written}"
+    return client.command(p.update_finish(client.session), p.DONE_FINISHED)
+
+
 def test_an_image_the_bootloader_would_refuse_is_refused_at_finish(
         base, client, update_images):
     image = update_images.healthy(client).data
@@ -370,13 +382,7 @@ def test_an_image_the_bootloader_would_refuse_is_refused_at_finish(
     base.wait_until_at_rest()
     before = client.query()
     for name, data, detail in cases:
-        begun = client.begin(len(data), p.BEGIN_FORCE | p.BEGIN_ALLOW_DOWNGRADE)
-        assert begun.kind == "done", f"{name}: {begun}"
-        client.send_digest(data)
-        for index in range(p.window_count(len(data))):
-            written = client.send_window(index, p.window_bytes(data, index))
-            assert written is not None and written.kind == "written", f"{name}: {written}"
-        finish = client.command(p.update_finish(client.session), p.DONE_FINISHED)
+        finish = transfer_and_finish(client, name, data)
         assert (finish.kind, finish.opcode, finish.error, finish.detail) == (
             "refused", p.OP_FINISH, p.ERROR_CODES["BadImage"], detail), f"{name}: {finish}"
         # The refusal ended the session: nothing to activate, the old image runs on.
@@ -403,13 +409,7 @@ def test_only_a_signed_image_passes_finish_on_a_controller_that_requires_signatu
              ("signed", image.data, None)]
     base.wait_until_at_rest()
     for name, data, detail in cases:
-        begun = client.begin(len(data), p.BEGIN_FORCE | p.BEGIN_ALLOW_DOWNGRADE)
-        assert begun.kind == "done", f"{name}: {begun}"
-        client.send_digest(data)
-        for index in range(p.window_count(len(data))):
-            written = client.send_window(index, p.window_bytes(data, index))
-            assert written is not None and written.kind == "written", f"{name}: {written}"
-        finish = client.command(p.update_finish(client.session), p.DONE_FINISHED)
+        finish = transfer_and_finish(client, name, data)
         if detail is None:
             assert finish.kind == "done", f"{name}: {finish}"
             client.command(p.update_abort(client.session), p.DONE_ABORTED)

@@ -275,6 +275,22 @@ pub struct TransferStats {
     pub frames: u64,
 }
 
+/// DIGEST 0–7: the SHA-256 of the whole file, announced for `session`.
+pub fn send_digest(bus: &mut dyn Bus, session: u8, sha256: &[u8; 32]) -> Result<(), Error> {
+    let (parts, _) = sha256.as_chunks::<4>();
+    for (part, &bytes) in (0..DIGEST_PARTS).zip(parts) {
+        bus.send(
+            &UpdateCommand::Digest {
+                session,
+                part,
+                bytes,
+            }
+            .encode(),
+        )?;
+    }
+    Ok(())
+}
+
 /// Moves `image` window by window. `progress` gets (bytes written, retries).
 pub fn transfer(
     bus: &mut dyn Bus,
@@ -598,18 +614,7 @@ pub fn update(
     )?;
     // From here until activation, any way out ends the session.
     let mut abort_on_exit = abort_registration(session);
-    for part in 0..DIGEST_PARTS {
-        let at = usize::from(part) * 4;
-        let bytes = file.sha256[at..at + 4].try_into().expect("4 bytes");
-        bus.send(
-            &UpdateCommand::Digest {
-                session,
-                part,
-                bytes,
-            }
-            .encode(),
-        )?;
-    }
+    send_digest(bus, session, &file.sha256)?;
     let total = file.bytes.len();
     let show_progress = !plan.json;
     let result = transfer(bus, session, &file.bytes, |done, retries, elapsed| {

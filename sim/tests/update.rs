@@ -12,7 +12,6 @@ use base_core::registers::{Access, BootInfo, Reg, TABLE, UpdateReset};
 use base_core::update::PROJECT;
 use base_core::update::image::Chip;
 use base_core::update::partitions;
-use base_core::update::session::DIGEST_PARTS;
 use base_core::update::signature;
 use basectl::base::{Base, Error};
 use basectl::bus::{Bus, BusError, SocketcandBus};
@@ -479,19 +478,7 @@ fn a_wrong_chip_image_is_refused_before_anything_is_written() {
         .encode(),
     )
     .unwrap();
-    let digest = Sha256::digest(&image);
-    for part in 0..DIGEST_PARTS {
-        let at = usize::from(part) * 4;
-        bus.send(
-            &UpdateCommand::Digest {
-                session,
-                part,
-                bytes: digest[at..at + 4].try_into().unwrap(),
-            }
-            .encode(),
-        )
-        .unwrap();
-    }
+    firmware::send_digest(&mut bus, session, &Sha256::digest(&image).into()).unwrap();
     let error = firmware::transfer(&mut bus, session, &image, |_, _, _| {}).unwrap_err();
     assert!(error.to_string().contains("BadImage"), "{error}");
     let after = app_flash_bytes(&simulator);
@@ -718,20 +705,7 @@ fn finish_raw(bus: &mut dyn Bus, image: &[u8]) -> UpdateReply {
         .encode(),
     )
     .unwrap();
-    let digest = Sha256::digest(image);
-    for part in 0..DIGEST_PARTS {
-        let at = usize::from(part) * 4;
-        let bytes = digest[at..at + 4].try_into().unwrap();
-        bus.send(
-            &UpdateCommand::Digest {
-                session,
-                part,
-                bytes,
-            }
-            .encode(),
-        )
-        .unwrap();
-    }
+    firmware::send_digest(bus, session, &Sha256::digest(image).into()).unwrap();
     firmware::transfer(bus, session, image, |_, _, _| {}).expect("every window is written");
     bus.send(&UpdateCommand::Finish { session }.encode())
         .unwrap();
@@ -804,16 +778,7 @@ fn a_controller_with_a_key_activates_only_images_its_owner_signed() {
 
     // The owner's image raises the security version to 2.
     let raised = signed_file(&simulator, "0.3.0", 2, Some(&owner), false);
-    let mut out = Vec::new();
-    firmware::update(&mut bus, &plan(raised), TIMEOUT, &mut out).unwrap();
-    let report: serde_json::Value = serde_json::from_slice(&out).unwrap();
-    assert_eq!(report["outcome"], "confirmed");
-    standby(&mut bus);
-    let running = firmware::query(&mut bus, TIMEOUT).unwrap();
-    assert_eq!(
-        (running.version.as_str(), running.security_version),
-        ("0.3.0", 2)
-    );
+    assert_eq!(confirmed_update(&mut bus, raised), ("0.3.0".to_owned(), 2));
 
     // Below it, the owner's signature alone is not enough: a signed downgrade is.
     let older = signed_file(&simulator, "0.4.0", 1, Some(&owner), false);
@@ -829,16 +794,21 @@ fn a_controller_with_a_key_activates_only_images_its_owner_signed() {
     );
     let downgrade = signed_file(&simulator, "0.4.1", 1, Some(&owner), true);
     standby(&mut bus);
+    assert_eq!(
+        confirmed_update(&mut bus, downgrade),
+        ("0.4.1".to_owned(), 1)
+    );
+}
+
+/// `firmware update` of `file`, confirmed: the version and security version that run.
+fn confirmed_update(bus: &mut dyn Bus, file: PathBuf) -> (String, u8) {
     let mut out = Vec::new();
-    firmware::update(&mut bus, &plan(downgrade), TIMEOUT, &mut out).unwrap();
+    firmware::update(bus, &plan(file), TIMEOUT, &mut out).unwrap();
     let report: serde_json::Value = serde_json::from_slice(&out).unwrap();
     assert_eq!(report["outcome"], "confirmed");
-    standby(&mut bus);
-    let running = firmware::query(&mut bus, TIMEOUT).unwrap();
-    assert_eq!(
-        (running.version.as_str(), running.security_version),
-        ("0.4.1", 1)
-    );
+    standby(bus);
+    let running = firmware::query(bus, TIMEOUT).unwrap();
+    (running.version, running.security_version)
 }
 
 #[test]
