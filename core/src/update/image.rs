@@ -530,6 +530,33 @@ mod tests {
     }
 
     #[test]
+    fn what_follows_the_digest_is_handed_on_only_when_it_can_be_a_signature_block() {
+        let image = synthetic_image(Chip::Esp32c3, PROJECT, "1.0.0", &[3; 100]);
+        let fed = |bytes: &[u8]| {
+            let mut check = WholeImageCheck::new();
+            check.feed(bytes);
+            check
+        };
+        let block = [0xB5; signature::BLOCK_LEN];
+        let signed = fed(&[&image[..], &block].concat());
+        assert_eq!(signed.trailer(), Some(&block[..]));
+        assert_eq!(
+            signed.digest().map(|d| &d[..]),
+            Some(&image[image.len() - SHA256_LEN..])
+        );
+        // More than a block after the digest: padding, not a signature.
+        let padded = fed(&[&image[..], &[0xFF; 200]].concat());
+        assert_eq!(padded.finish(), Ok(image.len()));
+        assert_eq!(padded.trailer(), None);
+        // An image that failed a check hands on neither.
+        let mut broken = [&image[..], &block].concat();
+        broken[40] ^= 1;
+        let broken = fed(&broken);
+        assert!(broken.finish().is_err());
+        assert_eq!((broken.trailer(), broken.digest()), (None, None));
+    }
+
+    #[test]
     fn a_segment_length_past_the_end_is_refused_without_panicking() {
         let mut image = synthetic_image(Chip::Esp32c3, PROJECT, "0.2.0", &[]);
         image[28..32].copy_from_slice(&u32::MAX.to_le_bytes());

@@ -30,7 +30,7 @@ pub const BLOCK_MAGIC: [u8; 8] = *b"BCSIG\x00\x01\x00";
 /// Magic, the signer's public key, flags, the signature.
 pub const BLOCK_LEN: usize = 8 + 32 + 4 + 64;
 /// Flag: the owner allows this image below the running image's security version.
-pub const DOWNGRADE: u32 = 1 << 0;
+pub const DOWNGRADE: u32 = 0b1;
 /// Every flag this format defines; a block with another bit set is refused, so that a
 /// later flag that restricts an image is never read as absent.
 const KNOWN_FLAGS: u32 = DOWNGRADE;
