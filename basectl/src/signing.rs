@@ -23,19 +23,6 @@ pub fn public_key_path(secret: &Path) -> PathBuf {
     PathBuf::from(name)
 }
 
-/// The public key in a PEM file.
-pub fn read_public_key(path: &Path) -> Result<PublicKey, Error> {
-    let text = read_text(path)?;
-    ed25519_compact::PublicKey::from_pem(&text)
-        .and_then(|key| key.validate().map(|()| *key))
-        .map_err(|error| {
-            Error::InvalidInput(format!(
-                "{}: not an ed25519 public key in PEM ({error})",
-                path.display()
-            ))
-        })
-}
-
 fn read_secret_key(path: &Path) -> Result<[u8; 32], Error> {
     let text = read_text(path)?;
     KeyPair::from_pem(&text)
