@@ -33,11 +33,7 @@ include!(concat!(env!("OUT_DIR"), "/update_trust.rs"));
 
 /// Which images an update may activate: only those signed by a key the build was
 /// given, or any image in a development build (no key given).
-pub const TRUST: Trust<'static> = if UPDATE_KEYS.is_empty() {
-    Trust::Development
-} else {
-    Trust::Keys(UPDATE_KEYS)
-};
+pub const TRUST: Trust<'static> = Trust::of_keys(UPDATE_KEYS);
 
 /// The slot the bootloader started, or `None` when the image runs from elsewhere (a
 /// board still on the old partition table): then no update is offered.

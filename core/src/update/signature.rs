@@ -49,7 +49,16 @@ pub enum Trust<'a> {
     Keys(&'a [PublicKey]),
 }
 
-impl Trust<'_> {
+impl<'a> Trust<'a> {
+    /// What a build given these keys trusts: no key makes a development build.
+    pub const fn of_keys(keys: &'a [PublicKey]) -> Self {
+        if keys.is_empty() {
+            Self::Development
+        } else {
+            Self::Keys(keys)
+        }
+    }
+
     pub const fn accepts_unsigned(&self) -> bool {
         matches!(self, Self::Development)
     }

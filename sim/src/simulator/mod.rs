@@ -72,12 +72,7 @@ pub struct Options {
 impl Options {
     /// Which images an update may activate, as a build with these keys would.
     pub fn trust(&self) -> base_core::update::signature::Trust<'_> {
-        use base_core::update::signature::Trust;
-        if self.update_keys.is_empty() {
-            Trust::Development
-        } else {
-            Trust::Keys(&self.update_keys)
-        }
+        base_core::update::signature::Trust::of_keys(&self.update_keys)
     }
 }
 
