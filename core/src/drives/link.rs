@@ -882,12 +882,14 @@ impl DriveLink {
         }
         let command = self.command_now(now, &cycle);
         // An emergency stop goes out first, by one short broadcast that needs no reply:
-        // it never waits behind more than the transaction on the line.
+        // it never waits behind more than the transaction on the line. Also when the
+        // drives already brake to zero at a gentler rate (a stop the PC or a hand-over
+        // asked for): the e-stop's rate must not wait for the feedback read.
         if self.is_emergency_stop(&command)
             && !cycle.zero_broadcast
             && cycle
                 .written
-                .is_some_and(|written| written.rpm != MotorRpm::ZERO)
+                .is_some_and(|written| !self.is_emergency_stop(&written))
         {
             return self.broadcast_zero(cycle, &command, settings, effects);
         }
@@ -1065,7 +1067,9 @@ impl DriveLink {
         }
         cycle.written = Some(command);
         cycle.write_failures = 0;
-        if command.rpm != MotorRpm::ZERO {
+        // The drives have something other than an emergency stop again: the next one
+        // is broadcast.
+        if !self.is_emergency_stop(&command) {
             cycle.zero_broadcast = false;
         }
         self.next_in_cycle(now, cycle, settings, effects);

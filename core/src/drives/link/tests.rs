@@ -1207,6 +1207,25 @@ fn an_emergency_zero_that_comes_during_the_read_goes_out_before_the_rest_of_the_
     ]);
 }
 
+/// Where a hand-over stop meets the e-stop (found by the whole-robot simulation
+/// tester, seed 39): the drives already brake to zero at the PC's gentle rate when the
+/// e-stop comes. The e-stop's rate goes out first, by broadcast, not after the feedback
+/// read; and again at the next e-stop after another gentle zero.
+#[test]
+fn an_emergency_zero_after_a_gentle_zero_still_goes_out_first_by_broadcast() {
+    let mut bench = driving_at_600();
+    bench.run(&[
+        (1_070, Line::Demand(demand(0, true, 0)), COMMAND, &[]),
+        (1_072, Answer, WaitUntil(1_100), &[]),
+        (1_080, Line::Demand(emergency_zero()), BROADCAST_ZERO, &[]),
+        (1_081, Answer, COMMAND, &[]),
+        (1_083, Answer, WaitUntil(1_100), &[]),
+        (1_090, Line::Demand(demand(0, true, 0)), COMMAND, &[]),
+        (1_092, Answer, WaitUntil(1_100), &[]),
+        (1_095, Line::Demand(emergency_zero()), BROADCAST_ZERO, &[]),
+    ]);
+}
+
 #[test]
 fn a_stop_with_the_pcs_own_gentler_rate_is_an_ordinary_command() {
     let mut bench = driving_at_600();
