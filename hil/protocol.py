@@ -238,7 +238,7 @@ UPDATE_ERRORS = {
     11: "Downgrade", 12: "SameVersion", 13: "TooLarge", 14: "DigestMismatch",
     15: "Incomplete", 16: "FlashFailed", 17: "NotOnTrial", 18: "TimedOut",
     19: "Malformed", 20: "NotFinished", 21: "Writing", 22: "Untrusted",
-    23: "SecurityDowngrade",
+    23: "SecurityDowngrade", 24: "NotTrialOwner",
 }
 ERROR_CODES = {name: code for code, name in UPDATE_ERRORS.items()}
 
@@ -279,12 +279,13 @@ def update_abort(session):
     return UPDATE_COMMAND, bytes([OP_ABORT, session])
 
 
-def update_confirm():
-    return UPDATE_COMMAND, bytes([OP_CONFIRM])
+def update_confirm(session):
+    """`session`: the one that activated the image on trial (0: none)."""
+    return UPDATE_COMMAND, bytes([OP_CONFIRM, session])
 
 
-def update_rollback():
-    return UPDATE_COMMAND, bytes([OP_ROLLBACK])
+def update_rollback(session):
+    return UPDATE_COMMAND, bytes([OP_ROLLBACK, session])
 
 
 def window_count(size):

@@ -38,7 +38,7 @@ def client(base):
     except TimeoutError:
         return
     if running.phase == "on trial":
-        client.command(p.update_rollback(), p.DONE_ROLLED_BACK)
+        client.command(p.update_rollback(client.session), p.DONE_ROLLED_BACK)
         time.sleep(5)
     elif running.phase != "idle" and running.session == client.session:
         client.command(p.update_abort(client.session), p.DONE_ABORTED)
@@ -160,10 +160,19 @@ def test_a_healthy_update_runs_on_trial_is_confirmed_and_survives_a_reset(
     again = client.begin(len(image.data))
     assert (again.kind, again.error) == ("refused", p.ERROR_CODES["OnTrial"]), str(again)
 
-    client.expect_done(p.update_confirm(), p.DONE_CONFIRMED, timeout=5)
+    # Only the session that activated the image decides about its trial.
+    stranger = UpdateClient(base, session=client.session % 255 + 1)
+    for command, opcode in ((p.update_confirm(stranger.session), p.OP_CONFIRM),
+                            (p.update_rollback(stranger.session), p.OP_ROLLBACK)):
+        refused = stranger.command(command, p.DONE_CONFIRMED)
+        assert (refused.kind, refused.opcode, refused.error) == (
+            "refused", opcode, p.ERROR_CODES["NotTrialOwner"]), str(refused)
+    assert client.query().phase == "on trial"
+
+    client.expect_done(p.update_confirm(client.session), p.DONE_CONFIRMED, timeout=5)
     confirmed = client.query()
     assert (confirmed.version, confirmed.phase) == (image.version, "idle"), confirmed
-    twice = client.command(p.update_confirm(), p.DONE_CONFIRMED)
+    twice = client.command(p.update_confirm(client.session), p.DONE_CONFIRMED)
     assert (twice.kind, twice.opcode, twice.error) == (
         "refused", p.OP_CONFIRM, p.ERROR_CODES["NotOnTrial"]), str(twice)
 
@@ -193,7 +202,7 @@ def test_an_image_that_fails_on_the_target_is_rolled_back(base, client, update_i
             # fault within 10 s); an image that passes it is no failing image.
             status = health_check(base)
             assert status is not None, f"{image.version} passed the health check"
-            client.expect_done(p.update_rollback(), p.DONE_ROLLED_BACK, timeout=5)
+            client.expect_done(p.update_rollback(client.session), p.DONE_ROLLED_BACK, timeout=5)
             break
         if running.version == before.version and running.phase == "idle":
             # The old version: after the new one failed, or still before the reset;

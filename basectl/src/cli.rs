@@ -159,9 +159,18 @@ pub enum FirmwareCommand {
         allow_security_downgrade: bool,
     },
     /// Keep the image on trial.
-    Confirm,
+    Confirm {
+        /// The update session that activated the image (`firmware update` prints it):
+        /// only it may decide while the controller knows it.
+        #[arg(long)]
+        session: Option<u8>,
+    },
     /// Reject the image on trial: the previous one starts.
-    Rollback,
+    Rollback {
+        /// As for `confirm`.
+        #[arg(long)]
+        session: Option<u8>,
+    },
     /// End a running update session (before activation).
     Abort,
 }
@@ -352,8 +361,10 @@ pub fn run(cli: Cli, out: &mut dyn Write) -> Result<(), Error> {
                 };
                 firmware::update(bus, &plan, timeout, out)
             }
-            FirmwareCommand::Confirm => firmware::confirm(bus, timeout, out),
-            FirmwareCommand::Rollback => firmware::rollback(bus, timeout, out),
+            FirmwareCommand::Confirm { session } => firmware::confirm(bus, *session, timeout, out),
+            FirmwareCommand::Rollback { session } => {
+                firmware::rollback(bus, *session, timeout, out)
+            }
             FirmwareCommand::Abort => firmware::abort(bus, timeout, out),
         };
     }

@@ -224,6 +224,10 @@ fn refused(step: &str, error: UpdateError, detail: u8) -> Error {
             2 => " (signed with a key this controller does not trust)".into(),
             _ => " (the signature does not match the image: changed after signing)".into(),
         },
+        UpdateError::NotTrialOwner => " (another update session activated the image on trial: \
+             only it may keep or reject it; give its id with `--session`, as that update \
+             printed it, or let the trial end by itself after 120 s)"
+            .into(),
         UpdateError::SecurityDowngrade => format!(
             " (below the running security version {detail}: the owner signs a downgrade with \
              `basectl firmware sign --allow-security-downgrade`)"
@@ -661,11 +665,19 @@ pub fn update(
     if !plan.json {
         writeln!(
             out,
-            "written in {:.1} s ({:.1} KiB/s, {} retries); activated, waiting for {} to start",
+            "written in {:.1} s ({:.1} KiB/s, {} retries); activated by session {session}, \
+             waiting for {} to start",
             stats.seconds,
             total as f64 / 1024.0 / stats.seconds.max(1e-3),
             stats.retries,
             file.version
+        )?;
+        // Should this program end before it decides, the session is what lets a person
+        // decide instead of waiting for the trial's deadline.
+        writeln!(
+            out,
+            "(if this program ends first: `basectl firmware confirm --session {session}` \
+             keeps it, `rollback --session {session}` rejects it)"
         )?;
     }
     let report = |out: &mut dyn Write, outcome: &str, version: &str| -> Result<(), Error> {
@@ -678,6 +690,7 @@ pub fn update(
                 "seconds": stats.seconds,
                 "kib_per_s": total as f64 / 1024.0 / stats.seconds.max(1e-3),
                 "retries": stats.retries,
+                "session": session,
                 "registers_saved_to": registers_file.display().to_string(),
             });
             writeln!(out, "{object}")?;
@@ -686,7 +699,9 @@ pub fn update(
         }
         Ok(())
     };
-    if wait_for_trial(bus, &file.version, &running.version)?.is_none() {
+    let trial = wait_for_trial(bus, &file.version, &running.version)
+        .map_err(|error| still_on_trial(error, session))?;
+    if trial.is_none() {
         report(out, "rolled back", &running.version)?;
         return Err(Error::Aborted(format!(
             "firmware {} did not start; the controller went back to {}",
@@ -694,7 +709,7 @@ pub fn update(
         )));
     }
     if let Err(why) = health_check(bus, reply_timeout, flash_fault_before) {
-        let _ = bus.send(&UpdateCommand::Rollback.encode());
+        let _ = bus.send(&UpdateCommand::Rollback { session }.encode());
         return Err(Error::Aborted(format!(
             "firmware {} failed its health check ({why}); rolled back",
             file.version
@@ -702,11 +717,22 @@ pub fn update(
     }
     expect_done(
         bus,
-        UpdateCommand::Confirm,
+        UpdateCommand::Confirm { session },
         Step::Confirmed,
         reply_timeout * 4,
-    )?;
+    )
+    .map_err(|error| still_on_trial(error, session))?;
     report(out, "confirmed", &file.version)
+}
+
+/// An error after the activation, before the confirm: the image may be on trial, and
+/// only this program's session may decide about it; the error says how a person does.
+fn still_on_trial(error: Error, session: u8) -> Error {
+    Error::Aborted(format!(
+        "{error}; the new image may still be on trial: `basectl firmware confirm --session \
+         {session}` keeps it, `basectl firmware rollback --session {session}` rejects it, \
+         and nobody's decision within 120 s rejects it"
+    ))
 }
 
 /// On Ctrl-C or SIGTERM before activation: an ABORT through a second connection when
@@ -833,14 +859,39 @@ pub fn check(path: &Path, json_output: bool, out: &mut dyn Write) -> Result<(), 
     Ok(())
 }
 
-pub fn confirm(bus: &mut dyn Bus, timeout: Duration, out: &mut dyn Write) -> Result<(), Error> {
-    expect_done(bus, UpdateCommand::Confirm, Step::Confirmed, timeout * 4)?;
+/// Keeps the image on trial. `session`: the update session that activated it, which
+/// alone may decide (`None` for a trial whose session the controller does not know).
+pub fn confirm(
+    bus: &mut dyn Bus,
+    session: Option<u8>,
+    timeout: Duration,
+    out: &mut dyn Write,
+) -> Result<(), Error> {
+    let session = session.unwrap_or(0);
+    expect_done(
+        bus,
+        UpdateCommand::Confirm { session },
+        Step::Confirmed,
+        timeout * 4,
+    )?;
     writeln!(out, "confirmed")?;
     Ok(())
 }
 
-pub fn rollback(bus: &mut dyn Bus, timeout: Duration, out: &mut dyn Write) -> Result<(), Error> {
-    expect_done(bus, UpdateCommand::Rollback, Step::RolledBack, timeout * 4)?;
+/// Rejects the image on trial; `session` as for [`confirm`].
+pub fn rollback(
+    bus: &mut dyn Bus,
+    session: Option<u8>,
+    timeout: Duration,
+    out: &mut dyn Write,
+) -> Result<(), Error> {
+    let session = session.unwrap_or(0);
+    expect_done(
+        bus,
+        UpdateCommand::Rollback { session },
+        Step::RolledBack,
+        timeout * 4,
+    )?;
     writeln!(
         out,
         "rolled back: the controller restarts the previous firmware"

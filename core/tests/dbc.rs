@@ -724,12 +724,18 @@ fn update_cases() -> Vec<Case> {
             vec![("UpdateOpcode", named("Abort")), ("AbortSession", value(9))],
         ),
         pc(
-            UpdateCommand::Confirm.encode(),
-            vec![("UpdateOpcode", named("Confirm"))],
+            UpdateCommand::Confirm { session: 10 }.encode(),
+            vec![
+                ("UpdateOpcode", named("Confirm")),
+                ("ConfirmSession", value(10)),
+            ],
         ),
         pc(
-            UpdateCommand::Rollback.encode(),
-            vec![("UpdateOpcode", named("Rollback"))],
+            UpdateCommand::Rollback { session: 11 }.encode(),
+            vec![
+                ("UpdateOpcode", named("Rollback")),
+                ("RollbackSession", value(11)),
+            ],
         ),
         pc(
             DataFrame {

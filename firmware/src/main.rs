@@ -113,8 +113,9 @@ async fn main(_spawner: embassy_executor::Spawner) {
         let flash = base_runtime::update::UpdateFlash::new(whole, slot);
         base_runtime::update::report_start(&started);
         CHANNELS.update.lock_at_start(&started);
-        update_reset = update::boot_cause(&started, slot);
-        update_flash = Some((flash, started));
+        let boot = update::boot_cause(&started, slot);
+        update_reset = boot.cause;
+        update_flash = Some((flash, started, boot.trial_owner));
     }
 
     let (can_rx, can_tx) = can::start(board.twai, board.can_tx, board.can_rx);
@@ -190,7 +191,7 @@ async fn main(_spawner: embassy_executor::Spawner) {
     // The update task returns when the chip must restart (activated or rolled back):
     // the cause is recorded for the next boot first.
     let update = async {
-        let Some((mut flash, started)) = update_flash else {
+        let Some((mut flash, started, trial_owner)) = update_flash else {
             return core::future::pending().await;
         };
         let config = base_runtime::update::UpdateConfig {
@@ -204,6 +205,7 @@ async fn main(_spawner: embassy_executor::Spawner) {
         let reset = base_runtime::update::run(
             &mut flash,
             started,
+            trial_owner,
             &config,
             &CHANNELS.update,
             &CHANNELS.can_tx,

@@ -5,7 +5,6 @@
 //! and the reset-cause record the next boot reads to tell an update's reset from a
 //! fault.
 
-use base_core::registers::UpdateReset;
 use base_core::update::image::Chip;
 use base_core::update::otadata::Slot;
 use base_core::update::partitions;
@@ -76,11 +75,12 @@ fn store(record: ResetRecord) {
 }
 
 /// At boot, once the image's start is known (after its arming): whether an update's
-/// reset started this boot, and the record this run keeps for the next one.
-pub fn boot_cause(started: &Started, running: Slot) -> UpdateReset {
-    let (cause, keep) = trial::boot_cause(load(), &started.start, started.written, running);
-    store(keep);
-    cause
+/// reset started this boot and who activated an image on trial; the record this run
+/// keeps for the next boot is stored.
+pub fn boot_cause(started: &Started, running: Slot) -> trial::BootCause {
+    let boot = trial::boot_cause(load(), &started.start, started.written, running);
+    store(boot.keep);
+    boot
 }
 
 /// Just before the reset the update task asked for.

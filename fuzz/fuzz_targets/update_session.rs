@@ -51,7 +51,13 @@ fuzz_target!(|input: &[u8]| {
     };
     let params = params(*on_trial);
     let mut now = 0u64;
-    let mut updater = Updater::new(Timestamp::from_millis(now), on_trial & 1 == 1, &params);
+    // Bit 0: an image on trial; bit 1: the boot knows the session that activated it.
+    let owner = (on_trial & 2 != 0).then_some(on_trial | 1);
+    let mut updater = if on_trial & 1 == 1 {
+        Updater::on_trial(Timestamp::from_millis(now), owner, &params)
+    } else {
+        Updater::idle()
+    };
     let mut ops = ops.iter().copied();
     while let Some(op) = ops.next() {
         let event = match op % 6 {

@@ -203,7 +203,7 @@ impl<R: CanRx> CanRx for DeafToConfirm<R> {
     type Frame = R::Frame;
 
     async fn receive(&mut self) -> Result<R::Frame, CanError> {
-        let confirm = UpdateCommand::Confirm.encode();
+        let confirm = UpdateCommand::Confirm { session: 0 }.encode();
         loop {
             let frame = self.rx.receive().await?;
             let is_confirm = RawFrame::from_frame(&frame).is_some_and(|raw| {

@@ -154,9 +154,11 @@ impl VirtualRobot {
             Timer::after(self.boot_time).await;
             let started = base_runtime::update::arm(&mut update_flash).await;
             channels.update.lock_at_start(&started);
+            // Blank otadata: the image starts confirmed, no trial to own.
             let update = base_runtime::update::run(
                 &mut update_flash,
                 started,
+                None,
                 &config,
                 &channels.update,
                 &channels.can_tx,

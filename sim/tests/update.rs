@@ -150,6 +150,9 @@ fn an_image_that_panics_at_boot_is_rolled_back_and_reported() {
     );
 }
 
+/// Also: only the session that activated the image may send it back. Another program
+/// (a second basectl without `--session`) is refused and the image stays on trial; the
+/// session the failed update named in its error decides.
 #[test]
 fn a_rollback_the_pc_asks_for_is_reported_as_a_failed_trial() {
     let simulator = start();
@@ -158,13 +161,35 @@ fn a_rollback_the_pc_asks_for_is_reported_as_a_failed_trial() {
     // Deaf to CONFIRM: basectl's confirm goes unanswered and the image stays on trial.
     let file = image_file(&simulator, "0.2.0-sim-noconfirm");
     let mut out = Vec::new();
-    assert!(firmware::update(&mut bus, &plan(file), TIMEOUT, &mut out).is_err());
+    let error = firmware::update(&mut bus, &plan(file), TIMEOUT, &mut out).unwrap_err();
+    let error = error.to_string();
+    let session: u8 = error
+        .split("rollback --session ")
+        .nth(1)
+        .map(|rest| {
+            rest.chars()
+                .take_while(char::is_ascii_digit)
+                .collect::<String>()
+        })
+        .and_then(|number| number.parse().ok())
+        .unwrap_or_else(|| panic!("the error names the session: {error}"));
     assert_eq!(
         boot_cause(&mut bus),
         (UpdateReset::Activation, false),
         "on trial after the activation's reset"
     );
-    firmware::rollback(&mut bus, TIMEOUT, &mut Vec::new()).unwrap();
+    let stranger = firmware::rollback(&mut bus, None, TIMEOUT, &mut Vec::new()).unwrap_err();
+    assert!(stranger.to_string().contains("NotTrialOwner"), "{stranger}");
+    let other_session = session.wrapping_add(1).max(1);
+    let stranger = firmware::rollback(&mut bus, Some(other_session), TIMEOUT, &mut Vec::new());
+    assert!(stranger.is_err(), "another session's rollback is refused");
+    let running = firmware::query(&mut bus, TIMEOUT).unwrap();
+    assert_eq!(
+        (running.version.as_str(), running.phase),
+        ("0.2.0-sim-noconfirm", Phase::OnTrial),
+        "still on trial after the strangers' rollbacks"
+    );
+    firmware::rollback(&mut bus, Some(session), TIMEOUT, &mut Vec::new()).unwrap();
     simulator
         .wait_for_line(
             &format!("boot: firmware {FACTORY_VERSION} from Ota0"),

@@ -123,10 +123,12 @@ pub enum UpdateCommand {
     Activate { session: u8 },
     /// `07 sid`: end the transfer; the slot is left unbootable as it was.
     Abort { session: u8 },
-    /// `08`: the image on trial is healthy; keep it.
-    Confirm,
-    /// `09`: reject the image on trial and boot the previous one (the controller resets).
-    Rollback,
+    /// `08 sid`: the image on trial is healthy; keep it. `sid` is the session that
+    /// activated it; a frame without it (tools before the byte) names session 0.
+    Confirm { session: u8 },
+    /// `09 sid`: reject the image on trial and boot the previous one (the controller
+    /// resets). `sid` as for CONFIRM.
+    Rollback { session: u8 },
 }
 
 /// One 0x2EC frame: the frame's index in its window (modulo 256) and 7 bytes.
@@ -218,10 +220,13 @@ pub enum UpdateError {
     /// FINISH: below the running image's security version, and the owner did not sign
     /// a downgrade (detail: the running security version, up to 255).
     SecurityDowngrade = 23,
+    /// CONFIRM or ROLLBACK naming another session than the one that activated the
+    /// image on trial.
+    NotTrialOwner = 24,
 }
 
 impl UpdateError {
-    pub const ALL: [UpdateError; 23] = [
+    pub const ALL: [UpdateError; 24] = [
         Self::Busy,
         Self::NotAtRest,
         Self::ControlActive,
@@ -245,6 +250,7 @@ impl UpdateError {
         Self::Writing,
         Self::Untrusted,
         Self::SecurityDowngrade,
+        Self::NotTrialOwner,
     ];
 
     pub const fn code(self) -> u8 {
@@ -280,6 +286,7 @@ impl UpdateError {
             Self::Writing => "Writing",
             Self::Untrusted => "Untrusted",
             Self::SecurityDowngrade => "SecurityDowngrade",
+            Self::NotTrialOwner => "NotTrialOwner",
         }
     }
 }
@@ -387,14 +394,20 @@ impl UpdateCommand {
             ABORT => Self::Abort {
                 session: session()?,
             },
-            CONFIRM => Self::Confirm,
-            ROLLBACK => Self::Rollback,
+            // The session byte came with the binding of a trial to its session: a
+            // one-byte frame from an older tool names none.
+            CONFIRM => Self::Confirm {
+                session: data.get(1).copied().unwrap_or(0),
+            },
+            ROLLBACK => Self::Rollback {
+                session: data.get(1).copied().unwrap_or(0),
+            },
             _ => return Err(FrameError::UnknownSubcommand),
         };
         Ok(Some(command))
     }
 
-    /// The session the command names; 0 for QUERY, CONFIRM and ROLLBACK, which have none.
+    /// The session the command names; 0 for QUERY, which has none.
     pub const fn session(&self) -> u8 {
         match *self {
             Self::Begin { session, .. }
@@ -402,8 +415,10 @@ impl UpdateCommand {
             | Self::Window { session, .. }
             | Self::Finish { session }
             | Self::Activate { session }
-            | Self::Abort { session } => session,
-            Self::Query | Self::Confirm | Self::Rollback => 0,
+            | Self::Abort { session }
+            | Self::Confirm { session }
+            | Self::Rollback { session } => session,
+            Self::Query => 0,
         }
     }
 
@@ -416,8 +431,8 @@ impl UpdateCommand {
             Self::Finish { .. } => FINISH,
             Self::Activate { .. } => ACTIVATE,
             Self::Abort { .. } => ABORT,
-            Self::Confirm => CONFIRM,
-            Self::Rollback => ROLLBACK,
+            Self::Confirm { .. } => CONFIRM,
+            Self::Rollback { .. } => ROLLBACK,
         }
     }
 
@@ -450,8 +465,8 @@ impl UpdateCommand {
             Self::Finish { session } => RawFrame::from_array(at, [FINISH, session]),
             Self::Activate { session } => RawFrame::from_array(at, [ACTIVATE, session]),
             Self::Abort { session } => RawFrame::from_array(at, [ABORT, session]),
-            Self::Confirm => RawFrame::from_array(at, [CONFIRM]),
-            Self::Rollback => RawFrame::from_array(at, [ROLLBACK]),
+            Self::Confirm { session } => RawFrame::from_array(at, [CONFIRM, session]),
+            Self::Rollback { session } => RawFrame::from_array(at, [ROLLBACK, session]),
         }
     }
 }
@@ -647,8 +662,8 @@ mod tests {
             UpdateCommand::Finish { session: 7 },
             UpdateCommand::Activate { session: 7 },
             UpdateCommand::Abort { session: 7 },
-            UpdateCommand::Confirm,
-            UpdateCommand::Rollback,
+            UpdateCommand::Confirm { session: 7 },
+            UpdateCommand::Rollback { session: 7 },
         ];
         for command in commands {
             let frame = command.encode();
@@ -718,6 +733,18 @@ mod tests {
                 signatures_required: false,
                 security_version: 0,
             }))
+        );
+    }
+
+    #[test]
+    fn a_confirm_or_rollback_from_a_tool_before_the_session_byte_names_session_0() {
+        assert_eq!(
+            UpdateCommand::decode(id::UPDATE_COMMAND, &[0x08]),
+            Ok(Some(UpdateCommand::Confirm { session: 0 }))
+        );
+        assert_eq!(
+            UpdateCommand::decode(id::UPDATE_COMMAND, &[0x09]),
+            Ok(Some(UpdateCommand::Rollback { session: 0 }))
         );
     }
 

@@ -15,6 +15,11 @@
 //!           ── ROLLBACK or deadline ──▶ Rejecting ── FlashDone ok ──▶ (reset)
 //! ```
 //!
+//! Only the session that activated the image may CONFIRM or ROLLBACK it, when the boot
+//! knows that session (the reset record carries it across the activation's reset); a
+//! stranger's is refused with `NotTrialOwner`, and the deadline still rejects an image
+//! nobody confirms.
+//!
 //! A transfer moves the image in 4 KiB windows. For each, the PC announces the index
 //! and the CRC-32, then sends data frames (a sequence byte, 7 bytes). READY n says the
 //! controller has every frame before n; the PC may send up to [`SUB_BLOCK`] frames
@@ -132,8 +137,9 @@ pub enum Event {
 pub enum FlashOp {
     /// Erase the sector at `offset`, write [`Updater::window`] there, read it back.
     WriteWindow { offset: u32 },
-    /// Write `{next seq, New}` for the inactive slot into otadata; reset afterwards.
-    Activate,
+    /// Write `{next seq, New}` for the inactive slot into otadata; reset afterwards,
+    /// leaving `session` for the new image: only it may confirm or roll it back.
+    Activate { session: u8 },
     /// Mark the running image `Valid`.
     Confirm,
     /// Mark the running image `Invalid`; reset afterwards.
@@ -217,14 +223,33 @@ enum State {
     Activating {
         session: u8,
     },
-    /// `deadline` `None`: the image runs held (see [`Updater::held`]).
-    OnTrial {
-        deadline: Option<Timestamp>,
-    },
+    OnTrial(Trial),
+    /// The confirm write runs, asked for by session `by`.
     Confirming {
-        deadline: Option<Timestamp>,
+        trial: Trial,
+        by: u8,
     },
-    Rejecting,
+    /// The reject write runs, asked for by session `by` (0 for the deadline).
+    Rejecting {
+        by: u8,
+    },
+}
+
+/// The running image's trial.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Trial {
+    /// When it rejects itself; `None`: it runs held (see [`Updater::held`]).
+    deadline: Option<Timestamp>,
+    /// The session that activated it: only that session's CONFIRM or ROLLBACK counts.
+    /// `None`: not known, any program may decide.
+    owner: Option<u8>,
+}
+
+impl Trial {
+    /// Whether a CONFIRM or ROLLBACK naming `session` may decide about this trial.
+    fn heeds(&self, session: u8) -> bool {
+        self.owner.is_none_or(|owner| owner == session)
+    }
 }
 
 /// The session and the window it is receiving.
@@ -235,30 +260,35 @@ pub struct Updater {
 }
 
 impl Updater {
-    /// No session; `on_trial` when the running image started on trial (it refuses
-    /// motion until CONFIRM, and rejects itself after the deadline).
-    pub fn new(now: Timestamp, on_trial: bool, params: &Params<'_>) -> Self {
-        let state = if on_trial {
-            State::OnTrial {
-                deadline: Some(now.plus_millis(params.trial_deadline_ms)),
-            }
-        } else {
-            State::Idle
-        };
-        Self {
-            state,
-            window: [0xFF; WINDOW_LEN],
-            window_len: 0,
-        }
+    /// No session: the running image is confirmed.
+    pub fn idle() -> Self {
+        Self::in_state(State::Idle)
+    }
+
+    /// The running image started on trial: it refuses motion until CONFIRM, and rejects
+    /// itself after the deadline. `owner` is the session that activated it
+    /// ([`trial::BootCause::trial_owner`](super::trial::BootCause::trial_owner)).
+    pub fn on_trial(now: Timestamp, owner: Option<u8>, params: &Params<'_>) -> Self {
+        Self::in_state(State::OnTrial(Trial {
+            deadline: Some(now.plus_millis(params.trial_deadline_ms)),
+            owner,
+        }))
     }
 
     /// An image that runs held (`trial::Start::held`): nobody confirmed it and nothing
     /// would roll it back. Motion stays locked with no deadline: rejecting itself would
     /// only start it again. CONFIRM keeps it; ROLLBACK marks it invalid and resets, so
-    /// the bootloader tries the other slot.
-    pub fn held() -> Self {
+    /// the bootloader tries the other slot. `owner` as for [`Updater::on_trial`].
+    pub fn held(owner: Option<u8>) -> Self {
+        Self::in_state(State::OnTrial(Trial {
+            deadline: None,
+            owner,
+        }))
+    }
+
+    fn in_state(state: State) -> Self {
         Self {
-            state: State::OnTrial { deadline: None },
+            state,
             window: [0xFF; WINDOW_LEN],
             window_len: 0,
         }
@@ -284,15 +314,21 @@ impl Updater {
             },
             State::Finished { .. } => Phase::Finished,
             State::Activating { .. } => Phase::Activating,
-            State::OnTrial { .. } | State::Confirming { .. } | State::Rejecting => Phase::OnTrial,
+            State::OnTrial(_) | State::Confirming { .. } | State::Rejecting { .. } => {
+                Phase::OnTrial
+            }
         }
     }
 
     pub fn step(&mut self, now: Timestamp, event: Event, params: &Params<'_>) -> Effects {
         let answering = match event {
             Event::Command(command, _) => command.session(),
-            // A data frame, a flash result and time belong to the running session.
-            Event::Data(_) | Event::FlashDone(_) | Event::Tick => self.session().unwrap_or(0),
+            // A data frame, a flash result and time belong to the running session, or
+            // to the one whose decision about a trial is being written.
+            Event::Data(_) | Event::FlashDone(_) | Event::Tick => match self.state {
+                State::Confirming { by, .. } | State::Rejecting { by } => by,
+                _ => self.session().unwrap_or(0),
+            },
         };
         let mut effects = Effects {
             answering,
@@ -323,18 +359,20 @@ impl Updater {
                 size,
                 flags,
             } => self.begin(now, session, size, flags, gate, params, effects),
-            UpdateCommand::Confirm => match self.state {
-                State::OnTrial { deadline } => {
-                    self.state = State::Confirming { deadline };
+            UpdateCommand::Confirm { session } => match self.state {
+                State::OnTrial(trial) if trial.heeds(session) => {
+                    self.state = State::Confirming { trial, by: session };
                     effects.flash = Some(FlashOp::Confirm);
                 }
+                State::OnTrial(_) => effects.refuse(opcode, UpdateError::NotTrialOwner, 0),
                 _ => effects.refuse(opcode, UpdateError::NotOnTrial, 0),
             },
-            UpdateCommand::Rollback => match self.state {
-                State::OnTrial { .. } => {
-                    self.state = State::Rejecting;
+            UpdateCommand::Rollback { session } => match self.state {
+                State::OnTrial(trial) if trial.heeds(session) => {
+                    self.state = State::Rejecting { by: session };
                     effects.flash = Some(FlashOp::Reject);
                 }
+                State::OnTrial(_) => effects.refuse(opcode, UpdateError::NotTrialOwner, 0),
                 _ => effects.refuse(opcode, UpdateError::NotOnTrial, 0),
             },
             UpdateCommand::Digest { session, .. }
@@ -399,7 +437,7 @@ impl Updater {
             State::Idle => {}
             // Also with the running session's own id: another program may have drawn
             // the same id, and a PC that wants to start over ends its session first.
-            State::OnTrial { .. } => return effects.refuse(OPCODE, UpdateError::OnTrial, 0),
+            State::OnTrial(_) => return effects.refuse(OPCODE, UpdateError::OnTrial, 0),
             _ => return effects.refuse(OPCODE, UpdateError::Busy, 0),
         }
         let refusal = if !gate.at_standstill || !gate.brakes_applied {
@@ -548,8 +586,9 @@ impl Updater {
             }
             State::Finished { session, .. } => match command {
                 UpdateCommand::Activate { .. } => {
-                    self.state = State::Activating { session: *session };
-                    effects.flash = Some(FlashOp::Activate);
+                    let session = *session;
+                    self.state = State::Activating { session };
+                    effects.flash = Some(FlashOp::Activate { session });
                 }
                 UpdateCommand::Finish { session } => effects.reply(UpdateReply::Done {
                     session,
@@ -679,25 +718,24 @@ impl Updater {
                     effects.refuse(0x06, UpdateError::FlashFailed, 0);
                 }
             }
-            State::Confirming { deadline } => {
+            State::Confirming { trial, by } => {
                 if ok {
+                    let session = *by;
                     self.state = State::Idle;
                     effects.reply(UpdateReply::Done {
-                        session: 0,
+                        session,
                         step: Step::Confirmed,
                     });
                 } else {
-                    self.state = State::OnTrial {
-                        deadline: *deadline,
-                    };
+                    self.state = State::OnTrial(*trial);
                     effects.refuse(0x08, UpdateError::FlashFailed, 0);
                 }
             }
-            State::Rejecting => {
+            State::Rejecting { by } => {
                 // Even when the write failed, the reset boots the previous slot: the
                 // image armed itself (`Aborted`) at start.
                 effects.reply(UpdateReply::Done {
-                    session: 0,
+                    session: *by,
                     step: Step::RolledBack,
                 });
                 if !ok {
@@ -706,7 +744,7 @@ impl Updater {
                 effects.reset = true;
             }
             // An aborted session's write ended: nothing waits for it.
-            State::Idle | State::Finished { .. } | State::OnTrial { .. } => {}
+            State::Idle | State::Finished { .. } | State::OnTrial(_) => {}
         }
     }
 
@@ -719,11 +757,12 @@ impl Updater {
                 self.state = State::Idle;
                 effects.refuse(0, UpdateError::TimedOut, 0);
             }
-            State::OnTrial {
+            State::OnTrial(Trial {
                 deadline: Some(deadline),
-            } if now >= deadline => {
+                ..
+            }) if now >= deadline => {
                 warn!("image on trial not confirmed in time: rejecting it");
-                self.state = State::Rejecting;
+                self.state = State::Rejecting { by: 0 };
                 effects.flash = Some(FlashOp::Reject);
             }
             _ => {}

@@ -129,8 +129,9 @@ pub enum ResetRecord {
     /// An image on trial runs from this slot: if the next boot starts the other slot,
     /// the trial failed (a panic, a hang, or its deadline).
     OnTrial(Slot),
-    /// Written just before the reset that follows an activation.
-    Activation,
+    /// Written just before the reset that follows an activation, with the session
+    /// that activated the image (0: unknown), which alone may confirm or roll it back.
+    Activation { session: u8 },
     /// Written just before the reset that follows the rejection of an image on trial
     /// (its deadline passed without a confirm, or the PC asked for a rollback).
     Rejection,
@@ -144,13 +145,15 @@ impl ResetRecord {
     const REJECTION: u32 = 4;
 
     /// Three words: a magic, the record and its complement, so that zeros, noise and a
-    /// write torn by a reset read as [`ResetRecord::Empty`].
+    /// write torn by a reset read as [`ResetRecord::Empty`]. The record's low byte says
+    /// which it is; an activation's session is the byte above (0 in records from
+    /// before the session was kept, which read as unknown).
     pub const fn encode(self) -> [u32; 3] {
         let value = match self {
             Self::Empty => return [0; 3],
             Self::OnTrial(Slot::Ota0) => Self::ON_TRIAL_OTA0,
             Self::OnTrial(Slot::Ota1) => Self::ON_TRIAL_OTA1,
-            Self::Activation => Self::ACTIVATION,
+            Self::Activation { session } => Self::ACTIVATION | (session as u32) << 8,
             Self::Rejection => Self::REJECTION,
         };
         [Self::MAGIC, value, !value]
@@ -161,26 +164,41 @@ impl ResetRecord {
         if magic != Self::MAGIC || check != !value {
             return Self::Empty;
         }
+        let session = (value >> 8) as u8;
         match value {
             Self::ON_TRIAL_OTA0 => Self::OnTrial(Slot::Ota0),
             Self::ON_TRIAL_OTA1 => Self::OnTrial(Slot::Ota1),
-            Self::ACTIVATION => Self::Activation,
             Self::REJECTION => Self::Rejection,
+            _ if value & !0xFF00 == Self::ACTIVATION => Self::Activation { session },
             _ => Self::Empty,
         }
     }
+}
+
+/// How this boot came about ([`boot_cause`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct BootCause {
+    /// Whether an update's reset started this boot, for `boot_info`.
+    pub cause: UpdateReset,
+    /// The record this run keeps for the next boot.
+    pub keep: ResetRecord,
+    /// The session that activated the image now on trial (or held after its failed
+    /// arming): only its CONFIRM or ROLLBACK counts. `None` where nobody can know it
+    /// (the power was cut between the activation and this start, or an image whose
+    /// trial failed runs as the last resort): then any program may decide.
+    pub trial_owner: Option<u8>,
 }
 
 /// At boot, after [`on_start`]: how this boot came about, from the record the last run
 /// left and what otadata says, and the record this run keeps (an image on trial names
 /// its slot, so that a reset that ends its trial without a confirm reads as a failed
 /// trial on the next boot; any other image keeps none).
-pub fn boot_cause(
-    left: ResetRecord,
-    start: &Start,
-    written: bool,
-    running: Slot,
-) -> (UpdateReset, ResetRecord) {
+///
+/// The trial's owner needs no place in the kept record: no reset during a trial
+/// starts the same image on trial again (it armed itself, or a rollback bootloader
+/// aborts it), so the owner is only ever read from the activation's record.
+pub fn boot_cause(left: ResetRecord, start: &Start, written: bool, running: Slot) -> BootCause {
     let role = start.role;
     let cause = match left {
         // What matters most now: motion stays locked until a person decides.
@@ -188,7 +206,7 @@ pub fn boot_cause(
         // Whatever reset came before: the image activated last did not start.
         _ if start.refused_activation => UpdateReset::Refused,
         ResetRecord::Empty => UpdateReset::None,
-        ResetRecord::Activation => UpdateReset::Activation,
+        ResetRecord::Activation { .. } => UpdateReset::Activation,
         ResetRecord::Rejection => UpdateReset::FailedTrial,
         ResetRecord::OnTrial(slot) if slot != running => UpdateReset::FailedTrial,
         // The same slot started again (its trial failed but no other slot boots): the
@@ -200,7 +218,17 @@ pub fn boot_cause(
     } else {
         ResetRecord::Empty
     };
-    (cause, keep)
+    let trial_owner = match left {
+        ResetRecord::Activation { session } if role.on_trial() => {
+            Some(session).filter(|&session| session != 0)
+        }
+        _ => None,
+    };
+    BootCause {
+        cause,
+        keep,
+        trial_owner,
+    }
 }
 
 #[cfg(test)]
@@ -214,17 +242,27 @@ mod tests {
             ResetRecord::Empty,
             ResetRecord::OnTrial(Slot::Ota0),
             ResetRecord::OnTrial(Slot::Ota1),
-            ResetRecord::Activation,
+            ResetRecord::Activation { session: 0 },
+            ResetRecord::Activation { session: 0xC3 },
             ResetRecord::Rejection,
         ];
         for record in records {
             assert_eq!(ResetRecord::decode(record.encode()), record);
         }
-        let [magic, value, _] = ResetRecord::Activation.encode();
+        let [magic, value, _] = ResetRecord::Activation { session: 1 }.encode();
         // Torn (the check word from before), zeros after a power-on, an unknown value.
         assert_eq!(ResetRecord::decode([magic, value, 0]), ResetRecord::Empty);
         assert_eq!(ResetRecord::decode([0; 3]), ResetRecord::Empty);
         assert_eq!(ResetRecord::decode([magic, 9, !9]), ResetRecord::Empty);
+        // A slot record with a session byte, an activation with bits above the session.
+        assert_eq!(
+            ResetRecord::decode([magic, 0x101, !0x101]),
+            ResetRecord::Empty
+        );
+        assert_eq!(
+            ResetRecord::decode([magic, 0x1_0003, !0x1_0003]),
+            ResetRecord::Empty
+        );
     }
 
     #[test]
@@ -240,8 +278,10 @@ mod tests {
             refused_activation: true,
         };
         let on_trial = |slot| ResetRecord::OnTrial(slot);
+        let activation = ResetRecord::Activation { session: 0x2A };
         let cases = [
-            // what the last run left, the start, the slot, the cause, the record kept
+            // what the last run left, the start, the slot, the cause, the record kept,
+            // the trial's owner
             (
                 "power-on",
                 ResetRecord::Empty,
@@ -249,22 +289,43 @@ mod tests {
                 Slot::Ota0,
                 UpdateReset::None,
                 ResetRecord::Empty,
+                None,
             ),
             (
                 "activation, new image on trial",
-                ResetRecord::Activation,
+                activation,
                 start(StartRole::Trial),
                 Slot::Ota1,
                 UpdateReset::Activation,
                 on_trial(Slot::Ota1),
+                Some(0x2A),
+            ),
+            (
+                "activation by a controller that did not keep the session",
+                ResetRecord::Activation { session: 0 },
+                start(StartRole::Trial),
+                Slot::Ota1,
+                UpdateReset::Activation,
+                on_trial(Slot::Ota1),
+                None,
+            ),
+            (
+                "a power cut between the activation and the start",
+                ResetRecord::Empty,
+                start(StartRole::Trial),
+                Slot::Ota1,
+                UpdateReset::None,
+                on_trial(Slot::Ota1),
+                None,
             ),
             (
                 "activation, the bootloader refused the new image",
-                ResetRecord::Activation,
+                activation,
                 refused,
                 Slot::Ota0,
                 UpdateReset::Refused,
                 ResetRecord::Empty,
+                None,
             ),
             (
                 "a power cycle after the refusal, before the entry was set aside",
@@ -273,6 +334,7 @@ mod tests {
                 Slot::Ota0,
                 UpdateReset::Refused,
                 ResetRecord::Empty,
+                None,
             ),
             (
                 "rejected by its deadline or the PC",
@@ -281,6 +343,7 @@ mod tests {
                 Slot::Ota0,
                 UpdateReset::FailedTrial,
                 ResetRecord::Empty,
+                None,
             ),
             (
                 "the trial image panicked or hung",
@@ -289,6 +352,7 @@ mod tests {
                 Slot::Ota0,
                 UpdateReset::FailedTrial,
                 ResetRecord::Empty,
+                None,
             ),
             (
                 "a confirmed image's later panic",
@@ -297,6 +361,7 @@ mod tests {
                 Slot::Ota1,
                 UpdateReset::None,
                 ResetRecord::Empty,
+                None,
             ),
             (
                 "no other slot boots",
@@ -305,31 +370,37 @@ mod tests {
                 Slot::Ota1,
                 UpdateReset::Held,
                 ResetRecord::Empty,
+                None,
             ),
             (
                 "a rollback bootloader's trial",
-                ResetRecord::Activation,
+                activation,
                 start(StartRole::PendingVerify),
                 Slot::Ota1,
                 UpdateReset::Activation,
                 on_trial(Slot::Ota1),
+                Some(0x2A),
             ),
         ];
-        // A new image whose arming write failed runs held, whatever came before.
+        // A new image whose arming write failed runs held, whatever came before; the
+        // session that activated it still decides.
         assert_eq!(
-            boot_cause(
-                ResetRecord::Activation,
-                &start(StartRole::Trial),
-                false,
-                Slot::Ota1
-            ),
-            (UpdateReset::Held, on_trial(Slot::Ota1)),
+            boot_cause(activation, &start(StartRole::Trial), false, Slot::Ota1),
+            BootCause {
+                cause: UpdateReset::Held,
+                keep: on_trial(Slot::Ota1),
+                trial_owner: Some(0x2A),
+            },
             "arming failed"
         );
-        for (what, left, start, running, cause, keep) in cases {
+        for (what, left, start, running, cause, keep, trial_owner) in cases {
             assert_eq!(
                 boot_cause(left, &start, true, running),
-                (cause, keep),
+                BootCause {
+                    cause,
+                    keep,
+                    trial_owner
+                },
                 "{what}"
             );
         }
@@ -452,7 +523,13 @@ mod tests {
         // ota_1 was activated and refused; the bootloader fell back to ota_0.
         let d = data(Entry::new(1, OtaState::Valid), Entry::new(2, OtaState::New));
         let start = on_start(&d, Slot::Ota0);
-        let (cause, _) = boot_cause(ResetRecord::Activation, &start, true, Slot::Ota0);
-        assert_eq!(cause, UpdateReset::Refused, "nothing runs on trial");
+        let boot = boot_cause(
+            ResetRecord::Activation { session: 9 },
+            &start,
+            true,
+            Slot::Ota0,
+        );
+        assert_eq!(boot.cause, UpdateReset::Refused, "nothing runs on trial");
+        assert_eq!(boot.trial_owner, None);
     }
 }

@@ -344,8 +344,8 @@ pub fn report_start(started: &Started) {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum ResetRequest {
-    /// The new image is activated: boot it on trial.
-    Activated,
+    /// The new image is activated by `session`: boot it on trial.
+    Activated { session: u8 },
     /// The image on trial was rejected (asked for, or its deadline passed).
     RolledBack,
 }
@@ -355,7 +355,7 @@ impl ResetRequest {
     /// reports the update's reset rather than a watchdog reset.
     pub const fn record(self) -> ResetRecord {
         match self {
-            Self::Activated => ResetRecord::Activation,
+            Self::Activated { session } => ResetRecord::Activation { session },
             Self::RolledBack => ResetRecord::Rejection,
         }
     }
@@ -365,10 +365,13 @@ fn core_now() -> Timestamp {
     Timestamp::from_millis(Instant::now().as_millis())
 }
 
-/// Runs the update session until a reset is needed. `started` comes from [`arm`].
+/// Runs the update session until a reset is needed. `started` comes from [`arm`];
+/// `trial_owner` from [`trial::boot_cause`]: the session that activated the image on
+/// trial, which alone may confirm or roll it back.
 pub async fn run<F: NorFlash>(
     flash: &mut UpdateFlash<F>,
     started: Started,
+    trial_owner: Option<u8>,
     config: &UpdateConfig<'_>,
     link: &UpdateLink,
     can_tx: &FrameQueue,
@@ -384,9 +387,11 @@ pub async fn run<F: NorFlash>(
         running_security_version: config.security_version,
     };
     let mut updater = if started.held() {
-        Updater::held()
+        Updater::held(trial_owner)
+    } else if started.role().on_trial() {
+        Updater::on_trial(core_now(), trial_owner, &params)
     } else {
-        Updater::new(core_now(), started.role().on_trial(), &params)
+        Updater::idle()
     };
     link.set_locked(updater.locks_motion());
     loop {
@@ -443,14 +448,14 @@ pub async fn run<F: NorFlash>(
                     );
                     written
                 }
-                FlashOp::Activate => activate(flash).await,
+                FlashOp::Activate { .. } => activate(flash).await,
                 FlashOp::Confirm => set_running_state(flash, trial::confirm).await,
                 FlashOp::Reject => set_running_state(flash, trial::reject).await,
             };
             if !ok {
                 warn!("update flash operation failed");
             }
-            let reset_after = matches!(op, FlashOp::Activate | FlashOp::Reject);
+            let reset_after = matches!(op, FlashOp::Activate { .. } | FlashOp::Reject);
             effects = updater.step(core_now(), Event::FlashDone(ok), &params);
             if effects.reset && reset_after {
                 for reply in &effects.replies {
@@ -458,7 +463,7 @@ pub async fn run<F: NorFlash>(
                 }
                 Timer::after_millis(REPLY_FLUSH_MS).await;
                 return match op {
-                    FlashOp::Activate => ResetRequest::Activated,
+                    FlashOp::Activate { session } => ResetRequest::Activated { session },
                     _ => ResetRequest::RolledBack,
                 };
             }

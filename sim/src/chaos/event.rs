@@ -231,6 +231,11 @@ pub enum SessionEnd {
     Rollback,
     /// ACTIVATE, then nothing: the trial must end by itself.
     Walk,
+    /// ACTIVATE; then another program, whose session is this one's plus `offset`
+    /// (never the same; 0 stands for a tool from before the session byte), sends
+    /// CONFIRM (`keep`) or ROLLBACK, which must be refused, and the trial ends by
+    /// itself.
+    Stranger { offset: u8, keep: bool },
     /// ABORT after this many windows.
     Abort { after_windows: u8 },
     /// Silence after this many windows: the session must time out.

@@ -351,11 +351,15 @@ fn update_session(plan: &mut Plan, t: u64) -> u64 {
         2 => u16::from(windows) + 1,
         _ => plan.range(0, u64::from(u16::MAX)) as u16,
     });
-    let end = match plan.range(0, 19) {
+    let end = match plan.range(0, 21) {
         0..=7 => SessionEnd::Confirm,
         8..=11 => SessionEnd::Rollback,
         12..=13 => SessionEnd::Walk,
-        14..=16 => SessionEnd::Abort {
+        14..=15 => SessionEnd::Stranger {
+            offset: plan.range(1, 255) as u8,
+            keep: plan.chance(0.5),
+        },
+        16..=18 => SessionEnd::Abort {
             after_windows: plan.range(0, u64::from(windows)) as u8,
         },
         _ => SessionEnd::Vanish {

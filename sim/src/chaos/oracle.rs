@@ -217,12 +217,30 @@ struct Images {
     confirmed: String,
     /// Activated (ACTIVATE sent): it may boot once, on trial.
     activated: Option<String>,
-    /// CONFIRM was sent during its trial (its answer may have been lost).
+    /// The session that activated it, which alone may confirm it (`None`: not known
+    /// to the controller either, as after a power cut: anyone may).
+    activated_by: Option<u8>,
+    /// CONFIRM was sent during its trial by a program that may decide (its answer
+    /// may have been lost).
     confirm_sent: bool,
     /// The versions each session sends.
     sessions: Vec<(u8, String)>,
     /// Boots since the activation.
     boots_since_activation: u32,
+}
+
+impl Images {
+    /// Whether a CONFIRM or ROLLBACK naming `session` may decide about the image on
+    /// trial.
+    fn may_decide(&self, session: u8) -> bool {
+        self.activated_by.is_none_or(|owner| owner == session)
+    }
+
+    /// The chip's RTC RAM was cleared (a power cut, the reset button): the next boot
+    /// cannot know who activated an image.
+    fn forget_activator(&mut self) {
+        self.activated_by = None;
+    }
 }
 
 /// The stop the rules expect after a source's command ended or the e-stop: from the
@@ -370,6 +388,7 @@ impl Oracle {
             images: Images {
                 confirmed: crate::app_flash::FACTORY_VERSION.to_owned(),
                 activated: None,
+                activated_by: None,
                 confirm_sent: false,
                 sessions: Vec::new(),
                 boots_since_activation: 0,
@@ -977,12 +996,18 @@ impl Oracle {
             0x06 => {
                 if let Some(version) = session.and_then(|session| self.session_version(session)) {
                     self.images.activated = Some(version);
+                    self.images.activated_by = session.filter(|&session| session != 0);
                     self.images.confirm_sent = false;
                     self.images.boots_since_activation = 0;
                 }
             }
-            // CONFIRM
-            0x08 if self.update.trial_since.is_some() => self.images.confirm_sent = true,
+            // CONFIRM, from the session that activated the image (one without a
+            // session byte names none).
+            0x08 if self.update.trial_since.is_some()
+                && self.images.may_decide(session.unwrap_or(0)) =>
+            {
+                self.images.confirm_sent = true;
+            }
             _ => {}
         }
     }
@@ -1306,6 +1331,16 @@ impl Oracle {
                     }
                 }
                 5 if self.update.trial_since.take().is_some() => {
+                    if !self.images.may_decide(*session) {
+                        self.violate(
+                            Rule::UpdateLock,
+                            at,
+                            format!(
+                                "session {session}'s CONFIRM kept the image session {} activated",
+                                self.images.activated_by.unwrap_or(0)
+                            ),
+                        );
+                    }
                     if let Some(version) = self.images.activated.take() {
                         self.images.confirmed = version;
                     }
@@ -1643,6 +1678,13 @@ impl Oracle {
             format!("controller down{}", if panic { " (panic)" } else { "" }),
         );
         self.update_permission(at);
+    }
+
+    /// The reset that just happened cleared the chip's RTC RAM (a power cut, the reset
+    /// button), and with it the record of who activated an image.
+    pub fn rtc_cleared(&mut self, at: Us) {
+        self.advance_to(at);
+        self.images.forget_activator();
     }
 
     /// The bootloader chose an image (`None`: nothing loads).

@@ -346,8 +346,13 @@ async fn update(world: &World, session: u8, plan: SessionPlan) {
         return;
     }
     match end {
-        SessionEnd::Confirm => world.send(wire::UPDATE_COMMAND, &[0x08]).await,
-        SessionEnd::Rollback => world.send(wire::UPDATE_COMMAND, &[0x09]).await,
+        SessionEnd::Confirm => world.send(wire::UPDATE_COMMAND, &[0x08, session]).await,
+        SessionEnd::Rollback => world.send(wire::UPDATE_COMMAND, &[0x09, session]).await,
+        SessionEnd::Stranger { offset, keep } => {
+            let stranger = session.wrapping_add(offset.max(1));
+            let opcode = if keep { 0x08 } else { 0x09 };
+            world.send(wire::UPDATE_COMMAND, &[opcode, stranger]).await;
+        }
         _ => {}
     }
 }

@@ -403,9 +403,9 @@ impl World {
             let mut update_flash = UpdateFlash::new(app.clone(), booted.slot);
             let started = base_runtime::update::arm(&mut update_flash).await;
             channels.update.lock_at_start(&started);
-            let (update_reset, keep) =
+            let boot =
                 trial::boot_cause(reset_record, &started.start, started.written, booted.slot);
-            reset_record = keep;
+            reset_record = boot.keep;
             let behaviour = Behaviour::of(&booted.version);
             if behaviour == Behaviour::PanicsAtBoot {
                 Timer::after_millis(200).await;
@@ -438,9 +438,9 @@ impl World {
                 load_cell: self.robot.load_cell.clone(),
                 watchdog: watchdog.clone(),
                 reset_by_watchdog: reset_by_watchdog
-                    && update_reset == base_core::registers::UpdateReset::None,
+                    && boot.cause == base_core::registers::UpdateReset::None,
                 bluetooth,
-                update_reset,
+                update_reset: boot.cause,
             };
             {
                 let mut pads = self.pads.borrow_mut();
@@ -470,6 +470,7 @@ impl World {
             let update = base_runtime::update::run(
                 &mut update_flash,
                 started,
+                boot.trial_owner,
                 &config,
                 &channels.update,
                 &channels.can_tx,
@@ -513,7 +514,10 @@ impl World {
             reset_by_watchdog = panic;
             reset_record = match reset {
                 Reset::Update(request) => request.record(),
-                Reset::Injected(ResetKind::Button | ResetKind::PowerOn) => ResetRecord::Empty,
+                Reset::Injected(ResetKind::Button | ResetKind::PowerOn) => {
+                    self.observe(|oracle, at| oracle.rtc_cleared(at));
+                    ResetRecord::Empty
+                }
                 Reset::Injected(ResetKind::Panic) | Reset::Watchdog => reset_record,
             };
         }

@@ -284,9 +284,8 @@ async fn controller(
         let role = started.role();
         // As the chip's boot does: an update's reset before this boot is reported as
         // such (`boot_info`), not as a watchdog reset.
-        let (update_reset, keep) =
-            trial::boot_cause(reset_record, &started.start, started.written, booted.slot);
-        reset_record = keep;
+        let boot = trial::boot_cause(reset_record, &started.start, started.written, booted.slot);
+        reset_record = boot.keep;
         let behaviour = Behaviour::of(&booted.version);
         view.output.message(&format!(
             "boot: firmware {} from {:?}{}",
@@ -326,9 +325,9 @@ async fn controller(
             battery: robot.battery.clone(),
             load_cell: robot.load_cell.clone(),
             watchdog: robot.watchdog.clone(),
-            reset_by_watchdog: reset_by_watchdog && update_reset == UpdateReset::None,
+            reset_by_watchdog: reset_by_watchdog && boot.cause == UpdateReset::None,
             bluetooth,
-            update_reset,
+            update_reset: boot.cause,
         };
         let firmware = embassy_futures::join::join(
             base_runtime::run(hardware, robot.settings, &channels),
@@ -345,6 +344,7 @@ async fn controller(
         let update = base_runtime::update::run(
             &mut update_flash,
             started,
+            boot.trial_owner,
             &config,
             &channels.update,
             &channels.can_tx,

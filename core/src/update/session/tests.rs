@@ -54,7 +54,7 @@ impl Bench {
     fn with(params: Params<'static>) -> Self {
         Self {
             params,
-            updater: Updater::new(at(0), false, &params),
+            updater: Updater::idle(),
             now: 0,
             slot: std::vec![0xFF; 0x1F_0000],
             written: StdVec::new(),
@@ -204,7 +204,7 @@ fn a_whole_update_writes_every_window_once_then_activates() {
         Event::Command(C::Activate { session: SID }, AT_REST),
         &params(),
     );
-    assert_eq!(effects.flash, Some(FlashOp::Activate));
+    assert_eq!(effects.flash, Some(FlashOp::Activate { session: SID }));
     effects = bench
         .updater
         .step(at(101), Event::FlashDone(true), &params());
@@ -540,7 +540,7 @@ fn finish_compares_the_sha256_and_refuses_an_incomplete_transfer() {
 #[test]
 fn a_silent_pc_ends_the_session_after_ten_seconds() {
     let image = image("0.3.0");
-    let mut updater = Updater::new(at(0), false, &params());
+    let mut updater = Updater::idle();
     updater.step(
         at(0),
         Event::Command(
@@ -578,7 +578,7 @@ fn a_flash_failure_ends_the_session_with_a_defined_error() {
 
 #[test]
 fn an_image_on_trial_locks_motion_until_confirmed_and_rejects_itself_at_the_deadline() {
-    let mut updater = Updater::new(at(0), true, &params());
+    let mut updater = Updater::on_trial(at(0), Some(SID), &params());
     assert!(updater.locks_motion());
     assert_eq!(updater.phase(), Phase::OnTrial);
     let begin = Event::Command(
@@ -591,7 +591,11 @@ fn an_image_on_trial_locks_motion_until_confirmed_and_rejects_itself_at_the_dead
     );
     let effects = updater.step(at(1), begin, &params());
     assert!(effects.replies.iter().any(refused(UpdateError::OnTrial)));
-    let effects = updater.step(at(2), Event::Command(C::Confirm, AT_REST), &params());
+    let effects = updater.step(
+        at(2),
+        Event::Command(C::Confirm { session: SID }, AT_REST),
+        &params(),
+    );
     assert_eq!(effects.flash, Some(FlashOp::Confirm));
     let effects = updater.step(at(3), Event::FlashDone(true), &params());
     assert!(matches!(
@@ -602,10 +606,14 @@ fn an_image_on_trial_locks_motion_until_confirmed_and_rejects_itself_at_the_dead
         }]
     ));
     assert!(!updater.locks_motion());
-    let effects = updater.step(at(4), Event::Command(C::Confirm, AT_REST), &params());
+    let effects = updater.step(
+        at(4),
+        Event::Command(C::Confirm { session: SID }, AT_REST),
+        &params(),
+    );
     assert!(effects.replies.iter().any(refused(UpdateError::NotOnTrial)));
 
-    let mut unconfirmed = Updater::new(at(0), true, &params());
+    let mut unconfirmed = Updater::on_trial(at(0), Some(SID), &params());
     assert_eq!(
         unconfirmed.step(at(59_999), Event::Tick, &params()).flash,
         None
@@ -618,13 +626,21 @@ fn an_image_on_trial_locks_motion_until_confirmed_and_rejects_itself_at_the_dead
 
 #[test]
 fn rollback_rejects_the_trial_image_and_resets() {
-    let mut updater = Updater::new(at(0), true, &params());
-    let effects = updater.step(at(1), Event::Command(C::Rollback, AT_REST), &params());
+    let mut updater = Updater::on_trial(at(0), Some(SID), &params());
+    let effects = updater.step(
+        at(1),
+        Event::Command(C::Rollback { session: SID }, AT_REST),
+        &params(),
+    );
     assert_eq!(effects.flash, Some(FlashOp::Reject));
     let effects = updater.step(at(2), Event::FlashDone(true), &params());
     assert!(effects.reset);
-    let mut confirmed = Updater::new(at(0), false, &params());
-    let effects = confirmed.step(at(1), Event::Command(C::Rollback, AT_REST), &params());
+    let mut confirmed = Updater::idle();
+    let effects = confirmed.step(
+        at(1),
+        Event::Command(C::Rollback { session: SID }, AT_REST),
+        &params(),
+    );
     assert!(effects.replies.iter().any(refused(UpdateError::NotOnTrial)));
     assert_eq!(effects.flash, None);
 }
@@ -633,8 +649,12 @@ fn rollback_rejects_the_trial_image_and_resets() {
 /// PC hears that the write failed.
 #[test]
 fn a_failed_rollback_write_is_reported_and_still_resets() {
-    let mut updater = Updater::new(at(0), true, &params());
-    updater.step(at(1), Event::Command(C::Rollback, AT_REST), &params());
+    let mut updater = Updater::on_trial(at(0), Some(SID), &params());
+    updater.step(
+        at(1),
+        Event::Command(C::Rollback { session: SID }, AT_REST),
+        &params(),
+    );
     let effects = updater.step(at(2), Event::FlashDone(false), &params());
     assert!(effects.reset);
     assert!(
@@ -644,8 +664,12 @@ fn a_failed_rollback_write_is_reported_and_still_resets() {
             .any(refused(UpdateError::FlashFailed)),
         "{effects:?}"
     );
-    let mut written = Updater::new(at(0), true, &params());
-    written.step(at(1), Event::Command(C::Rollback, AT_REST), &params());
+    let mut written = Updater::on_trial(at(0), Some(SID), &params());
+    written.step(
+        at(1),
+        Event::Command(C::Rollback { session: SID }, AT_REST),
+        &params(),
+    );
     let effects = written.step(at(2), Event::FlashDone(true), &params());
     assert!(
         !effects
@@ -676,7 +700,7 @@ fn begin_takes_an_image_the_size_of_its_prefix_and_no_shorter() {
 
 #[test]
 fn a_held_image_stays_locked_without_a_deadline_until_a_person_decides() {
-    let mut held = Updater::held();
+    let mut held = Updater::held(None);
     assert!(held.locks_motion());
     assert_eq!(held.phase(), Phase::OnTrial);
     // Rejecting itself would only start it again: no deadline.
@@ -685,7 +709,11 @@ fn a_held_image_stays_locked_without_a_deadline_until_a_person_decides() {
         assert!(held.locks_motion());
     }
     // A failed confirm leaves it held; a good one keeps it and lifts the lock.
-    held.step(at(1), Event::Command(C::Confirm, AT_REST), &params());
+    held.step(
+        at(1),
+        Event::Command(C::Confirm { session: SID }, AT_REST),
+        &params(),
+    );
     let effects = held.step(at(2), Event::FlashDone(false), &params());
     assert!(
         effects
@@ -695,20 +723,129 @@ fn a_held_image_stays_locked_without_a_deadline_until_a_person_decides() {
     );
     assert!(held.locks_motion());
     assert_eq!(held.step(at(90_000), Event::Tick, &params()).flash, None);
-    let effects = held.step(at(90_001), Event::Command(C::Confirm, AT_REST), &params());
+    let effects = held.step(
+        at(90_001),
+        Event::Command(C::Confirm { session: SID }, AT_REST),
+        &params(),
+    );
     assert_eq!(effects.flash, Some(FlashOp::Confirm));
     held.step(at(90_002), Event::FlashDone(true), &params());
     assert!(!held.locks_motion());
-    // Or ROLLBACK: the bootloader tries the other slot.
-    let mut other = Updater::held();
-    let effects = other.step(at(1), Event::Command(C::Rollback, AT_REST), &params());
+    // Or ROLLBACK: the bootloader tries the other slot. A held image whose activating
+    // session is known (its arming write failed) is that session's to decide.
+    let mut owned = Updater::held(Some(SID));
+    let effects = owned.step(
+        at(1),
+        Event::Command(C::Rollback { session: 0x77 }, AT_REST),
+        &params(),
+    );
+    assert!(
+        effects
+            .replies
+            .iter()
+            .any(refused(UpdateError::NotTrialOwner))
+    );
+    let mut other = Updater::held(None);
+    let effects = other.step(
+        at(1),
+        Event::Command(C::Rollback { session: SID }, AT_REST),
+        &params(),
+    );
     assert_eq!(effects.flash, Some(FlashOp::Reject));
     assert!(other.step(at(2), Event::FlashDone(true), &params()).reset);
 }
 
+/// A second program on the bus (another basectl, a script) cannot keep or send back an
+/// image another session activated; the owner still can, and the deadline still
+/// rejects an image nobody confirms.
+#[test]
+fn only_the_session_that_activated_an_image_decides_about_its_trial() {
+    const STRANGER: u8 = 0x77;
+    let mut updater = Updater::on_trial(at(0), Some(SID), &params());
+    for (ms, command) in [
+        (1, C::Confirm { session: STRANGER }),
+        (2, C::Rollback { session: STRANGER }),
+        // A tool from before the session byte names none.
+        (3, C::Confirm { session: 0 }),
+        (4, C::Rollback { session: 0 }),
+    ] {
+        let effects = updater.step(at(ms), Event::Command(command, AT_REST), &params());
+        assert_eq!(effects.flash, None, "{command:?}");
+        let refusal = UpdateReply::Refused {
+            opcode: command.opcode(),
+            error: UpdateError::NotTrialOwner,
+            detail: 0,
+            session: command.session(),
+        };
+        assert_eq!(effects.replies.as_slice(), [refusal], "{command:?}");
+        assert!(updater.locks_motion());
+    }
+    let effects = updater.step(
+        at(5),
+        Event::Command(C::Confirm { session: SID }, AT_REST),
+        &params(),
+    );
+    assert_eq!(effects.flash, Some(FlashOp::Confirm));
+    let effects = updater.step(at(6), Event::FlashDone(true), &params());
+    assert_eq!(
+        effects.replies.as_slice(),
+        [UpdateReply::Done {
+            session: SID,
+            step: Step::Confirmed
+        }]
+    );
+
+    // A failed confirm write leaves the trial with its owner.
+    let mut failed = Updater::on_trial(at(0), Some(SID), &params());
+    failed.step(
+        at(1),
+        Event::Command(C::Confirm { session: SID }, AT_REST),
+        &params(),
+    );
+    failed.step(at(2), Event::FlashDone(false), &params());
+    let effects = failed.step(
+        at(3),
+        Event::Command(C::Rollback { session: STRANGER }, AT_REST),
+        &params(),
+    );
+    assert!(
+        effects
+            .replies
+            .iter()
+            .any(refused(UpdateError::NotTrialOwner))
+    );
+
+    let mut ignored = Updater::on_trial(at(0), Some(SID), &params());
+    ignored.step(
+        at(1),
+        Event::Command(C::Rollback { session: STRANGER }, AT_REST),
+        &params(),
+    );
+    assert_eq!(
+        ignored.step(at(60_000), Event::Tick, &params()).flash,
+        Some(FlashOp::Reject)
+    );
+}
+
+/// Where the boot cannot know who activated the image (a power cut between the
+/// activation and the start), any program may decide, as before the session was kept.
+#[test]
+fn a_trial_whose_owner_is_unknown_takes_anyones_decision() {
+    for command in [C::Confirm { session: 0 }, C::Rollback { session: 0x77 }] {
+        let mut updater = Updater::on_trial(at(0), None, &params());
+        let effects = updater.step(at(1), Event::Command(command, AT_REST), &params());
+        assert!(effects.flash.is_some(), "{command:?}");
+        let effects = updater.step(at(2), Event::FlashDone(true), &params());
+        assert!(
+            matches!(effects.replies.as_slice(), [UpdateReply::Done { session, .. }] if *session == command.session()),
+            "{effects:?}"
+        );
+    }
+}
+
 #[test]
 fn query_reports_the_phase_and_the_running_version() {
-    let mut updater = Updater::new(at(0), false, &params());
+    let mut updater = Updater::idle();
     let effects = updater.step(at(1), Event::Command(C::Query, AT_REST), &params());
     assert_eq!(effects.replies.len(), 1 + usize::from(VERSION_CHUNKS));
     let mut version = StdVec::new();
@@ -780,7 +917,7 @@ fn an_abort_while_otadata_is_written_for_activation_is_refused() {
         Event::Command(C::Activate { session: SID }, AT_REST),
         &params(),
     );
-    assert_eq!(effects.flash, Some(FlashOp::Activate));
+    assert_eq!(effects.flash, Some(FlashOp::Activate { session: SID }));
     // The activation write is under way: an abort cannot undo it.
     let effects = bench.updater.step(
         at(101),
@@ -923,10 +1060,10 @@ fn refusals_on_the_wire_name_the_session_they_answer() {
         bytes: [0; DATA_BYTES],
     }));
     assert_eq!(wire(data), [std::vec![0xFF, 0x00, 0x09, 0x04, SID]]);
-    // Commands without a session, and data without a session: 0.
+    // A CONFIRM names its own session, here with nothing on trial.
     bench.command(C::Abort { session: SID });
-    let confirm = bench.command(C::Confirm);
-    assert_eq!(wire(confirm), [std::vec![0xFF, 0x08, 0x11, 0x00, 0x00]]);
+    let confirm = bench.command(C::Confirm { session: 0x44 });
+    assert_eq!(wire(confirm), [std::vec![0xFF, 0x08, 0x11, 0x00, 0x44]]);
 }
 
 const OWNER_SECRET: [u8; 32] = [0x0A; 32];
