@@ -295,6 +295,12 @@ pub struct Oracle {
     /// The e-stop input: pressed now (or chattering), and since when it is released.
     estop_pressed: bool,
     estop_released_at: Option<Us>,
+    /// The e-stop's last press.
+    estop_pressed_at: Option<Us>,
+    /// A command came within one input sample after the e-stop's press: the firmware
+    /// may have taken it before it sampled the e-stop, and its order may reach the
+    /// wire before the stop's zero.
+    command_raced_estop: bool,
     /// Emergency latched: nothing moves until released and confirmed.
     emergency: bool,
     emergency_since: Us,
@@ -378,6 +384,8 @@ impl Oracle {
             pads: [Pad::default(); 2],
             estop_pressed: false,
             estop_released_at: None,
+            estop_pressed_at: None,
+            command_raced_estop: false,
             emergency: false,
             emergency_since: 0,
             zone_pressed: false,
@@ -843,6 +851,15 @@ impl Oracle {
             return;
         }
         let (rule, why) = if self.emergency || self.estop_active(at) {
+            // Decided from a command the firmware took before it sampled the e-stop:
+            // such an order may reach the wire until the stop's zero is due.
+            if self.command_raced_estop
+                && self
+                    .estop_pressed_at
+                    .is_some_and(|pressed| at <= pressed + bounds::ESTOP_ZERO_US)
+            {
+                return;
+            }
             (
                 Rule::EmergencyStop,
                 "in an emergency (e-stop pressed, or not yet confirmed)".to_owned(),
@@ -918,6 +935,7 @@ impl Oracle {
                 }
             }
             wire::VELOCITY if data.len() >= 5 && data[4] == wire::VELOCITY_MARKER => {
+                self.note_command_race(at);
                 let linear = i16::from_le_bytes([data[0], data[1]]);
                 let rotation = i16::from_le_bytes([data[2], data[3]]);
                 let taken = self.enable_fresh(at)
@@ -1235,7 +1253,11 @@ impl Oracle {
     /// Whether a drive fault, a line fault, a reset or a long stall could explain a
     /// reported drive fault now (for `drive`, or either).
     fn drive_fault_recent(&self, at: Us, drive: Option<usize>) -> bool {
-        let window = bounds::FAULT_CAUSE_US + self.status_period_us();
+        // A status frame shows what happened since the frame before it, which may be
+        // long ago: `status_time` 0 stops the frames, and a latched fault shows in the
+        // first one after.
+        let since_last_status = self.status.last.map_or(0, |last| at.saturating_sub(last));
+        let window = bounds::FAULT_CAUSE_US + self.status_period_us().max(since_last_status);
         let recent = |when: Option<Us>| when.is_some_and(|when| when + window >= at);
         let drives: Vec<&Drive> = match drive {
             Some(index) => vec![&self.drives[index]],
@@ -1454,6 +1476,7 @@ impl Oracle {
         if self.pad_in_control() != Some(index) {
             return;
         }
+        self.note_command_race(at);
         // L2 + Home switches the pad off: nothing else in that report counts, and the
         // pad is gone as on a link loss (docs/remote.md).
         let home_before = self.pads[index]
@@ -1476,6 +1499,17 @@ impl Oracle {
         self.update_permission(at);
     }
 
+    /// A command arriving at `at` may reach the firmware before it sampled the e-stop
+    /// pressed just before.
+    fn note_command_race(&mut self, at: Us) {
+        if self
+            .estop_pressed_at
+            .is_some_and(|pressed| at < pressed + bounds::INPUT_SAMPLE_US)
+        {
+            self.command_raced_estop = true;
+        }
+    }
+
     /// The e-stop contact changed (or starts chattering, which counts as pressed).
     /// A release is dated at the contact's last pressed moment (a chatter's last
     /// pulse).
@@ -1490,6 +1524,8 @@ impl Oracle {
         if pressed {
             if !self.estop_pressed {
                 self.note(at, "e-stop pressed".to_owned());
+                self.estop_pressed_at = Some(at);
+                self.command_raced_estop = false;
             }
             self.estop_pressed = true;
             self.estop_released_at = None;

@@ -108,11 +108,16 @@ pub mod bounds {
     /// has no source: the command path's worst latency with margin.
     pub const COMMAND_LATENCY_US: u64 = 20_000;
     /// E-stop edge → zero speed on the wire (docs/figures.md, the goal), plus the
-    /// 200 µs input sampling.
-    pub const ESTOP_ZERO_US: u64 = 8_200;
+    /// input sampling.
+    pub const ESTOP_ZERO_US: u64 = 8_000 + INPUT_SAMPLE_US;
+    /// The firmware samples the e-stop and the zone this often: it learns of an edge
+    /// up to this long after it.
+    pub const INPUT_SAMPLE_US: u64 = 200;
     /// A command write (41 bytes at 115200 baud, applied 4.3 ms after its first byte)
-    /// may have started just before the e-stop: it finishes first.
-    pub const COMMAND_WRITE_US: u64 = 4_500;
+    /// may have started before the firmware knew of the e-stop: up to one input sample
+    /// and the controller's reaction (a CAN frame taken first; 0.3 ms with margin)
+    /// after the edge. It finishes first.
+    pub const COMMAND_WRITE_US: u64 = 4_300 + INPUT_SAMPLE_US + 300;
     /// After such a write: its echo, the 29-byte emergency zero and the drives' C3.5.
     pub const ZERO_AFTER_WRITE_US: u64 = 6_000;
     /// Near standstill the slower wheel may creep this fast a little longer than the

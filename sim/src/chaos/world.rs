@@ -920,15 +920,18 @@ impl World {
     }
 }
 
-/// The end of a chatter's last active pulse (`on_us` of every `period_us` from
-/// `start`) before `end`.
+/// The end of the last active pulse of a chatter (`on_us` of every `period_us` from
+/// `start`) before `end` that the firmware surely sampled.
 fn last_pulse(start: Us, period_us: u32, on_us: u32, end: Us) -> Us {
+    // A last pulse cut shorter than one sample period may fall between two samples:
+    // the firmware never saw it, and its release time runs from the pulse before.
+    const SAMPLED_US: u64 = base_runtime::InputSettings::DEFAULT.sample_period_us as u64;
     let period = u64::from(period_us.max(1));
     let on = u64::from(on_us);
     let elapsed = end.saturating_sub(start);
     let into = elapsed % period;
     let begun = start + elapsed - into;
-    if into > 0 {
+    if into.min(on) >= SAMPLED_US {
         begun + into.min(on)
     } else {
         begun.saturating_sub(period) + on
@@ -994,4 +997,31 @@ fn install_factory_image(app: &RamFlash) {
 /// The drives' frames: what a register read of `address` with `tag` returns.
 pub fn register_read_frame(address: u8, tag: u16) -> Vec<u8> {
     wire::register_read(address, tag)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::last_pulse;
+
+    #[test]
+    fn a_last_pulse_cut_too_short_to_be_sampled_does_not_count() {
+        // 4 ms on in every 10 ms from 0.
+        assert_eq!(last_pulse(0, 10_000, 4_000, 43_000), 43_000, "cut while on");
+        assert_eq!(
+            last_pulse(0, 10_000, 4_000, 47_000),
+            44_000,
+            "cut while off"
+        );
+        assert_eq!(
+            last_pulse(0, 10_000, 4_000, 40_000),
+            34_000,
+            "cut as one begins"
+        );
+        // 100 µs of a pulse may fall between two samples: the pulse before counts.
+        assert_eq!(
+            last_pulse(0, 10_000, 4_000, 40_100),
+            34_000,
+            "cut 100 µs in"
+        );
+    }
 }
