@@ -41,8 +41,6 @@ pub mod debounce;
 pub mod drives;
 pub mod feedback;
 pub mod gamepad;
-pub mod hci_guard;
-pub mod hci_split;
 pub mod hid;
 pub mod kinematics;
 pub mod modbus;

@@ -2,7 +2,7 @@
 //! Bluetooth off.
 //!
 //! A panic resets the chip. If something in radio range makes the Bluetooth stack panic
-//! (the guard in [`crate::hci_guard`] exists so that nothing known can), it would do so
+//! (the guard in `base_bluetooth::guard` exists so that nothing known can), it would do so
 //! again after every boot, and the base would spend its life rebooting. This is the
 //! decision: the panic handler writes each panic into a [`PanicHistory`] that survives
 //! the reset (two words of RTC fast RAM on the chip, `board::panic_record` in the

@@ -6,8 +6,8 @@
 #![no_main]
 
 use base_core::time::Timestamp;
-use classic_host::hci::{BdAddr, Command, Event as HciEvent, LinkKey};
-use classic_host::{Bond, ClassicHost, Event, Packet, Params};
+use base_bluetooth::hci::{BdAddr, Command, Event as HciEvent, LinkKey};
+use base_bluetooth::{Bond, ClassicHost, Event, Packet, Params};
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|input: &[u8]| {

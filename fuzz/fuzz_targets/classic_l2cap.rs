@@ -2,7 +2,7 @@
 //! command it accepts encodes back to bytes that decode to the same command.
 #![no_main]
 
-use classic_host::l2cap::{self, Signal};
+use base_bluetooth::l2cap::{self, Signal};
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|frame: &[u8]| {

@@ -1,5 +1,5 @@
 //! Any bytes as the packets a peer's link brings, through the guard into the real BLE
-//! host: the firmware's remote task (trouble-host behind `base_core::hci_guard`) on the
+//! host: the firmware's remote task (trouble-host behind `base_bluetooth::guard`) on the
 //! simulator's scripted controller (`virtual_robot::fake_hci`), on the virtual clock.
 //! The pairing window is open; once the task has connected the fake's gamepad, the
 //! packets arrive. Nothing may panic, and the host must still make the next link (a

@@ -1,7 +1,7 @@
 //! trouble-host's ATT decoder against every short PDU, with and without the guard.
 //!
 //! trouble-host 0.8 indexes into ATT PDUs without checking their length, so a peer's
-//! short PDU panics the host (and resets the chip). The guard (`base_core::hci_guard`)
+//! short PDU panics the host (and resets the chip). The guard (`base_bluetooth::guard`)
 //! drops every ATT PDU shorter than its opcode needs. These sweeps run trouble's own
 //! decoder, so a new trouble-host version is checked too:
 //!
@@ -12,7 +12,7 @@
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::Once;
 
-use base_core::hci_guard::{AclVerdict, CID_ATT, Guard};
+use base_bluetooth::guard::{AclVerdict, CID_ATT, Guard};
 use trouble_host::att::Att;
 
 /// Every PDU length up to this is tried (the longest fixed ATT PDU is 21 bytes).

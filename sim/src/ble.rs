@@ -6,7 +6,7 @@
 //!
 //! ```text
 //!   ble::run ─── trouble-host ── ExternalController ── LeTransport ──┐
-//!   classic::run ─── classic-host ──────────────────── ClassicPort ──┴─ SerialTransport ──TCP── HCI controller
+//!   classic::run ─── Classic host ──────────────────── ClassicPort ──┴─ SerialTransport ──TCP── HCI controller
 //!                                                                        (Bumble's virtual one, or a USB
 //!                                                                         dongle behind Bumble's HCI bridge)
 //! ```

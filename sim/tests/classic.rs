@@ -1,4 +1,4 @@
-//! The PlayStation pads end to end: the firmware's Classic host (`classic-host`, in
+//! The PlayStation pads end to end: the firmware's Classic host (`base-bluetooth`, in
 //! `base_runtime::classic`) and its BLE host share one HCI transport (H4 over TCP)
 //! through the HCI splitter, to Google Bumble's virtual controllers, where a virtual
 //! DualShock 4 or DualSense (sim/ble-peer/classic_pads.py) streams its reports over

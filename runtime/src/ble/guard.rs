@@ -1,5 +1,5 @@
 //! The HCI controller as the BLE host sees it: the real controller behind the guard
-//! (`base_core::hci_guard`). Every event and ACL packet the controller sends is shown
+//! (`base_bluetooth::guard`). Every event and ACL packet the controller sends is shown
 //! to the guard first; a packet it refuses never reaches trouble-host, and a link it
 //! closes is disconnected here with HCI Disconnect ([`GuardState::close_links`]), and
 //! the host's own commands for that link are kept from the controller meanwhile.
@@ -18,7 +18,7 @@ use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::signal::Signal;
 
-use base_core::hci_guard::{self, AclVerdict, Counters, Guard};
+use base_bluetooth::guard::{self, AclVerdict, Counters, Guard};
 use bt_hci::WriteHci;
 
 /// Links the guard follows at once: more than the host's one, so that a link the
@@ -218,7 +218,7 @@ impl<C> GuardedController<'_, C> {
     fn for_closing_link<Command: cmd::Cmd + ?Sized>(&self, command: &Command) -> bool {
         let mut params = FirstBytes::default();
         let _ = command.params().write_hci(&mut params);
-        hci_guard::command_link(Command::OPCODE.to_raw(), params.bytes())
+        guard::command_link(Command::OPCODE.to_raw(), params.bytes())
             .is_some_and(|handle| self.state.is_closing(handle))
     }
 }

@@ -3,8 +3,8 @@
 //!
 //! ```text
 //!   controller ══HCI══ split::LeTransport ── ExternalController ── guard ── trouble-host (BLE task)
-//!                          │   (core::hci_split decides)
-//!                          └── split::ClassicPort ── task::run (classic-host, PlayStation decoder)
+//!                          │   (base_bluetooth::split decides)
+//!                          └── split::ClassicPort ── task::run (the Classic host, PlayStation decoder)
 //!   controller task ──requests──▶ RemoteFanout ──▶ both remote tasks ──inputs (tagged)──▶ controller task
 //! ```
 //!

@@ -16,7 +16,7 @@ use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::channel::Channel;
 use heapless::Vec;
 
-use base_core::hci_split::{Counters, Route, Sender, Splitter};
+use base_bluetooth::split::{Counters, Route, Sender, Splitter};
 
 /// The longest HCI packet body (an event's 255 parameter bytes plus its header, or an
 /// ACL packet of the controller's buffer) and its header.
@@ -353,7 +353,7 @@ where
         let command = &mut bytes[..len];
         self.state.with(|split| {
             // The Classic host's events on top of the BLE host's.
-            split.patch_command(command, classic_host::hci::EVENT_MASK);
+            split.patch_command(command, base_bluetooth::hci::EVENT_MASK);
             split.command_sent(Sender::Le, command);
         });
         self.inner.write(&RawCommand(command)).await

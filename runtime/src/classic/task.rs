@@ -1,4 +1,4 @@
-//! The PlayStation pad's task: feeds the sans-IO Classic host (`classic-host`) with
+//! The PlayStation pad's task: feeds the sans-IO Classic host (`base_bluetooth`) with
 //! the controller's packets and time, sends what it answers, and hands the pad's
 //! decoded reports to the controller as the BLE task does (`Input::Gamepad`,
 //! `Input::RemoteLink`, `Input::RemotePaired`).
@@ -31,6 +31,8 @@ use embedded_storage_async::nor_flash::NorFlash;
 use sequential_storage::cache::Cache;
 use sequential_storage::map::{MapConfig, MapStorage};
 
+use base_bluetooth::hci::{BdAddr, LinkKey};
+use base_bluetooth::{Bond, ClassicHost, Event, Packet, PadEvent, Params};
 use base_core::controller::Input;
 use base_core::gamepad::GamepadState;
 use base_core::hid::light_bar::{self, LIGHT_BAR_PARAMS, LightBar};
@@ -42,8 +44,6 @@ use base_core::registers::RemoteInfo;
 use base_core::remote::Pad;
 use base_core::time::Timestamp;
 use bt_hci::transport::Transport;
-use classic_host::hci::{BdAddr, LinkKey};
-use classic_host::{Bond, ClassicHost, Event, Packet, PadEvent, Params};
 
 use super::split::{ClassicPacket, ClassicPort};
 use crate::ble::{BOND_RECORD_LEN, RemoteEnds, RemoteRequest};

@@ -30,6 +30,20 @@ pub struct LinkKey(pub [u8; 16]);
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Handle(pub u16);
 
+impl Handle {
+    /// The handle in the 16 bits of an HCI field: its low 12 (an ACL header's top four
+    /// are the packet's flags, an event's or a command's are reserved). The one place
+    /// the guard, the splitter and the Classic host read a handle.
+    pub const fn from_bits(bits: u16) -> Self {
+        Self(bits & 0x0FFF)
+    }
+
+    /// The handle in a little-endian field of two bytes.
+    pub const fn from_field(lo: u8, hi: u8) -> Self {
+        Self::from_bits(u16::from_le_bytes([lo, hi]))
+    }
+}
+
 /// Class of Device (24 bits).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -409,7 +423,7 @@ impl<'a> Reader<'a> {
         Some(BdAddr([b[0], b[1], b[2], b[3], b[4], b[5]]))
     }
     fn handle(&mut self) -> Option<Handle> {
-        self.u16().map(|h| Handle(h & 0x0FFF))
+        self.u16().map(Handle::from_bits)
     }
     fn key(&mut self) -> Option<LinkKey> {
         let mut key = [0; 16];

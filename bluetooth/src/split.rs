@@ -1,5 +1,5 @@
 //! The HCI splitter: one Bluetooth controller, two hosts. The BLE host (trouble-host,
-//! behind the [`crate::hci_guard`]) and the Classic host (`classic-host`, for the
+//! behind the [`crate::guard`]) and the Classic host ([`crate::host`], for the
 //! PlayStation pads) share the controller's one HCI transport; the splitter decides,
 //! packet by packet, which host gets what the controller sends.
 //!
@@ -35,6 +35,8 @@
 //!   ([`Splitter::admit`]): never an error for either host, which would stop it.
 
 use heapless::Deque;
+
+use crate::hci::Handle;
 
 /// Which host a packet goes to.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -159,7 +161,7 @@ fn is_classic_only(code: u8) -> bool {
 
 fn handle_at(params: &[u8], offset: usize) -> Option<u16> {
     let bytes = params.get(offset..offset + 2)?;
-    Some(u16::from_le_bytes([bytes[0], bytes[1]]) & 0x0FFF)
+    Some(Handle::from_field(bytes[0], bytes[1]).0)
 }
 
 /// The splitter's state: the Classic links (up to `LINKS`) and the commands that wait
@@ -272,7 +274,7 @@ impl<const LINKS: usize, const PENDING: usize> Splitter<LINKS, PENDING> {
             }
             CONNECTION_COMPLETE => {
                 if let [0x00, lo, hi, ..] = params {
-                    self.open_link(u16::from_le_bytes([*lo, *hi]) & 0x0FFF);
+                    self.open_link(Handle::from_field(*lo, *hi).0);
                 }
                 Route::Classic
             }
@@ -305,7 +307,7 @@ impl<const LINKS: usize, const PENDING: usize> Splitter<LINKS, PENDING> {
 
     /// Which host an ACL packet with this handle (its 12 bits) goes to.
     pub fn route_acl(&self, handle: u16) -> Route {
-        if self.is_classic(handle & 0x0FFF) {
+        if self.is_classic(Handle::from_bits(handle).0) {
             Route::Classic
         } else {
             Route::Le
@@ -328,7 +330,7 @@ impl<const LINKS: usize, const PENDING: usize> Splitter<LINKS, PENDING> {
         }
         let mut kept = 0;
         for entry in entries.as_chunks::<4>().0 {
-            let handle = u16::from_le_bytes([entry[0], entry[1]]) & 0x0FFF;
+            let handle = Handle::from_field(entry[0], entry[1]).0;
             let owner = if self.is_classic(handle) {
                 Sender::Classic
             } else {

@@ -44,6 +44,8 @@
 //!   unwraps the parse of most events); the parse is the HCI crate's, so the caller
 //!   does it and counts it here ([`Guard::count_malformed_event`]).
 
+use crate::hci::Handle;
+
 /// L2CAP fixed channels of an LE link.
 pub const CID_ATT: u16 = 0x0004;
 pub const CID_LE_SIGNALLING: u16 = 0x0005;
@@ -400,7 +402,7 @@ pub fn command_link(opcode: u16, params: &[u8]) -> Option<u16> {
 }
 
 fn handle_of(lo: u8, hi: u8) -> u16 {
-    u16::from_le_bytes([lo, hi]) & 0x0FFF
+    Handle::from_field(lo, hi).0
 }
 
 /// One fragment against the link's reassembly: the verdict and the next state.

@@ -1,10 +1,10 @@
 //! The fuzz targets' properties (fuzz/fuzz_targets/classic_*.rs), run by `cargo test`
 //! on random inputs: any packet stream into the host, any bytes into the decoders.
 
+use base_bluetooth::hci::{BdAddr, Command, Event as HciEvent, LinkKey};
+use base_bluetooth::l2cap::{self, Signal};
+use base_bluetooth::{Bond, ClassicHost, Event, Packet, Params};
 use base_core::time::Timestamp;
-use classic_host::hci::{BdAddr, Command, Event as HciEvent, LinkKey};
-use classic_host::l2cap::{self, Signal};
-use classic_host::{Bond, ClassicHost, Event, Packet, Params};
 use proptest::prelude::*;
 
 const PAD: BdAddr = BdAddr([0x55, 0x44, 0x33, 0x22, 0x11, 0xC0]);

@@ -59,7 +59,7 @@ pub fn split(packet: &[u8]) -> Result<(Handle, Boundary, &[u8]), AclError> {
     if header >> 14 != 0 {
         return Err(AclError::BadFlags);
     }
-    Ok((Handle(header & 0x0FFF), boundary, payload))
+    Ok((Handle::from_bits(header), boundary, payload))
 }
 
 /// Puts the controller's pieces of one link back into whole L2CAP frames.
