@@ -10,6 +10,7 @@ use crate::calibration::odometry::OdometryCalibration;
 use crate::calibration::scale::{ScaleCalibration, ScaleUpdate};
 use crate::can::{BULK_READ_MAX, Command, FrameError, RawFrame, ReadEcho, Rejection, Report};
 use crate::can::{Faults, Mode, Status, StatusFlags};
+use crate::drives::AT_REST_RPM;
 use crate::feedback::{FeedbackPeriods, FeedbackSchedule};
 use crate::gamepad::GamepadState;
 use crate::kinematics::{self, KinematicsParams, MotorRpm, SafetyLimits, Twist, WheelCommand};
@@ -28,10 +29,6 @@ use crate::time::Timestamp;
 
 /// BLV R position counters: 0.01° of the motor shaft per count.
 pub const COUNTS_PER_MOTOR_REV: f64 = 36_000.0;
-
-/// A wheel whose measured motor speed is at most this is standing (r/min). The drives
-/// report whole r/min and hover around ±1 while holding zero speed.
-pub const AT_REST_RPM: i32 = 2;
 
 /// HX711 samples averaged for one weight value (at 10 Hz: the last second).
 pub const SCALE_AVERAGE_SAMPLES: usize = 10;

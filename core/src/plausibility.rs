@@ -53,7 +53,7 @@
 //! commissioning check (`basectl commission wheels`) covers that, with a person
 //! watching the wheels.
 
-use crate::controller::AT_REST_RPM;
+use crate::drives::AT_REST_RPM;
 use crate::kinematics::MotorRpm;
 use crate::odometry::EncoderCounts;
 use crate::supervisor::Wheel;

@@ -7,7 +7,8 @@
 
 use base_core::calibration::{OdometryCalibrationCommand, ScaleCalibrationCommand};
 use base_core::can::{Command, ControlSource, Mode, RawFrame, ReadEcho, Report, Status, id};
-use base_core::controller::{AT_REST_RPM, BootReport, Controller, Input, Output};
+use base_core::controller::{BootReport, Controller, Input, Output};
+use base_core::drives::AT_REST_RPM;
 use base_core::gamepad::{Buttons, Dpad, GamepadState};
 use base_core::kinematics::{self, KinematicsParams, MotorRpm, SafetyLimits, Twist};
 use base_core::odometry::{EncoderCounts, Pose};

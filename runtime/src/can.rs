@@ -12,8 +12,8 @@ use heapless::Deque;
 use base_core::can::{BULK_READ_MAX, RawFrame, id};
 use base_core::controller::Input;
 
-use crate::channels::{InputSender, RawMutex};
 use crate::hw::{BusState, CanError, CanRx, CanTx};
+use crate::sync::{InputSender, RawMutex};
 use crate::update::UpdateLink;
 
 /// Replies the transmit queue holds: register replies and the update task's replies.

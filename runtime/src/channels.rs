@@ -3,12 +3,11 @@
 //! consumes them; each task receives only the ends it uses (the `*_ends` methods), so
 //! its signature shows its place in the topology.
 //!
-//! The tasks share one executor, so a critical-section mutex costs almost nothing; it
-//! is still the right one because the BLE task may run on another executor or
-//! interrupt priority.
+//! The mutex kind and the controller's input queue, which every task names, live in
+//! [`crate::sync`]: the tasks import them from there and the hub imports the tasks'
+//! types, so no import runs both ways.
 
-use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
-use embassy_sync::channel::{Channel, Receiver, Sender};
+use embassy_sync::channel::Channel;
 use embassy_sync::signal::Signal;
 
 use base_core::controller::Input;
@@ -20,16 +19,8 @@ use crate::control::ControlEnds;
 use crate::drive_link::{DriveBrakes, DriveDemand, DriveLinkEnds};
 use crate::liveness::Liveness;
 use crate::store::PendingWrites;
+use crate::sync::{INPUT_QUEUE, RawMutex};
 use crate::update::UpdateLink;
-
-pub type RawMutex = CriticalSectionRawMutex;
-
-/// Room for bursts: a CAN burst of commands plus a drive cycle's worth of feedback.
-pub const INPUT_QUEUE: usize = 32;
-
-/// Where every task sends what the controller must hear of.
-pub type InputSender<'a> = Sender<'a, RawMutex, Input, INPUT_QUEUE>;
-pub type InputReceiver<'a> = Receiver<'a, RawMutex, Input, INPUT_QUEUE>;
 
 pub struct Channels {
     /// CAN RX, drive link, sensors, inputs, remote → controller. A queue because every

@@ -15,11 +15,11 @@ use base_core::time;
 
 use crate::ble::RemoteRequest;
 use crate::can::FrameQueue;
-use crate::channels::{InputReceiver, RawMutex};
 use crate::drive_link::{DriveBrakes, DriveDemand};
 use crate::hw::OutputPin;
 use crate::liveness::{CriticalTask, Liveness};
 use crate::store::PendingWrites;
+use crate::sync::{InputReceiver, RawMutex};
 use crate::update::UpdateLink;
 
 /// Timeouts and periodic frames are checked this often (the controller's contract).

@@ -8,9 +8,9 @@ use base_core::controller::Input;
 use base_core::debounce::{Debouncer, SafetyDebouncer};
 use base_core::time::Timestamp;
 
-use crate::channels::InputSender;
 use crate::control::core_now;
 use crate::liveness::{CriticalTask, Liveness};
+use crate::sync::InputSender;
 
 /// Which pin level means "active" (pressed, occupied).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

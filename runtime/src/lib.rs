@@ -35,6 +35,7 @@ pub mod inputs;
 pub mod liveness;
 pub mod sensors;
 pub mod store;
+pub mod sync;
 pub mod update;
 
 use embassy_futures::join::{join, join4, join5};

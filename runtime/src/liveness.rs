@@ -9,7 +9,7 @@ use crate::hw::Watchdog;
 use core::cell::Cell;
 use embassy_sync::blocking_mutex::Mutex;
 
-use crate::channels::RawMutex;
+use crate::sync::RawMutex;
 
 /// How often the check-ins are collected. Every critical task checks in at least every
 /// 200 ms (the drive link's poll interval), so a healthy firmware feeds each period;

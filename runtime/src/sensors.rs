@@ -5,7 +5,7 @@ use embassy_time::{Duration, Ticker, Timer};
 use crate::hw::{BatteryVoltage, LoadCell};
 use base_core::controller::Input;
 
-use crate::channels::InputSender;
+use crate::sync::InputSender;
 
 /// The battery filter's time constant is 20 s; one sample a second is plenty.
 pub const BATTERY_PERIOD: Duration = Duration::from_secs(1);

@@ -8,10 +8,10 @@ use std::ops::Range;
 
 use base_core::controller::{Input, Persist};
 use base_core::registers::{LoadReport, Reg, Registers, encode_record};
-use base_runtime::channels::{INPUT_QUEUE, RawMutex};
 use base_runtime::store::{
     PendingBatch, PendingWrites, RETRY_FAILED_BATCH, RegisterStore, StoreError, run,
 };
+use base_runtime::sync::{INPUT_QUEUE, RawMutex};
 use embassy_futures::select::{Either, select};
 use embassy_sync::channel::Channel;
 use embassy_time::{Duration, Timer};

@@ -9,6 +9,10 @@ pub mod settings;
 pub use link::{DriveDemand, DriveLink};
 pub use settings::{AccelUnit, DriveSettings, LineSettings, Parity, SettingError};
 
+/// A wheel whose measured motor speed is at most this is standing (r/min). The drives
+/// report whole r/min and hover around ±1 while holding zero speed.
+pub const AT_REST_RPM: i32 = 2;
+
 /// Drive registers (address = 2 × NET-ID) and the NET-IDs of the share lists.
 pub mod reg {
     /// DDO operation type (NET-ID 45); DDO position (46), speed, rates follow.

@@ -48,7 +48,7 @@ use base_core::remote::Pad;
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::signal::Signal;
 
-use crate::channels::RawMutex;
+use crate::sync::RawMutex;
 
 use super::bond::{BOND_RECORD_LEN, decode_bond, encode_bond};
 use super::guard::{GuardState, GuardedController};

@@ -22,8 +22,8 @@ use embassy_sync::signal::Signal;
 use base_core::hid::light_bar::BaseLight;
 use base_core::remote::Pad;
 
-use crate::channels::{InputSender, RawMutex};
 use crate::store::PendingWrites;
+use crate::sync::{InputSender, RawMutex};
 
 /// What the controller asks of the Bluetooth remote task.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

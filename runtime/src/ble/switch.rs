@@ -9,7 +9,7 @@ use embassy_sync::signal::Signal;
 use base_core::panic_loop::Bluetooth;
 
 use super::RemoteRequest;
-use crate::channels::RawMutex;
+use crate::sync::RawMutex;
 
 /// Waits until the remote may start: at once if `bluetooth` is on; after a panic loop,
 /// until a request from the controller says Bluetooth was turned on, then calls

@@ -31,7 +31,7 @@ use embedded_storage_async::nor_flash::NorFlash;
 use base_core::remote::Pad;
 
 use crate::ble::{RemoteEnds, RemoteRequest};
-use crate::channels::RawMutex;
+use crate::sync::RawMutex;
 
 /// Runs both remotes for ever on one controller reached through `transport`: the BLE
 /// central (`crate::ble::run`, with the random static `ble_address`) and the

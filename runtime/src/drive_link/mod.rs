@@ -11,10 +11,10 @@ use embassy_futures::select::{Either, select};
 use embassy_sync::signal::Signal;
 use embassy_time::{Instant, Timer};
 
-use crate::channels::{InputSender, RawMutex};
 use crate::control::core_now;
 use crate::hw::Rs485;
 use crate::liveness::{CriticalTask, Liveness};
+use crate::sync::{InputSender, RawMutex};
 use base_core::drives::DriveSettings;
 use base_core::drives::link::{DriveLink, Event, Next};
 use base_core::modbus::Frame;

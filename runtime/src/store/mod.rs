@@ -123,7 +123,7 @@ use sequential_storage::cache::page_pointers::ArrayPagePointers;
 use sequential_storage::cache::page_states::ArrayPageStates;
 use sequential_storage::map::{MapConfig, MapStorage};
 
-use crate::channels::{InputSender, RawMutex};
+use crate::sync::{InputSender, RawMutex};
 use base_core::controller::{Input, Persist};
 use base_core::registers::{
     ADDRESS_COUNT, Access, DEPENDENT_GROUPS, LoadReport, RECORD_LEN, RecordError, Registers,

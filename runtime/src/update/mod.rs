@@ -29,8 +29,8 @@ use base_core::update::signature::Trust;
 use base_core::update::trial::{self, ResetRecord, Start, StartRole};
 
 use crate::can::FrameQueue;
-use crate::channels::RawMutex;
 use crate::hw::NorFlash;
+use crate::sync::RawMutex;
 
 pub use base_core::update::PROJECT;
 
