@@ -16,7 +16,7 @@ use embassy_futures::select::{Either, select};
 use embassy_futures::yield_now;
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::channel::Channel;
-use embassy_time::{Instant, Timer};
+use embassy_time::{Duration, Instant, Ticker, Timer};
 
 use base_core::can::update::{DataFrame, UpdateCommand, UpdateError, UpdateReply};
 use base_core::can::{FrameError, RawFrame, id};
@@ -394,9 +394,14 @@ pub async fn run<F: NorFlash>(
         Updater::idle()
     };
     link.set_locked(updater.locks_motion());
+    // The tick comes every TICK_MS however many frames arrive, and is asked first: a
+    // flood of frames (QUERY from any program, every millisecond) must not hold off
+    // the silence and trial deadlines, and with them the motion lock's end.
+    let mut ticker = Ticker::every(Duration::from_millis(TICK_MS));
     loop {
-        let event = match select(link.frames.receive(), Timer::after_millis(TICK_MS)).await {
-            Either::First(frame) => match decode(&frame) {
+        let event = match select(ticker.next(), link.frames.receive()).await {
+            Either::First(()) => Event::Tick,
+            Either::Second(frame) => match decode(&frame) {
                 Ok(Some(Decoded::Command(command))) => Event::Command(command, link.gate()),
                 Ok(Some(Decoded::Data(data))) => Event::Data(data),
                 Ok(None) => continue,
@@ -424,7 +429,6 @@ pub async fn run<F: NorFlash>(
                     continue;
                 }
             },
-            Either::Second(()) => Event::Tick,
         };
         let mut effects = updater.step(core_now(), event, &params);
         loop {
