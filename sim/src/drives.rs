@@ -1221,6 +1221,9 @@ struct Drive {
     reversal: Option<Reversed>,
     /// What the motor was last told, as the event log saw it; `None` until the log is on.
     observed: Option<MotorOrder>,
+    /// Its direction parameter changed since the last order was logged: the next one
+    /// logged is the same command turned round, not a new command.
+    turned_round: bool,
     /// Changes of [`Self::observed`] not yet taken (see "Motor orders" below).
     orders: Vec<MotorOrderChange>,
     power_ons: u32,
@@ -1253,6 +1256,7 @@ impl Drive {
             feedback_lie: None,
             reversal: None,
             observed: None,
+            turned_round: false,
             orders: Vec::new(),
             power_ons: 0,
         }
@@ -1791,6 +1795,7 @@ impl DrivesHandle {
     pub fn set_reversed(&self, slave: u8, reversal: Option<Reversal>) {
         self.change(|bus, _| {
             let drive = &mut bus.drives[bus.index_of(slave)];
+            drive.turned_round = drive.reversal.is_some() != reversal.is_some();
             drive.reversal = reversal.map(|reversal| match reversal {
                 Reversal::Motion => Reversed::Motion,
                 Reversal::Feedback => Reversed::Feedback {
@@ -1858,6 +1863,9 @@ pub struct MotorOrderChange {
     pub order: MotorOrder,
     /// The shaft's speed when the order changed, r/min in the drive's own direction.
     pub speed_rpm: f64,
+    /// Logged because the drive's direction parameter changed: the command is the one
+    /// before, turned round.
+    pub turned_round: bool,
 }
 
 impl Drive {
@@ -1879,6 +1887,7 @@ impl Drive {
             return;
         };
         let order = self.order(config);
+        let turned_round = core::mem::take(&mut self.turned_round);
         if order != last {
             self.observed = Some(order);
             self.orders.push(MotorOrderChange {
@@ -1886,6 +1895,7 @@ impl Drive {
                 slave: self.config.address,
                 order,
                 speed_rpm: self.motor.speed_rpm,
+                turned_round,
             });
         }
     }
@@ -1907,6 +1917,7 @@ impl DrivesHandle {
                 slave: drive.config.address,
                 order,
                 speed_rpm: drive.motor.speed_rpm,
+                turned_round: false,
             });
         }
     }

@@ -843,7 +843,9 @@ impl Oracle {
         let slowing = before.excited()
             && before.target_rpm.signum() == order.target_rpm.signum()
             && target < before.target_rpm.abs();
-        if slowing {
+        // A drive reversed (its direction parameter changed) turns the command it has
+        // round: nobody commanded anything new (seed 221: 35 ms after a panic).
+        if slowing || change.turned_round {
             return;
         }
         let latency = bounds::COMMAND_LATENCY_US + self.stalled(self.last_permitted, at);
