@@ -5,9 +5,9 @@
 //! the next marks a tick of 1 s before the packet.
 #![no_main]
 
-use base_core::time::Timestamp;
 use base_bluetooth::hci::{BdAddr, Command, Event as HciEvent, LinkKey};
 use base_bluetooth::{Bond, ClassicHost, Event, Packet, Params};
+use base_core::time::Timestamp;
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|input: &[u8]| {
@@ -40,7 +40,9 @@ fuzz_target!(|input: &[u8]| {
         } else {
             Event::Hci(packet)
         };
-        let mut packets = host.step(Timestamp::from_millis(now), event, &params).packets;
+        let mut packets = host
+            .step(Timestamp::from_millis(now), event, &params)
+            .packets;
         // The controller answers each command with a Command Status, as a real one
         // does, so that queued commands go out and are checked too.
         while let Some(packet) = packets.pop() {

@@ -8,7 +8,16 @@ use base_core::hid::{GamepadLayout, ReportMap, VidPid};
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|input: &[u8]| {
-    let [vid_lsb, vid_msb, pid_lsb, pid_msb, len_lsb, len_msb, rest @ ..] = input else {
+    let [
+        vid_lsb,
+        vid_msb,
+        pid_lsb,
+        pid_msb,
+        len_lsb,
+        len_msb,
+        rest @ ..,
+    ] = input
+    else {
         return;
     };
     let ids = VidPid::new(
