@@ -23,7 +23,7 @@ use base_core::update::partitions::SLOT_LEN;
 use base_core::update::session::{
     DIGEST_PARTS, SUB_BLOCK, WINDOW_LEN, is_older, window_count, window_crc, window_len,
 };
-use base_core::update::signature::{self, PublicKey, SignatureError, Trust};
+use base_core::update::signature::{self, PublicKey, Trust};
 use serde_json::json;
 use sha2::{Digest, Sha256};
 
@@ -491,29 +491,25 @@ fn untrusted_here(file: &ImageFile, running: &Running) -> Option<String> {
     if !running.signatures_required {
         return None;
     }
-    let error = match file.signed {
-        Signed::No => SignatureError::NotSigned,
-        Signed::Broken => SignatureError::BadSignature,
+    match file.signed {
+        Signed::No => Some(
+            "it takes only signed images: sign it with `basectl firmware sign --key KEY IN OUT`"
+                .into(),
+        ),
+        Signed::Broken => {
+            Some("its signature does not match the image: it was changed after signing".into())
+        }
         Signed::By { downgrade, .. } => {
             let floor = u32::from(running.security_version);
-            if file.security_version >= floor || downgrade {
-                return None;
-            }
-            SignatureError::SecurityDowngrade
+            (file.security_version < floor && !downgrade).then(|| {
+                format!(
+                    "its security version {} is below the running {}: only an image the owner \
+                     signed with --allow-security-downgrade goes below",
+                    file.security_version, running.security_version
+                )
+            })
         }
-    };
-    Some(match error {
-        SignatureError::NotSigned => {
-            "it takes only signed images: sign it with `basectl firmware sign --key KEY IN OUT`"
-                .into()
-        }
-        SignatureError::SecurityDowngrade => format!(
-            "its security version {} is below the running {}: only an image the owner signed \
-             with --allow-security-downgrade goes below",
-            file.security_version, running.security_version
-        ),
-        _ => "its signature does not match the image: it was changed after signing".into(),
-    })
+    }
 }
 
 pub fn update(
