@@ -1693,6 +1693,16 @@ impl Oracle {
     /// The controller stopped (reset, power cut, panic): nothing it knew survives.
     pub fn controller_down(&mut self, at: Us, panic: bool) {
         self.advance_to(at);
+        // A stop whose zero the controller had not sent yet when it went down: the
+        // drives run on their last order until their own communication timeout stops
+        // them, as for drives it cannot reach (seeds 227 and 356: the enable lapsed
+        // 2 ms before a reset).
+        if let Some(stop) = &mut self.stop
+            && at < stop.brakes_by
+        {
+            stop.zero_checked = false;
+            stop.brakes_by = stop.brakes_by.max(at + bounds::UNREACHABLE_US);
+        }
         self.controller = Controller::Down { since: at };
         self.reset_at = Some(at);
         self.boot_after_panic = panic;
